@@ -1,0 +1,10 @@
+"""vdtutorial: rebuild "Improving Reinforcement Learning Pre-Training with Variational Dropout"
+(Blau, Ott, Ramos, IROS 2018) piece by piece, on a laptop CPU.
+
+Pipeline: IK expert -> noisy demonstrations -> behavioural cloning with sparse variational dropout
+(or L2) -> pruning (log alpha > 3) -> TRPO fine-tuning. Importing the package registers the
+gymnasium environments ``vdtutorial/JacoReach-v0`` and ``vdtutorial/JacoGrasp-v0``.
+"""
+__version__ = "0.1.0"
+
+from vdtutorial import envs as _envs  # noqa: E402,F401  (registers the environment ids)
