@@ -7,6 +7,7 @@ the environment variable itself: it calls :func:`budget` with the full-scale val
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 QUICK: bool = os.environ.get("VDTUTORIAL_QUICK", "0").strip().lower() in {"1", "true", "yes"}
 
@@ -14,3 +15,8 @@ QUICK: bool = os.environ.get("VDTUTORIAL_QUICK", "0").strip().lower() in {"1", "
 def budget(full, quick):
     """Return ``quick`` when quick mode is on, else ``full`` (the paper's setting)."""
     return quick if QUICK else full
+
+
+#: Where shipped and generated artefacts live (demonstrations, checkpoints, result CSVs): the
+#: repository's ``data/`` folder, or the folder named by ``VDTUTORIAL_DATA``.
+DATA_DIR = Path(os.environ.get("VDTUTORIAL_DATA", Path(__file__).resolve().parent.parent / "data"))

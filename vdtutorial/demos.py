@@ -1,0 +1,188 @@
+"""Expert demonstrations: the rollouts of eqs. 5-8 and the data set D.
+
+Each trajectory starts from p0 (eq. 5: arm at home, cup uniform on the table), the arm executes the
+expert's action plus Gaussian noise of standard deviation Sigma radians per joint (eq. 6), the scene
+moves (eq. 7), and every visited state is paired with the *noiseless* expert action (eq. 8). The noise
+spreads the visited states around the expert's path, so the cloned policy sees how to come back when
+it drifts; the labels stay the expert's own decisions.
+
+A data set stores low-dimensional states (6 joint angles + cup position) and actions, not images:
+an RGBD observation is a deterministic function of the state (the camera is fixed), so
+:meth:`Demos.observations` re-renders it on demand. This keeps ``data/`` small (tens of kB per
+thousand samples instead of ~256 kB per 128x128 RGBD image).
+
+Files are zip archives of ``.npy`` arrays plus a JSON metadata record, written with fixed timestamps
+(same seed -> byte-identical file) and atomically (written aside, then renamed).
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pybullet
+from tqdm.auto import tqdm
+
+import vdtutorial
+from vdtutorial.envs import ENV_IDS
+from vdtutorial.expert import IKExpert
+from vdtutorial.settings import DATA_DIR
+
+FORMAT_VERSION = 1
+ARRAYS = ("joints", "cup", "actions", "episode", "t")
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
+class DemoFileError(ValueError):
+    """A demonstrations file is missing, unreadable or not the one that was asked for."""
+
+
+def demo_command(task: str, samples: int, noise: float, seed: int) -> str:
+    """The command line that (re)generates a data set."""
+    return f"python -m vdtutorial demos --task {task} --samples {samples} --noise {noise:g} --seed {seed}"
+
+
+def demo_path(task: str, samples: int, noise: float, seed: int = 0, root: Path | None = None) -> Path:
+    """Conventional file name of a data set under ``data/demos``."""
+    return Path(root or DATA_DIR) / "demos" / f"{task}_n{samples}_sigma{noise:g}_seed{seed}.npz"
+
+
+@dataclass
+class Demos:
+    """The data set D of eq. 8: states (joints, cup position), noiseless expert actions, and where each
+    sample comes from (episode index, time step). ``meta`` records how it was made."""
+
+    joints: np.ndarray
+    cup: np.ndarray
+    actions: np.ndarray
+    episode: np.ndarray
+    t: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    @property
+    def states(self) -> np.ndarray:
+        """State observations as the envs give them with ``obs_mode="state"``: joints then cup position."""
+        return np.concatenate([self.joints, self.cup], axis=1).astype(np.float32)
+
+    def observations(self, env: gym.Env, indices=None):
+        """Re-render the ``rgbd`` observations of the given samples in ``env`` (same task, ``obs_mode="rgbd"``).
+
+        Returns a dict of stacked arrays, as a batch of the env's observations."""
+        base = env.unwrapped
+        idx = np.arange(len(self)) if indices is None else np.asarray(indices)
+        obs = [base.observation_at(self.joints[i], self.cup[i, :2]) for i in idx]
+        return {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+
+    # -- files ---------------------------------------------------------------------------------------
+    def save(self, path) -> Path:
+        """Write atomically and reproducibly (fixed zip timestamps, sorted metadata)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+            for name in ARRAYS:
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.ascontiguousarray(getattr(self, name)), allow_pickle=False)
+                zf.writestr(zipfile.ZipInfo(f"{name}.npy", _ZIP_TIME), buf.getvalue(), zipfile.ZIP_DEFLATED)
+            zf.writestr(zipfile.ZipInfo("meta.json", _ZIP_TIME), json.dumps(self.meta, sort_keys=True, indent=1), zipfile.ZIP_DEFLATED)
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def load(cls, path, **expected) -> "Demos":
+        """Load a data set; ``expected`` metadata (e.g. ``task="reach", noise=0.5``) must match.
+
+        Raises :class:`DemoFileError` naming the file and the command that regenerates it when the
+        file is missing, corrupt, of another format version, or not what was expected."""
+        path = Path(path)
+        hint = _regenerate_hint(path, expected)
+        if not path.exists():
+            raise DemoFileError(f"demonstrations file {path} does not exist. {hint}")
+        try:
+            with zipfile.ZipFile(path) as zf:
+                meta = json.loads(zf.read("meta.json"))
+                arrays = {n: np.lib.format.read_array(io.BytesIO(zf.read(f"{n}.npy")), allow_pickle=False) for n in ARRAYS}
+        except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as exc:
+            raise DemoFileError(f"demonstrations file {path} is corrupt or not a demonstrations file ({exc}). {hint}") from exc
+        if meta.get("format_version") != FORMAT_VERSION:
+            raise DemoFileError(f"demonstrations file {path} has format version {meta.get('format_version')}, "
+                                f"this package reads version {FORMAT_VERSION}. {_regenerate_hint(path, meta)}")
+        for key, want in expected.items():
+            if meta.get(key) != want:
+                raise DemoFileError(f"demonstrations file {path} has {key}={meta.get(key)!r}, expected {want!r}. {hint}")
+        n = len(arrays["actions"])
+        if n != meta.get("samples") or any(len(a) != n for a in arrays.values()):
+            raise DemoFileError(f"demonstrations file {path} is inconsistent (array lengths vs samples={meta.get('samples')}). {hint}")
+        return cls(meta=meta, **arrays)
+
+
+def _regenerate_hint(path: Path, meta: dict) -> str:
+    keys = ("task", "samples", "noise", "seed")
+    if all(k in meta for k in keys):
+        return f"Regenerate it with: {demo_command(*(meta[k] for k in keys))} --out {path}"
+    return "Regenerate it with: python -m vdtutorial demos --task TASK --samples N --noise SIGMA --seed SEED --out " + str(path)
+
+
+def generate_demos(task: str = "reach", samples: int = 8000, noise: float = 0.5, seed: int = 0,
+                   progress: bool = True) -> Demos:
+    """Roll out the noisy expert (eqs. 5-7) until ``samples`` state-action pairs (eq. 8) are collected.
+
+    Parameters
+    ----------
+    task: ``"reach"`` or ``"grasp"``.
+    samples: size of D, in state-action pairs (the paper's 2000, 4000, 8000).
+    noise: Sigma, the standard deviation (radians, every joint) of the noise added to the executed
+        action (eq. 6); the stored label is the noiseless expert action (eq. 8).
+    seed: seeds the cup positions and the noise; same seed -> identical data set.
+    """
+    if task not in ENV_IDS:
+        raise ValueError(f"task must be one of {sorted(ENV_IDS)}, got {task!r}")
+    if int(samples) != samples or samples < 1:
+        raise ValueError(f"samples must be a positive integer, got {samples!r}")
+    if not np.isfinite(noise) or noise < 0:
+        raise ValueError(f"noise (Sigma) must be a finite standard deviation >= 0, got {noise!r}")
+    rng = np.random.default_rng(seed)
+    env = gym.make(ENV_IDS[task], obs_mode="state")
+    expert = IKExpert(env)
+    rows = {name: [] for name in ARRAYS}
+    episodes = successes = 0
+    bar = tqdm(total=samples, desc=f"{task} demos (Sigma={noise:g})", disable=not progress, unit="sample")
+    n = 0
+    try:
+        while n < samples:
+            env.reset(seed=int(rng.integers(2**31 - 1)))
+            expert.reset()
+            for t in range(10**6):
+                base = env.unwrapped
+                a_exp = expert.action()
+                rows["joints"].append(base.joints)
+                rows["cup"].append(base.cup_position)
+                rows["actions"].append(a_exp)
+                rows["episode"].append(episodes)
+                rows["t"].append(t)
+                n += 1
+                bar.update(1)
+                _, _, terminated, truncated, info = env.step(a_exp + rng.normal(0.0, noise, size=a_exp.shape))
+                if terminated or truncated or n >= samples:
+                    break
+            successes += bool(info["is_success"])
+            episodes += 1
+    finally:
+        bar.close()
+        env.close()
+    meta = {
+        "format_version": FORMAT_VERSION, "task": task, "samples": int(samples), "noise": float(noise), "seed": int(seed),
+        "episodes": episodes, "noisy_success_rate": successes / episodes, "env_id": ENV_IDS[task],
+        "image_size": env.unwrapped.scene.image_size, "vdtutorial": vdtutorial.__version__,
+        "gymnasium": gym.__version__, "pybullet": pybullet.getAPIVersion(), "command": demo_command(task, samples, noise, seed),
+    }
+    dtypes = {"joints": np.float32, "cup": np.float32, "actions": np.float32, "episode": np.int32, "t": np.int16}
+    return Demos(meta=meta, **{k: np.asarray(v, dtype=dtypes[k]) for k, v in rows.items()})

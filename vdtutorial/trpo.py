@@ -1,0 +1,613 @@
+r"""Trust Region Policy Optimization (Schulman et al., 2015), written out in one file.
+
+This is the reinforcement-learning stage of the paper: a policy pre-trained by behavioural cloning
+(with sparse variational dropout or L2) is fine-tuned with TRPO. The paper used rllab's TRPO with
+200 environment steps per iteration and a horizon of 25 steps; the defaults below follow that.
+
+One iteration, as pseudocode::
+
+    1. collect   run pi_old for `steps_per_iter` steps in the vector environment (one policy
+                 forward per vector step); episodes that end are reset in the same step; the
+                 trajectories still running when the batch is full are cut off there
+    2. advantage V(s, t) = linear baseline fitted on the previous batch;
+                 A = GAE(gamma, lambda) of the rewards against V, bootstrapped with V where a
+                 trajectory was cut off; then normalise A to mean 0, std 1
+    3. gradient  g = grad of the surrogate L(theta) = mean[ pi_theta(a|s) / pi_old(a|s) * A ]
+    4. direction s ~= F^-1 g by conjugate gradient, where F v is a Fisher-vector product: the
+                 Hessian of the mean KL(pi_old || pi_theta) times v, plus damping * v
+    5. step      beta = sqrt(2 delta / s^T F s), so the full step beta * s has a quadratic-model
+                 KL of exactly delta
+    6. search    try theta_old + beta s, then halve the step; accept the first one whose mean
+                 KL is <= delta AND whose surrogate improved; if none, keep theta_old
+    7. baseline  refit the linear baseline on this batch's discounted returns
+
+What is optimised is exactly ``[p for p in policy.parameters() if p.requires_grad]``. Frozen
+parameters (variational dropout's log sigma^2 in the RL stage) therefore never move, and a weight
+that the forward pass multiplies by a 0/1 pruning mask gets a gradient of exactly 0, a Fisher-vector
+product of exactly 0, and so a step of exactly 0: pruned weights stay pruned.
+
+Policy protocol (see ``vdtutorial.policy``): an ``nn.Module`` whose ``distribution(obs)`` returns a
+diagonal ``torch.distributions.Normal`` for a float32 tensor of shape (B, d) or a dict of such
+tensors; log-probabilities are summed over the last dimension. It must be a deterministic function
+of (obs, parameters): the KL at the old parameters must be 0.
+
+Reproducibility: every iteration is a pure function of (seed, iteration index, parameters and
+baseline at its start). At the start of an iteration the vector environment is reset with seeds
+derived from (seed, iteration) and the action noise comes from a ``torch.Generator`` seeded from the
+same pair. A checkpoint (policy, baseline, iteration index, log rows) therefore resumes a run
+exactly.
+
+Vector environments: gymnasium >= 1.0 autoresets a finished sub-environment either on the same step
+(its final observation and info go into ``info["final_obs"]`` / ``info["final_info"]``) or on the
+next step (which then ignores the action). We require ``AutoresetMode.SAME_STEP`` so that every
+step in the batch is a real transition; :func:`make_vec_env` builds such a vector environment.
+"""
+from __future__ import annotations
+
+import copy
+import csv
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+from typing import Callable
+
+import gymnasium
+import numpy as np
+import torch
+from torch import nn
+from torch.distributions import Normal, kl_divergence
+from tqdm.auto import tqdm
+
+from vdtutorial.settings import budget
+
+Obs = np.ndarray | dict[str, np.ndarray]
+TensorObs = torch.Tensor | dict[str, torch.Tensor]
+
+
+# ----------------------------------------------------------------------------------------------
+# Hyperparameters
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class TRPOConfig:
+    """TRPO hyperparameters; the defaults are the paper's (rllab's) setting.
+
+    steps_per_iter: environment steps per iteration, summed over the sub-environments of the
+        vector environment (must be a multiple of their number). The paper uses 200 with a
+        horizon of 25, i.e. 8 trajectories per batch. Larger batches give less noisy gradients
+        but fewer updates for the same budget.
+    gamma: discount factor of the returns. The paper's tasks have a 25-step horizon, so 0.99
+        barely discounts within an episode.
+    gae_lambda: GAE's lambda, trading bias (0: one-step TD with the baseline) against variance
+        (1: Monte-Carlo returns minus the baseline).
+    max_kl: delta, the trust-region radius: the largest mean KL(pi_old || pi_new) over the batch
+        that an accepted step may have. 0.01 is the value from the TRPO paper and rllab.
+    cg_iters: conjugate-gradient iterations used to approximate F^-1 g. 10 is enough to get a good
+        direction without ever building F (which has as many rows as the policy has parameters).
+    cg_damping: added to the Fisher matrix (F + damping * I) so that CG works on a well-conditioned
+        positive-definite matrix even when F is singular, e.g. along the directions of pruned
+        weights or with fewer samples than parameters.
+    backtrack_iters: how many step sizes the line search tries (full step, then halved each time)
+        before giving up and keeping the old parameters.
+    backtrack_coeff: the factor by which the line search shrinks the step each time.
+    baseline_reg: ridge coefficient of the linear baseline's least-squares fit (rllab's value);
+        it is multiplied by 10 (up to 5 times) if the solve is not finite.
+    """
+
+    steps_per_iter: int = 200
+    gamma: float = 0.99
+    gae_lambda: float = 0.97
+    max_kl: float = 0.01
+    cg_iters: int = 10
+    cg_damping: float = 0.1
+    backtrack_iters: int = 10
+    backtrack_coeff: float = 0.5
+    baseline_reg: float = 1e-5
+
+
+# ----------------------------------------------------------------------------------------------
+# The pieces of TRPO, as pure functions
+# ----------------------------------------------------------------------------------------------
+def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones: np.ndarray,
+        gamma: float, lam: float) -> np.ndarray:
+    """Generalised advantage estimates, one per step.
+
+    Arrays have shape (T, N) (time first; N parallel environments) or (T,). ``values[t]`` is the
+    baseline at the state in which the action at step t was taken, ``dones[t]`` is True when the
+    episode ended with step t (the next state then has value 0), and ``last_values`` is the
+    baseline at the state following the last step, used where the batch cut a trajectory off.
+
+        delta_t = r_t + gamma * V(s_{t+1}) * (1 - done_t) - V(s_t)
+        A_t     = delta_t + gamma * lam * (1 - done_t) * A_{t+1}
+
+    With ``lam=1``, ``A + values`` are the discounted returns (bootstrapped at the cut).
+    """
+    advantages = np.zeros_like(rewards, dtype=np.float64)
+    next_value, next_advantage = last_values, 0.0
+    for t in reversed(range(len(rewards))):
+        alive = 1.0 - dones[t]
+        delta = rewards[t] + gamma * next_value * alive - values[t]
+        next_advantage = delta + gamma * lam * alive * next_advantage
+        advantages[t] = next_advantage
+        next_value = values[t]
+    return advantages
+
+
+def flat_grad(y: torch.Tensor, params: list[nn.Parameter], create_graph: bool = False,
+              retain_graph: bool | None = None) -> torch.Tensor:
+    """Gradient of the scalar ``y`` with respect to ``params``, concatenated into one vector
+    (zeros for parameters that ``y`` does not depend on)."""
+    grads = torch.autograd.grad(y, params, create_graph=create_graph, retain_graph=retain_graph,
+                                allow_unused=True)
+    return torch.cat([(torch.zeros_like(p) if g is None else g).reshape(-1) for p, g in zip(params, grads)])
+
+
+def fisher_vector_product(kl_grad: torch.Tensor, params: list[nn.Parameter], v: torch.Tensor,
+                          damping: float) -> torch.Tensor:
+    """(F + damping * I) v without building F.
+
+    F is the Hessian of the mean KL(pi_old || pi_theta) at theta = theta_old, which equals the
+    Fisher information matrix of the policy. ``kl_grad`` is the gradient of the mean KL, computed
+    once with ``create_graph=True``; differentiating ``kl_grad . v`` once more gives F v (keeping
+    the graph of ``kl_grad``, which conjugate gradient differentiates again for the next v).
+    """
+    return flat_grad(kl_grad @ v, params, retain_graph=True) + damping * v
+
+
+def conjugate_gradient(Avp: Callable[[torch.Tensor], torch.Tensor], b: torch.Tensor, iters: int = 10,
+                       residual_tol: float = 1e-10) -> torch.Tensor:
+    """Approximately solve A x = b for a symmetric positive-definite A, given only v -> A v.
+
+    Starts at x = 0; each iteration moves along a search direction that is A-conjugate to all the
+    previous ones. Stops after ``iters`` iterations or when the squared residual is below
+    ``residual_tol``. In exact arithmetic it is exact after dim(b) iterations.
+    """
+    x = torch.zeros_like(b)
+    r = b.clone()  # residual b - A x
+    p = b.clone()  # search direction
+    r_dot_r = r @ r
+    for _ in range(iters):
+        if r_dot_r < residual_tol:
+            break
+        Ap = Avp(p)
+        alpha = r_dot_r / (p @ Ap)
+        x += alpha * p
+        r -= alpha * Ap
+        new_r_dot_r = r @ r
+        p = r + (new_r_dot_r / r_dot_r) * p
+        r_dot_r = new_r_dot_r
+    return x
+
+
+@torch.no_grad()
+def set_flat_params(params: list[nn.Parameter], flat: torch.Tensor) -> None:
+    """Copy the vector ``flat`` into ``params`` (in place, in order)."""
+    start = 0
+    for p in params:
+        p.copy_(flat[start:start + p.numel()].view_as(p))
+        start += p.numel()
+
+
+def line_search(params: list[nn.Parameter], full_step: torch.Tensor, surrogate: Callable[[], torch.Tensor],
+                mean_kl: Callable[[], torch.Tensor], max_kl: float, backtrack_iters: int = 10,
+                backtrack_coeff: float = 0.5) -> tuple[float | None, float, float]:
+    """Backtracking line search along ``full_step`` from the current parameters.
+
+    Tries the fractions 1, c, c^2, ... (c = ``backtrack_coeff``) of the full step and accepts the
+    first one whose mean KL(old || new) is at most ``max_kl`` and whose surrogate is larger than at
+    the start. Returns (accepted fraction, surrogate improvement, mean KL), leaving the parameters
+    at the accepted point; or (None, 0.0, 0.0) with the parameters restored when no step passes.
+    """
+    with torch.no_grad():
+        theta_old = torch.cat([p.reshape(-1) for p in params]).clone()
+        surrogate_old = surrogate().item()
+        for i in range(backtrack_iters):
+            fraction = backtrack_coeff ** i
+            set_flat_params(params, theta_old + fraction * full_step)
+            improvement, kl = surrogate().item() - surrogate_old, mean_kl().item()
+            if kl <= max_kl and improvement > 0:
+                return fraction, improvement, kl
+        set_flat_params(params, theta_old)
+    return None, 0.0, 0.0
+
+
+# ----------------------------------------------------------------------------------------------
+# Baseline
+# ----------------------------------------------------------------------------------------------
+def default_baseline_features(obs: Obs) -> np.ndarray:
+    """Low-dimensional baseline features of a batch of observations: the flattened observation,
+    or, for dict observations (image + joints), the ``"joints"`` entry."""
+    if isinstance(obs, dict):
+        if "joints" not in obs:
+            raise KeyError("dict observation without a 'joints' entry: pass baseline_features= to TRPO")
+        obs = obs["joints"]
+    return np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+
+
+class LinearFeatureBaseline:
+    """State-value estimate V(s, t) = w . phi(s, t), fitted by ridge regression (as in rllab).
+
+    phi = [f, f^2, t, t^2, t^3, 1] with f = features(s) clipped to [-10, 10] and t the time step
+    within the episode divided by 100. Why a linear baseline rather than a value network: with
+    200-sample batches a network would have little to learn from and would need its own optimiser
+    and hyperparameters, whereas a least-squares fit is closed-form, instant and has no state but
+    its weights; the time features capture how the remaining return shrinks towards the horizon;
+    and image policies still get a baseline from their low-dimensional features (the joints).
+    """
+
+    def __init__(self, reg: float = 1e-5):
+        self.reg = reg
+        self.weights: np.ndarray | None = None  # None until the first fit: V = 0
+
+    @staticmethod
+    def design(features: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
+        f = np.clip(features, -10.0, 10.0)
+        t = np.asarray(timesteps, dtype=np.float64).reshape(-1, 1) / 100.0
+        return np.concatenate([f, f ** 2, t, t ** 2, t ** 3, np.ones_like(t)], axis=1)
+
+    def predict(self, features: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
+        if self.weights is None:
+            return np.zeros(len(features))
+        return self.design(features, timesteps) @ self.weights
+
+    def fit(self, features: np.ndarray, timesteps: np.ndarray, returns: np.ndarray) -> None:
+        X = self.design(features, timesteps)
+        reg = self.reg
+        for _ in range(5):
+            weights = np.linalg.solve(X.T @ X + reg * np.eye(X.shape[1]), X.T @ returns)
+            if np.all(np.isfinite(weights)):
+                break
+            reg *= 10
+        self.weights = weights
+
+    def state_dict(self) -> dict:
+        return {"weights": None if self.weights is None else torch.from_numpy(self.weights)}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.weights = None if state["weights"] is None else state["weights"].numpy().copy()
+
+
+# ----------------------------------------------------------------------------------------------
+# Environment and data plumbing
+# ----------------------------------------------------------------------------------------------
+def make_vec_env(env: str | Callable[[], gymnasium.Env], num_envs: int = 1, asynchronous: bool = False,
+                 **make_kwargs) -> gymnasium.vector.VectorEnv:
+    """A vector environment with same-step autoreset, as TRPO expects.
+
+    ``env`` is a registered id (made with ``gymnasium.make(env, **make_kwargs)``) or a function
+    returning an environment. ``asynchronous=True`` runs each copy in its own process.
+    """
+    make = (lambda: gymnasium.make(env, **make_kwargs)) if isinstance(env, str) else env
+    vector_cls = gymnasium.vector.AsyncVectorEnv if asynchronous else gymnasium.vector.SyncVectorEnv
+    return vector_cls([make] * num_envs, autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+
+
+def _to_tensor(obs: Obs) -> TensorObs:
+    """numpy observation batch (array or dict of arrays) -> float32 tensor(s)."""
+    if isinstance(obs, dict):
+        return {key: torch.as_tensor(value, dtype=torch.float32) for key, value in obs.items()}
+    return torch.as_tensor(obs, dtype=torch.float32)
+
+
+def _stack(steps: list[Obs]) -> Obs:
+    """T observation batches of shape (N, ...) -> one batch of shape (T * N, ...), time-major."""
+    if isinstance(steps[0], dict):
+        return {key: _stack([s[key] for s in steps]) for key in steps[0]}
+    stacked = np.stack(steps)
+    return stacked.reshape(-1, *stacked.shape[2:])
+
+
+def _iteration_seeds(seed: int, iteration: int, num_envs: int) -> tuple[list[int], int]:
+    """Environment reset seeds and the action-noise seed of one iteration."""
+    state = np.random.SeedSequence([seed, iteration]).generate_state(num_envs + 1)
+    return [int(s) for s in state[:-1]], int(state[-1])
+
+
+@dataclass
+class Batch:
+    """One iteration's data, flattened over (time, environment) in time-major order."""
+
+    obs: TensorObs                # (n, ...) policy inputs
+    actions: torch.Tensor         # (n, action_dim) the sampled (unclipped) actions
+    advantages: torch.Tensor      # (n,) normalised GAE advantages
+    features: np.ndarray          # (n, k) baseline features of the observations
+    timesteps: np.ndarray         # (n,) step index within the episode
+    returns: np.ndarray           # (n,) discounted returns, the baseline's regression targets
+    episode_returns: list[float]  # undiscounted returns of the episodes that ended in the batch
+    successes: int                # how many of those ended with info["is_success"] True
+
+
+# ----------------------------------------------------------------------------------------------
+# The algorithm
+# ----------------------------------------------------------------------------------------------
+class TRPO:
+    """TRPO on a gymnasium vector environment.
+
+    policy: the nn.Module to train (see the module docstring for its protocol).
+    env: a vector environment with ``AutoresetMode.SAME_STEP`` (see :func:`make_vec_env`), or a
+        zero-argument function that builds one.
+    config: hyperparameters, :class:`TRPOConfig`.
+    seed: the run's seed; with the parameters it determines every iteration.
+    baseline_features: maps a batch of observations (array or dict of arrays, batch first) to a
+        float array (batch, k) of low-dimensional features for the linear baseline; by default
+        :func:`default_baseline_features`.
+    """
+
+    def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
+                 config: TRPOConfig | None = None, seed: int = 0,
+                 baseline_features: Callable[[Obs], np.ndarray] | None = None):
+        self.policy = policy
+        self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
+        self.config = config or TRPOConfig()
+        self.seed = seed
+        self.baseline_features = baseline_features or default_baseline_features
+        self.baseline = LinearFeatureBaseline(self.config.baseline_reg)
+        self.params = [p for p in policy.parameters() if p.requires_grad]
+        self.iteration_index = 0
+        self.rows: list[dict] = []
+
+        mode = self.env.metadata.get("autoreset_mode")
+        if mode != gymnasium.vector.AutoresetMode.SAME_STEP:
+            raise ValueError(f"TRPO needs a vector env with autoreset_mode=AutoresetMode.SAME_STEP, got {mode}: "
+                             "with NEXT_STEP the step after an episode end is a reset, not a transition "
+                             "(use vdtutorial.trpo.make_vec_env)")
+        if self.config.steps_per_iter % self.env.num_envs:
+            raise ValueError(f"steps_per_iter={self.config.steps_per_iter} is not a multiple of "
+                             f"num_envs={self.env.num_envs}")
+        space = self.env.single_action_space
+        self.action_low, self.action_high = space.low, space.high
+
+    # -- 1. collect, 2. advantages ----------------------------------------------------------------
+    def collect(self) -> Batch:
+        """Run the current policy for one batch and compute its advantages (steps 1-2)."""
+        cfg, n = self.config, self.env.num_envs
+        horizon = cfg.steps_per_iter // n
+        env_seeds, noise_seed = _iteration_seeds(self.seed, self.iteration_index, n)
+        generator = torch.Generator().manual_seed(noise_seed)
+
+        obs, _ = self.env.reset(seed=env_seeds)
+        t = np.zeros(n, dtype=np.int64)        # step within the current episode, per env
+        running_return = np.zeros(n)
+        observations, actions, timesteps = [], [], []
+        rewards, dones = np.zeros((horizon, n)), np.zeros((horizon, n))
+        episode_returns, successes = [], 0
+
+        for k in range(horizon):
+            with torch.no_grad():  # one policy forward for all sub-environments
+                dist = self.policy.distribution(_to_tensor(obs))
+                action = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=generator,
+                                                              dtype=dist.mean.dtype)
+            next_obs, reward, terminated, truncated, info = self.env.step(
+                np.clip(action.numpy(), self.action_low, self.action_high))
+            done = terminated | truncated
+            observations.append(obs)
+            actions.append(action)
+            timesteps.append(t)
+            rewards[k], dones[k] = reward, done
+            running_return += reward
+            if done.any():
+                final = info["final_info"]
+                if "is_success" in final:
+                    successes += int(np.sum(final["is_success"] & final["_is_success"] & done))
+                episode_returns.extend(running_return[done].tolist())
+                running_return[done] = 0.0
+            t = np.where(done, 0, t + 1)
+            obs = next_obs  # after an episode end this is already the next episode's first obs
+
+        # A time-limit end counts as the end of the (finite-horizon) task: value 0 after it, as in
+        # rllab; trajectories cut off by the batch end are bootstrapped with the baseline.
+        flat_obs = _stack(observations)
+        features = self.baseline_features(flat_obs)
+        flat_t = np.concatenate(timesteps)
+        values = self.baseline.predict(features, flat_t).reshape(horizon, n)
+        last_values = self.baseline.predict(self.baseline_features(obs), t)
+        advantages = gae(rewards, values, last_values, dones, cfg.gamma, cfg.gae_lambda).reshape(-1)
+        returns = (gae(rewards, values, last_values, dones, cfg.gamma, 1.0) + values).reshape(-1)
+        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        return Batch(obs=_to_tensor(flat_obs), actions=torch.cat(actions),
+                     advantages=torch.as_tensor(advantages, dtype=torch.float32), features=features,
+                     timesteps=flat_t, returns=returns.reshape(-1), episode_returns=episode_returns,
+                     successes=successes)
+
+    # -- 3-7. the update --------------------------------------------------------------------------
+    def update(self, batch: Batch) -> dict:
+        """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7)."""
+        cfg = self.config
+        with torch.no_grad():
+            old = self.policy.distribution(batch.obs)
+            old = Normal(old.mean.clone(), old.stddev.clone())
+            old_log_prob = old.log_prob(batch.actions).sum(-1)
+
+        def surrogate() -> torch.Tensor:
+            log_prob = self.policy.distribution(batch.obs).log_prob(batch.actions).sum(-1)
+            return (torch.exp(log_prob - old_log_prob) * batch.advantages).mean()
+
+        def mean_kl() -> torch.Tensor:
+            return kl_divergence(old, self.policy.distribution(batch.obs)).sum(-1).mean()
+
+        g = flat_grad(surrogate(), self.params)
+        kl_grad = flat_grad(mean_kl(), self.params, create_graph=True)
+
+        def Fvp(v: torch.Tensor) -> torch.Tensor:
+            return fisher_vector_product(kl_grad, self.params, v, cfg.cg_damping)
+
+        direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
+        sFs = (direction @ Fvp(direction)).item()
+        # Scale so that the quadratic model of the KL, 0.5 * step^T F step, equals max_kl. A zero
+        # gradient gives a zero step, which the line search rejects (no improvement).
+        full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction if sFs > 0 else torch.zeros_like(direction)
+        fraction, improvement, kl = line_search(self.params, full_step.detach(), surrogate, mean_kl, cfg.max_kl,
+                                                cfg.backtrack_iters, cfg.backtrack_coeff)
+        self.baseline.fit(batch.features, batch.timesteps, batch.returns)
+        return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(),
+                "surrogate_improvement": improvement,
+                "line_search": "rejected" if fraction is None else fraction}
+
+    # -- one iteration, logging, the main loop ----------------------------------------------------
+    def iteration(self) -> dict:
+        """Collect, update, and return this iteration's log row."""
+        start = time.perf_counter()
+        batch = self.collect()
+        stats = self.update(batch)
+        previous_time = self.rows[-1]["wall_time"] if self.rows else 0.0
+        row = {"iteration": self.iteration_index,
+               "env_steps": (self.iteration_index + 1) * self.config.steps_per_iter,
+               "successes": batch.successes,
+               "episodes": len(batch.episode_returns),
+               "mean_return": float(np.mean(batch.episode_returns)) if batch.episode_returns else math.nan,
+               **stats,
+               "wall_time": previous_time + time.perf_counter() - start}
+        self.rows.append(row)
+        self.iteration_index += 1
+        return row
+
+    def run(self, total_steps: int, csv_path: str | os.PathLike | None = None,
+            checkpoint_path: str | os.PathLike | None = None, progress: bool = True) -> list[dict]:
+        """Iterate until ``total_steps`` environment steps (counting iterations already done, e.g.
+        before a checkpoint) have been collected. After every iteration the log row is appended to
+        ``csv_path`` and a checkpoint is written to ``checkpoint_path`` (when given). Returns all
+        log rows so far."""
+        total_iters = math.ceil(total_steps / self.config.steps_per_iter)
+        with tqdm(total=total_iters, initial=self.iteration_index, disable=not progress, desc="TRPO") as bar:
+            while self.iteration_index < total_iters:
+                row = self.iteration()
+                if csv_path is not None:
+                    _append_csv(csv_path, row)
+                if checkpoint_path is not None:
+                    self.save(checkpoint_path)
+                bar.update()
+                bar.set_postfix(mean_return=f"{row['mean_return']:.2f}", successes=row["successes"])
+        return self.rows
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> None:
+        """Write policy, baseline, iteration index and log rows (loadable with weights_only=True)."""
+        state = {"policy": self.policy.state_dict(), "baseline": self.baseline.state_dict(),
+                 "iteration": self.iteration_index, "rows": copy.deepcopy(self.rows),
+                 "seed": self.seed, "config": asdict(self.config)}
+        tmp = f"{os.fspath(path)}.tmp"
+        torch.save(state, tmp)
+        os.replace(tmp, path)  # a crash mid-write never leaves a half-written checkpoint
+
+    def load(self, path: str | os.PathLike) -> None:
+        """Restore a checkpoint written by :meth:`save` by a run with the same seed and config."""
+        state = torch.load(path, weights_only=True)
+        if state["seed"] != self.seed or state["config"] != asdict(self.config):
+            raise ValueError("checkpoint was written with a different seed or config; resuming it would "
+                             "not continue the same run")
+        self.policy.load_state_dict(state["policy"])
+        self.baseline.load_state_dict(state["baseline"])
+        self.iteration_index = state["iteration"]
+        self.rows = state["rows"]
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def _append_csv(path: str | os.PathLike, row: dict) -> None:
+    new_file = not os.path.exists(path) or os.path.getsize(path) == 0
+    with open(path, "a", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(row))
+        if new_file:
+            writer.writeheader()
+        writer.writerow(row)
+
+
+# ----------------------------------------------------------------------------------------------
+# Validation on a standard task: gymnasium's Pendulum-v1, against sb3-contrib's TRPO
+# ----------------------------------------------------------------------------------------------
+class _MLPGaussianPolicy(nn.Module):
+    """Minimal Gaussian MLP policy for the benchmark: tanh hidden layers, state-independent std."""
+
+    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...] = (64, 64)):
+        super().__init__()
+        layers, width = [], obs_dim
+        for h in hidden:
+            layers += [nn.Linear(width, h), nn.Tanh()]
+            width = h
+        self.mean = nn.Sequential(*layers, nn.Linear(width, action_dim))
+        self.log_std = nn.Parameter(torch.zeros(action_dim))
+
+    def distribution(self, obs: torch.Tensor) -> Normal:
+        mean = self.mean(obs)
+        return Normal(mean, self.log_std.exp().expand_as(mean))
+
+
+# Pendulum-specific settings, shared by both implementations. Pendulum episodes last 200 steps, so
+# a batch holds 2048 steps (~10 episodes) rather than the paper's 200; its reward is dense and
+# informative only over a few seconds, hence gamma 0.9 (as in the RL zoo's tuned Pendulum setting).
+PENDULUM_CONFIG = TRPOConfig(steps_per_iter=2048, gamma=0.9, gae_lambda=0.95, max_kl=0.01)
+PENDULUM_NUM_ENVS = 8
+
+
+def _final_return(ends: np.ndarray, returns: np.ndarray, total_steps: int) -> float:
+    """Mean return of the episodes that ended in the last 10% of the environment steps."""
+    return float(np.mean(returns[ends > 0.9 * total_steps]))
+
+
+def _ours_pendulum(seed: int, total_steps: int) -> tuple[float, float]:
+    torch.manual_seed(seed)
+    env = make_vec_env("Pendulum-v1", PENDULUM_NUM_ENVS)
+    policy = _MLPGaussianPolicy(env.single_observation_space.shape[0], env.single_action_space.shape[0])
+    start = time.perf_counter()
+    algo = TRPO(policy, env, PENDULUM_CONFIG, seed=seed)
+    rows = algo.run(total_steps, progress=False)
+    seconds = time.perf_counter() - start
+    algo.close()
+    late = [r for r in rows if r["env_steps"] > 0.9 * total_steps and r["episodes"]]
+    ends = np.array([r["env_steps"] for r in late], dtype=float)
+    mean_returns = np.array([r["mean_return"] for r in late])
+    weights = np.array([r["episodes"] for r in late])
+    return float(np.sum(mean_returns * weights) / np.sum(weights)) if len(ends) else math.nan, seconds
+
+
+def _sb3_pendulum(seed: int, total_steps: int) -> tuple[float, float]:
+    from sb3_contrib import TRPO as SB3TRPO
+    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
+
+    cfg, n = PENDULUM_CONFIG, PENDULUM_NUM_ENVS
+    env = sb3_make_vec_env("Pendulum-v1", n_envs=n, seed=seed)
+    model = SB3TRPO("MlpPolicy", env, n_steps=cfg.steps_per_iter // n, batch_size=cfg.steps_per_iter,
+                    gamma=cfg.gamma, gae_lambda=cfg.gae_lambda, target_kl=cfg.max_kl, cg_max_steps=cfg.cg_iters,
+                    cg_damping=cfg.cg_damping, line_search_max_iter=cfg.backtrack_iters,
+                    line_search_shrinking_factor=cfg.backtrack_coeff, seed=seed, device="cpu", verbose=0)
+    start = time.perf_counter()
+    model.learn(total_steps)
+    seconds = time.perf_counter() - start
+    # All Pendulum episodes last 200 steps and the sub-environments step in lock-step, so the
+    # k-th episode of every sub-environment ends at global step 200 * (k + 1) * n.
+    per_env = env.env_method("get_episode_rewards")
+    ends = np.concatenate([200 * n * np.arange(1, len(r) + 1) for r in per_env])
+    returns = np.concatenate([np.asarray(r, dtype=float) for r in per_env])
+    env.close()
+    return _final_return(ends, returns, total_steps), seconds
+
+
+def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int | None = None,
+                        with_sb3: bool = True) -> dict[str, dict[str, list[float]]]:
+    """Train our TRPO (and, if installed, sb3-contrib's) on Pendulum-v1 with the same budget and
+    hyperparameters, one run per seed. Returns ``{"ours": {"final_return": [...], "seconds":
+    [...]}, "sb3_contrib": {...}}``, where final_return is the mean return of the episodes that
+    ended in the last 10% of the steps, and prints a summary. Defaults: 3 seeds x 1e5 steps."""
+    seeds = seeds if seeds is not None else budget((0, 1, 2), (0,))
+    total_steps = total_steps if total_steps is not None else budget(100_000, 4_096)
+    runners = {"ours": _ours_pendulum}
+    if with_sb3:
+        try:
+            import sb3_contrib  # noqa: F401
+            runners["sb3_contrib"] = _sb3_pendulum
+        except ImportError:
+            print("sb3-contrib is not installed: benchmarking our TRPO only")
+    results = {}
+    for name, runner in runners.items():
+        runs = [runner(seed, total_steps) for seed in seeds]
+        results[name] = {"final_return": [r for r, _ in runs], "seconds": [s for _, s in runs]}
+        final, seconds = np.array(results[name]["final_return"]), np.array(results[name]["seconds"])
+        print(f"{name:12s} final return {final.mean():8.1f} +- {final.std():6.1f}   "
+              f"wall time {seconds.mean():6.1f} s/seed   (seeds {list(seeds)}, {total_steps} steps)")
+    return results
+
+
+if __name__ == "__main__":
+    torch.set_num_threads(1)
+    bench_trpo_pendulum()

@@ -1,0 +1,491 @@
+"""Look at the simulation from a notebook: a 3-D meshcat view of pybullet bodies, and camera frames.
+
+Two kinds of pictures matter in this tutorial. The 3-D scene (arm, table, cup, the IK solution set
+drawn as ghost arms, a rollout played back) explains *what the policy does*; the camera frames explain
+*what the policy sees*. Both have to show up inside a notebook that may run on a remote JupyterHub or
+headless under ``pytest --nbmake`` in CI, where no browser can reach a port on the kernel's machine.
+
+meshcat normally runs a tornado/ZMQ server in a subprocess and the browser talks to it over a
+websocket. Measured with meshcat 0.3.2 that is fragile here: ``Visualizer.close()`` raises
+``AttributeError`` (its window has no ``close``) and once the server process is gone every further
+call blocks forever on the ZMQ reply. So by default :class:`Recorder` never starts a server. It hands
+``meshcat.Visualizer`` a window object whose ``send`` stores each command in an in-memory
+``SceneTree``, exactly the bookkeeping the meshcat server does, and :meth:`Recorder.html` replays that
+tree into one self-contained page with the viewer's JavaScript inlined. The page needs no network,
+so it renders in an ``<iframe srcdoc=...>`` anywhere and can be saved next to a notebook.
+
+Mirroring is generic: it works from pybullet body ids and ``getVisualShapeData`` alone and never
+imports the environment modules, so the same code draws the arm, the table and the cup. The module
+only *reads* the simulation; the one place where the state moves is :func:`record_rollout`, and there
+it is the caller's ``set_state`` that moves it.
+
+Conventions checked numerically against pybullet 3.2.7 (see ``tests/test_viz.py``):
+
+* ``getVisualShapeData`` dimensions are the *full* box extents (twice ``halfExtents``);
+  ``(length, radius, 0)`` for cylinders and capsules, where a capsule's ``length`` is its cylindrical
+  part only (the half-spheres add ``radius`` at each end); ``(radius, 0, 0)`` for spheres; the mesh
+  scale for meshes.
+* The local visual frame is relative to the URDF link frame, for the base too. Link frames are
+  ``getLinkState(...)[4:6]``; ``[0:2]`` is the centre of mass. ``getBasePositionAndOrientation``
+  returns the base's *inertial* frame, so the base link frame is that pose times the inverse of the
+  local inertial frame from ``getDynamicsInfo(body, -1)[3:5]``.
+"""
+from __future__ import annotations
+
+import base64
+import functools
+import html
+import json
+import warnings
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import pybullet as p
+import umsgpack
+
+with warnings.catch_warnings():
+    # meshcat's server module imports the deprecated zmq.eventloop.ioloop at import time.
+    warnings.filterwarnings("ignore", message=".*zmq.eventloop.ioloop.*", category=DeprecationWarning)
+    import meshcat
+    import meshcat.animation
+    import meshcat.geometry as mg
+    from meshcat.servers.tree import SceneTree, find_node, walk
+    from meshcat.servers.zmqserver import VIEWER_ROOT
+    from meshcat.visualizer import ViewerWindow
+
+__all__ = [
+    "Recorder",
+    "mirror_bodies",
+    "update_poses",
+    "add_ghost",
+    "record_rollout",
+    "show_rgbd",
+    "frames_animation",
+]
+
+#: Side length (m) of the square drawn for a ``GEOM_PLANE``, which pybullet reports without a size.
+PLANE_SIZE = 4.0
+#: Ghost colour: light blue, mostly transparent so the real arm stays readable behind the ghosts.
+GHOST_RGBA = (0.25, 0.6, 1.0, 0.3)
+
+# three.js cylinders run along +Y, URDF/pybullet cylinders and capsules along +Z: +90 deg about X
+# maps Y onto Z.
+_Y_TO_Z = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+_MESH_LOADERS = {
+    ".obj": mg.ObjMeshGeometry.from_file,
+    ".stl": mg.StlMeshGeometry.from_file,
+    ".dae": mg.DaeMeshGeometry.from_file,
+}
+
+
+# --------------------------------------------------------------------------------------------------
+# Server-free meshcat
+# --------------------------------------------------------------------------------------------------
+class _SceneTreeWindow:
+    """The part of a meshcat window that ``Visualizer`` uses: ``send(command)``.
+
+    Each command is packed with msgpack, as it would travel to the server, and stored in a
+    ``SceneTree`` with the server's rules (a new object resets the node's properties, ``delete``
+    drops a subtree). With ``forward`` set, the command is also passed on to a live viewer window.
+    """
+
+    def __init__(self, forward: ViewerWindow | None = None):
+        self.tree = SceneTree()
+        self.forward = forward
+
+    def send(self, command) -> None:
+        data = command.lower()
+        path = [part for part in data["path"].split("/") if part]
+        kind = data["type"]
+        if kind == "delete":
+            if path:
+                find_node(self.tree, path[:-1]).pop(path[-1], None)
+            else:
+                self.tree = SceneTree()
+        else:
+            node = find_node(self.tree, path)
+            packed = umsgpack.packb(data)
+            if kind == "set_object":
+                node.object = packed
+                node.properties = []
+            elif kind == "set_transform":
+                node.transform = packed
+            elif kind == "set_property":
+                node.properties.append(packed)
+            elif kind == "set_animation":
+                node.animation = packed
+            else:
+                raise ValueError(f"the in-memory meshcat window cannot handle {kind!r}")
+        if self.forward is not None:
+            self.forward.send(command)
+
+
+@functools.lru_cache(maxsize=1)
+def _viewer_js() -> str:
+    """The meshcat viewer bundle (three.js included, ~0.85 MB), read once per process."""
+    source = (Path(VIEWER_ROOT) / "main.min.js").read_text(encoding="utf-8")
+    # A literal "</script" would end the inline <script> element early.
+    return source.replace("</script", "<\\/script")
+
+
+_PAGE = """<!DOCTYPE html>
+<html>
+<head><meta charset="utf-8"><title>vdtutorial scene</title>
+<style>html, body {{ margin: 0; height: 100%; overflow: hidden; }} #scene {{ width: 100vw; height: 100vh; }}</style>
+</head>
+<body>
+<div id="scene"></div>
+<script>{viewer_js}</script>
+<script>
+// Replay the recorded meshcat commands in order. They are decoded synchronously (not through
+// fetch() of data: URLs) so that objects, transforms and the animation arrive in recording order.
+const viewer = new MeshCat.Viewer(document.getElementById("scene"));
+for (const encoded of {commands}) {{
+  const raw = atob(encoded);
+  const bytes = new Uint8Array(raw.length);
+  for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
+  viewer.handle_command_bytearray(bytes);
+}}
+</script>
+</body>
+</html>
+"""
+
+
+class Recorder:
+    """A meshcat scene kept in memory and shown as a self-contained HTML page.
+
+    ``recorder.vis`` is an ordinary ``meshcat.Visualizer`` (``vis["a/b"].set_object(...)`` etc.);
+    every command is recorded instead of being sent to a server. :meth:`show` (or just ending a
+    notebook cell with the recorder) draws the scene inline; :meth:`save` writes the page to disk.
+    The viewer's own nodes can be changed as usual, e.g. ``vis["/Grid"].set_property("visible", False)``.
+
+    ``live=True`` additionally starts meshcat's usual server subprocess and forwards every command to
+    it, for an interactive view that follows the simulation (:attr:`url`). Use it only where the
+    browser can reach the kernel's ports. meshcat's ``Visualizer.close()`` is broken in 0.3.2
+    (``AttributeError``), and after the server dies the next command blocks forever; call
+    :meth:`close` here instead, which stops the server and keeps recording in memory.
+    """
+
+    def __init__(self, live: bool = False):
+        forward = ViewerWindow(zmq_url=None, start_server=True, server_args=[]) if live else None
+        self._window = _SceneTreeWindow(forward)
+        self.vis = meshcat.Visualizer(window=self._window)
+
+    @property
+    def tree(self) -> SceneTree:
+        """The recorded scene: meshcat's ``SceneTree`` of msgpack-packed commands."""
+        return self._window.tree
+
+    @property
+    def url(self) -> str:
+        """Address of the live viewer (only with ``live=True``)."""
+        if self._window.forward is None:
+            raise RuntimeError("this Recorder has no live server; create it with live=True")
+        return self._window.forward.web_url
+
+    def close(self) -> None:
+        """Stop the live server subprocess (if any); recording and :meth:`html` keep working."""
+        forward, self._window.forward = self._window.forward, None
+        if forward is not None:
+            forward.server_proc.kill()
+            forward.server_proc.wait()
+
+    def html(self) -> str:
+        """The standalone page: viewer JavaScript plus every recorded command, no network access."""
+        commands = []
+        for node in walk(self.tree):
+            for packed in (node.object, *node.properties, node.transform, node.animation):
+                if packed is not None:
+                    commands.append(base64.b64encode(packed).decode("ascii"))
+        return _PAGE.format(viewer_js=_viewer_js(), commands=json.dumps(commands))
+
+    def _iframe(self, height: int) -> str:
+        # srcdoc carries the whole page, so Jupyter needs no server or file to display it.
+        return (
+            f'<iframe srcdoc="{html.escape(self.html(), quote=True)}" '
+            f'style="width: 100%; height: {int(height)}px; border: none;"></iframe>'
+        )
+
+    def show(self, height: int = 400):
+        """An IPython display object drawing the scene inline (an ``<iframe srcdoc=...>``)."""
+        from IPython.display import HTML
+
+        return HTML(self._iframe(height))
+
+    def _repr_html_(self) -> str:
+        return self._iframe(400)
+
+    def save(self, path: str | Path) -> Path:
+        """Write :meth:`html` to ``path`` and return it; the file opens in any browser, offline."""
+        path = Path(path)
+        path.write_text(self.html(), encoding="utf-8")
+        return path
+
+
+def _visualizer(target) -> Any:
+    """Accept a :class:`Recorder` wherever a meshcat visualizer is expected."""
+    return target.vis if isinstance(target, Recorder) else target
+
+
+# --------------------------------------------------------------------------------------------------
+# Mirroring pybullet bodies
+# --------------------------------------------------------------------------------------------------
+def _pose_matrix(position, quaternion) -> np.ndarray:
+    """4x4 homogeneous transform from a pybullet position and (x, y, z, w) quaternion."""
+    matrix = np.eye(4)
+    matrix[:3, :3] = np.reshape(p.getMatrixFromQuaternion(quaternion), (3, 3))
+    matrix[:3, 3] = position
+    return matrix
+
+
+def _link_frames(client_id: int, body: int) -> dict[int, np.ndarray]:
+    """World poses of the URDF link frames of ``body``, keyed by link index (-1 is the base).
+
+    Visual frames hang off these frames, not off the centres of mass. pybullet keeps the base at its
+    inertial frame, so the base link frame is recovered through the local inertial frame.
+    """
+    position, orientation = p.getBasePositionAndOrientation(body, physicsClientId=client_id)
+    inertial_position, inertial_orientation = p.getDynamicsInfo(body, -1, physicsClientId=client_id)[3:5]
+    frames = {-1: _pose_matrix(position, orientation) @ np.linalg.inv(
+        _pose_matrix(inertial_position, inertial_orientation))}
+    n_links = p.getNumJoints(body, physicsClientId=client_id)
+    if n_links:
+        # computeForwardKinematics: frames follow resetJointState without a stepSimulation.
+        states = p.getLinkStates(body, list(range(n_links)), computeForwardKinematics=True,
+                                 physicsClientId=client_id)
+        for link, state in enumerate(states):
+            frames[link] = _pose_matrix(state[4], state[5])
+    return frames
+
+
+def _link_names(client_id: int, body: int) -> dict[int, str]:
+    """meshcat node names for the links: the URDF names, made path-safe and unique."""
+    raw = {-1: p.getBodyInfo(body, physicsClientId=client_id)[0]}
+    for link in range(p.getNumJoints(body, physicsClientId=client_id)):
+        raw[link] = p.getJointInfo(body, link, physicsClientId=client_id)[12]
+    names: dict[int, str] = {}
+    for link, name in raw.items():
+        name = name.decode("utf-8").replace("/", "_")
+        if not name or name in names.values():
+            name = "base" if link == -1 else f"link{link}"
+        names[link] = name
+    return names
+
+
+def _material(rgba) -> mg.MeshPhongMaterial:
+    """A meshcat material from a pybullet rgba; alpha below 1 makes it transparent."""
+    red, green, blue = (int(round(255 * float(np.clip(c, 0.0, 1.0)))) for c in rgba[:3])
+    return mg.MeshPhongMaterial(color=(red << 16) | (green << 8) | blue, opacity=float(rgba[3]))
+
+
+def _set_shape(node, geom_type: int, dims, mesh_file: str, material) -> None:
+    """Draw one pybullet visual shape under ``node``, whose frame is the shape's visual frame.
+
+    Shape-specific corrections (cylinder axis, capsule caps, mesh scale) live in child nodes with
+    fixed transforms, so the animated link nodes above only ever carry rigid link poses.
+    """
+    if geom_type == p.GEOM_BOX:
+        node["box"].set_object(mg.Box(list(dims[:3])), material)
+    elif geom_type == p.GEOM_SPHERE:
+        node["sphere"].set_object(mg.Sphere(dims[0]), material)
+    elif geom_type in (p.GEOM_CYLINDER, p.GEOM_CAPSULE):
+        length, radius = dims[0], dims[1]
+        node["cylinder"].set_object(mg.Cylinder(length, radius), material)
+        node["cylinder"].set_transform(_Y_TO_Z)
+        if geom_type == p.GEOM_CAPSULE:  # meshcat has no capsule: add the two half-sphere ends
+            for cap, z in (("cap_top", 0.5 * length), ("cap_bottom", -0.5 * length)):
+                node[cap].set_object(mg.Sphere(radius), material)
+                node[cap].set_transform(_pose_matrix((0.0, 0.0, z), (0.0, 0.0, 0.0, 1.0)))
+    elif geom_type == p.GEOM_MESH:
+        loader = _MESH_LOADERS.get(Path(mesh_file).suffix.lower())
+        if loader is None or not Path(mesh_file).is_file():
+            warnings.warn(f"skipping a mesh visual meshcat cannot load: {mesh_file or '(no file)'!r}",
+                          stacklevel=3)
+            return
+        node["mesh"].set_object(loader(mesh_file), material)
+        node["mesh"].set_transform(np.diag([*dims[:3], 1.0]))  # pybullet reports the mesh scale
+    elif geom_type == p.GEOM_PLANE:
+        # An infinite plane through the visual frame with normal +z: draw a thin square whose top
+        # face lies in the plane.
+        thickness = 1e-3
+        node["plane"].set_object(mg.Box([PLANE_SIZE, PLANE_SIZE, thickness]), material)
+        node["plane"].set_transform(_pose_matrix((0.0, 0.0, -0.5 * thickness), (0.0, 0.0, 0.0, 1.0)))
+    else:
+        warnings.warn(f"skipping a visual of unknown pybullet geometry type {geom_type}", stacklevel=3)
+
+
+def _mirror_body(node, client_id: int, body: int, rgba=None) -> None:
+    """Create meshcat geometry for every visual of ``body`` under ``node`` (replacing old content).
+
+    Layout: ``node/<link name>`` carries the link's world pose, ``node/<link name>/visual<k>`` the
+    k-th visual's local frame within that link. ``rgba`` overrides the colours (ghosts).
+    """
+    node.delete()
+    names = _link_names(client_id, body)
+    counts: dict[int, int] = {}
+    for shape in p.getVisualShapeData(body, physicsClientId=client_id):
+        link, geom_type, dims, mesh_file, position, orientation, colour = shape[1:8]
+        k = counts[link] = counts.get(link, -1) + 1
+        visual = node[names[link]][f"visual{k}"]
+        visual.set_transform(_pose_matrix(position, orientation))
+        _set_shape(visual, geom_type, dims, mesh_file.decode("utf-8"), _material(rgba or colour))
+
+
+def _scene_poses(client_id: int, bodies: Mapping[str, int]) -> dict[tuple[str, str], np.ndarray]:
+    """World pose of every link that has a visual, keyed by (body name, link name)."""
+    poses = {}
+    for name, body in bodies.items():
+        frames = _link_frames(client_id, body)
+        link_names = _link_names(client_id, body)
+        for link in sorted({shape[1] for shape in p.getVisualShapeData(body, physicsClientId=client_id)}):
+            poses[(name, link_names[link])] = frames[link]
+    return poses
+
+
+def update_poses(vis, client_id: int, bodies: Mapping[str, int]) -> None:
+    """Move the mirrored links to the bodies' current poses in the simulation.
+
+    ``vis`` is a :class:`Recorder`, a meshcat visualizer, or an animation frame
+    (``animation.at_frame(vis, i)``), which has the same ``[path].set_transform`` interface.
+    """
+    vis = _visualizer(vis)
+    for (body_name, link_name), pose in _scene_poses(client_id, bodies).items():
+        vis[body_name][link_name].set_transform(pose)
+
+
+def mirror_bodies(vis, client_id: int, bodies: Mapping[str, int]) -> None:
+    """Draw pybullet bodies in meshcat at their current poses, one node per name in ``bodies``.
+
+    Geometry is built from ``getVisualShapeData`` (boxes, spheres, cylinders, capsules, planes,
+    .obj/.stl/.dae meshes; other meshes are skipped with a warning), so it works for any body: a
+    URDF robot or a ``createMultiBody`` table or cup. Call it once, then :func:`update_poses` as
+    the simulation moves.
+    """
+    vis = _visualizer(vis)
+    for name, body in bodies.items():
+        _mirror_body(vis[name], client_id, body)
+    update_poses(vis, client_id, bodies)
+
+
+def add_ghost(vis, client_id: int, body: int, name: str, rgba: Sequence[float] = GHOST_RGBA) -> None:
+    """Freeze a translucent copy of ``body``, as it is posed right now, under the node ``name``.
+
+    Used to draw a set of arm configurations at once (e.g. the IK solutions reaching a cup): put the
+    arm in each configuration, call ``add_ghost`` with a new name, then restore the arm. Ghosts are
+    static; :func:`update_poses` and :func:`record_rollout` only move the bodies they are given.
+    """
+    vis = _visualizer(vis)
+    _mirror_body(vis[name], client_id, body, rgba=tuple(rgba))
+    update_poses(vis, client_id, {name: body})
+
+
+def record_rollout(
+    client_id: int,
+    bodies: Mapping[str, int],
+    states: Sequence,
+    set_state: Callable[[Any], None],
+    fps: float = 10,
+    repetitions: int = 1,
+    recorder: Recorder | None = None,
+) -> Recorder:
+    """Turn a rollout into a meshcat animation that plays inline.
+
+    ``set_state(state)`` must put the simulation into each recorded state (e.g. reset the joint
+    angles); the simulation is left in the last state. The scene starts at the first state, and
+    only links that move get an animation track, which keeps the page small. Pass ``recorder`` to
+    add the animation to an existing scene (e.g. one with ghosts). Returns the recorder; end a cell
+    with it, or call ``.show()``.
+    """
+    states = list(states)
+    if not states:
+        raise ValueError("record_rollout needs at least one state")
+    recorder = Recorder() if recorder is None else recorder
+    set_state(states[0])
+    mirror_bodies(recorder, client_id, bodies)
+    frames = []
+    for state in states:
+        set_state(state)
+        frames.append(_scene_poses(client_id, bodies))
+
+    animation = meshcat.animation.Animation(default_framerate=fps)
+    for key in frames[0]:
+        track = [poses[key] for poses in frames]
+        if all(np.allclose(pose, track[0]) for pose in track):
+            continue  # static link: the transform set by mirror_bodies already holds
+        for index, pose in enumerate(track):
+            with animation.at_frame(recorder.vis, index) as frame:
+                frame[key[0]][key[1]].set_transform(pose)
+    if animation.clips:
+        recorder.vis.set_animation(animation, play=True, repetitions=repetitions)
+    return recorder
+
+
+# --------------------------------------------------------------------------------------------------
+# Camera frames (matplotlib)
+# --------------------------------------------------------------------------------------------------
+def _as_rgb(image) -> np.ndarray:
+    """RGB for imshow: drops an alpha channel (pybullet returns RGBA) and maps 0..255 floats to 0..1."""
+    image = np.asarray(image)[..., :3]
+    if np.issubdtype(image.dtype, np.floating):
+        image = np.clip(image / 255.0 if image.max() > 1.0 else image, 0.0, 1.0)
+    return image
+
+
+def show_rgbd(rgbd, title: str | None = None):
+    """A figure with the RGB image and the depth map (metres, with a colour bar) side by side.
+
+    ``rgbd`` is either a pair ``(rgb, depth)`` or one ``H x W x 4`` array whose last channel is the
+    depth. Depth must already be metric, not pybullet's non-linear z-buffer. The figure is closed in
+    pyplot before it is returned, so it shows exactly once when it ends a notebook cell.
+    """
+    import matplotlib.pyplot as plt
+
+    if isinstance(rgbd, (tuple, list)):
+        rgb, depth = rgbd
+    else:
+        rgbd = np.asarray(rgbd)
+        rgb, depth = rgbd[..., :3], rgbd[..., 3]
+    fig, (ax_rgb, ax_depth) = plt.subplots(1, 2, figsize=(8.0, 3.4), layout="constrained")
+    ax_rgb.imshow(_as_rgb(rgb))
+    ax_rgb.set_title("RGB")
+    shown = ax_depth.imshow(np.asarray(depth, dtype=float), cmap="viridis")
+    ax_depth.set_title("depth")
+    fig.colorbar(shown, ax=ax_depth, label="depth [m]")
+    for ax in (ax_rgb, ax_depth):
+        ax.set_axis_off()
+    if title:
+        fig.suptitle(title)
+    plt.close(fig)
+    return fig
+
+
+def frames_animation(rgb_frames: Sequence, fps: float = 10, size: float = 3.0):
+    """A matplotlib ``FuncAnimation`` flipping through camera frames; ``.to_jshtml()`` shows it inline.
+
+    The figure is ``size`` inches on its longer side at 100 dpi with no margins, so the embedded PNG
+    frames stay small. Like :func:`show_rgbd`, the figure is closed in pyplot to avoid a stray
+    static copy below the animation.
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation
+
+    frames = [_as_rgb(frame) for frame in rgb_frames]
+    if not frames:
+        raise ValueError("frames_animation needs at least one frame")
+    height, width = frames[0].shape[:2]
+    scale = size / max(height, width)
+    fig = plt.figure(figsize=(width * scale, height * scale), dpi=100)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    ax.set_axis_off()
+    image = ax.imshow(frames[0])
+
+    def draw(index):
+        image.set_data(frames[index])
+        return (image,)
+
+    animation = FuncAnimation(fig, draw, frames=len(frames), interval=1000.0 / fps, blit=True)
+    plt.close(fig)
+    return animation
