@@ -203,10 +203,12 @@ class Recorder:
         return _PAGE.format(viewer_js=_viewer_js(), commands=json.dumps(commands))
 
     def _iframe(self, height: int) -> str:
-        # srcdoc carries the whole page, so Jupyter needs no server or file to display it.
+        # srcdoc carries the whole page, so Jupyter needs no server or file to display it. The
+        # wrapping div lets the reader drag the view taller.
         return (
+            f'<div style="width: 100%; height: {int(height)}px; resize: vertical; overflow: hidden;">'
             f'<iframe srcdoc="{html.escape(self.html(), quote=True)}" '
-            f'style="width: 100%; height: {int(height)}px; border: none;"></iframe>'
+            'style="width: 100%; height: 100%; border: none;"></iframe></div>'
         )
 
     def show(self, height: int = 400):
@@ -321,7 +323,8 @@ def _mirror_body(node, client_id: int, body: int, rgba=None) -> None:
     """Create meshcat geometry for every visual of ``body`` under ``node`` (replacing old content).
 
     Layout: ``node/<link name>`` carries the link's world pose, ``node/<link name>/visual<k>`` the
-    k-th visual's local frame within that link. ``rgba`` overrides the colours (ghosts).
+    k-th visual's local frame within that link. Link names are pybullet's: the URDF names, and
+    ``link0`` for the base of a ``createMultiBody`` body. ``rgba`` overrides the colours (ghosts).
     """
     node.delete()
     names = _link_names(client_id, body)

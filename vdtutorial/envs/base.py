@@ -59,8 +59,9 @@ class JacoEnv(gym.Env):
                 "joints": joints,
             })
         else:
-            low = np.concatenate([lo, CUP_REGION_LOW, [0.0]]).astype(np.float32)
-            high = np.concatenate([hi, CUP_REGION_HIGH, [0.0]]).astype(np.float32)
+            # the cup stands on the table (z = 0); its z bounds get a small margin to keep the box non-degenerate
+            low = np.concatenate([lo, CUP_REGION_LOW, [-0.01]]).astype(np.float32)
+            high = np.concatenate([hi, CUP_REGION_HIGH, [0.01]]).astype(np.float32)
             self.observation_space = gym.spaces.Box(low, high, dtype=np.float32)
         self._t = 0
 

@@ -1,0 +1,79 @@
+"""The IK expert: the solution set G, eq. 9, eq. 10 with its overshoot fix, success rates."""
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from vdtutorial.envs import ENV_IDS
+from vdtutorial.envs.base import MAX_DELTA
+from vdtutorial.envs.reach import SUCCESS_TOLERANCE, reach_goal
+from vdtutorial.evaluation import expert_success_rate
+from vdtutorial.expert import DISTINCT, IKExpert, nearest_equivalent, nearest_goal, step_towards
+
+
+@pytest.fixture
+def reach():
+    env = gym.make(ENV_IDS["reach"], obs_mode="state")
+    env.reset(seed=3)
+    yield env
+    env.close()
+
+
+def test_solution_set_is_several_distinct_valid_configurations(reach):
+    G = IKExpert(reach).reset()
+    scene = reach.unwrapped.scene
+    assert len(G) >= 3
+    for i, g in enumerate(G):
+        assert np.all(g >= scene.lower) and np.all(g <= scene.upper)
+        scene.set_joints(g)
+        assert not scene.in_collision()
+        tcp, _ = scene.tcp_pose()
+        assert np.linalg.norm(tcp - reach_goal(scene.cup_position)) < SUCCESS_TOLERANCE / 2
+        for h in G[:i]:
+            assert np.max(np.abs(g - h)) > DISTINCT
+
+
+def test_eq9_picks_the_nearest_in_l1():
+    G = np.array([[1.0, 1, 1, 1, 1, 1], [2.0, 2, 2, 2, 2, 2]])
+    lo, hi = np.full(6, -10.0), np.full(6, 10.0)
+    np.testing.assert_array_equal(nearest_goal(G, np.full(6, 1.8), lo, hi), G[1])
+    np.testing.assert_array_equal(nearest_goal(G, np.full(6, 1.2), lo, hi), G[0])
+
+
+def test_continuous_joints_are_compared_modulo_two_pi():
+    lo, hi = np.full(6, -2 * math.pi), np.full(6, 2 * math.pi)
+    g = np.array([3.0, 3.0, 3.0, 3.0, 3.0, 3.0])
+    j = g - 2 * math.pi + 0.1
+    eq = nearest_equivalent(g, j, lo, hi)
+    np.testing.assert_allclose(eq[[0, 3, 5]], j[[0, 3, 5]] - 0.1)  # continuous joints 1, 4, 6 wrap
+    np.testing.assert_allclose(eq[[1, 2, 4]], g[[1, 2, 4]])  # limited joints do not
+
+
+def test_eq10_moves_largest_joint_by_pi_over_5_and_never_overshoots():
+    j = np.zeros(6)
+    far = np.array([2.0, -1.0, 0.5, 0, 0, 0])
+    a = step_towards(far, j)
+    assert np.max(np.abs(a)) == pytest.approx(MAX_DELTA)
+    np.testing.assert_allclose(a / np.linalg.norm(a), far / np.linalg.norm(far))
+    near = np.array([0.1, -0.05, 0, 0, 0, 0.02])
+    np.testing.assert_allclose(step_towards(near, j), near)  # exactly onto the goal, not past it
+    np.testing.assert_array_equal(step_towards(j, j), np.zeros(6))
+
+
+def test_expert_action_is_fast(reach):
+    import time
+
+    expert = IKExpert(reach)
+    expert.reset()
+    start = time.perf_counter()
+    for _ in range(200):
+        expert.action()
+    assert (time.perf_counter() - start) / 200 < 1e-3
+
+
+def test_expert_success_rates():
+    reach_rate, _ = expert_success_rate("reach", 20, seed=100)
+    grasp_rate, _ = expert_success_rate("grasp", 20, seed=100)
+    assert reach_rate >= 0.95
+    assert grasp_rate >= 0.85

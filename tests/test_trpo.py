@@ -1,0 +1,278 @@
+"""Tests of vdtutorial.trpo: each piece against a hand or brute-force computation, then the whole
+algorithm on a tiny 1-D reaching task defined here."""
+import copy
+
+import gymnasium
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+from torch import nn
+from torch.distributions import Normal, kl_divergence
+
+from vdtutorial.trpo import (TRPO, TRPOConfig, conjugate_gradient, fisher_vector_product, flat_grad, gae,
+                             line_search, make_vec_env)
+
+
+# ---------------------------------------------------------------------------------------------
+# A tiny task and tiny policies
+# ---------------------------------------------------------------------------------------------
+class PointReach(gymnasium.Env):
+    """Move a point on a line to 0: x' = x + 0.2 a, reward -|x'|, success if |x| < 0.1 at the end
+    of the 10-step horizon. With dict=True the observation is {"joints": x, "image": 2x2 array}."""
+
+    def __init__(self, dict_obs: bool = False):
+        self.dict_obs = dict_obs
+        box = spaces.Box(-np.inf, np.inf, (1,), np.float32)
+        self.observation_space = (spaces.Dict({"joints": box, "image": spaces.Box(0, 1, (2, 2), np.float32)})
+                                  if dict_obs else box)
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def _obs(self):
+        x = np.array([self.x], dtype=np.float32)
+        return {"joints": x, "image": np.full((2, 2), self.x, np.float32)} if self.dict_obs else x
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x, self.t = self.np_random.uniform(-1, 1), 0
+        return self._obs(), {}
+
+    def step(self, action):
+        self.x += 0.2 * float(action[0])
+        self.t += 1
+        end = self.t == 10
+        info = {"is_success": bool(abs(self.x) < 0.1)} if end else {}
+        return self._obs(), -abs(self.x), False, end, info
+
+
+class LinearPolicy(nn.Module):
+    def __init__(self, obs_dim=1, act_dim=1, dtype=torch.float32):
+        super().__init__()
+        self.linear = nn.Linear(obs_dim, act_dim, dtype=dtype)
+        self.log_std = nn.Parameter(torch.full((act_dim,), -0.5, dtype=dtype))
+
+    def distribution(self, obs):
+        obs = obs["joints"] if isinstance(obs, dict) else obs
+        mean = self.linear(obs.to(self.linear.weight.dtype))
+        return Normal(mean, self.log_std.exp().expand_as(mean))
+
+
+class MaskedPolicy(nn.Module):
+    """A linear layer whose weight is multiplied by a fixed 0/1 mask (a pruned layer), plus a
+    frozen parameter that stands for variational dropout's log sigma^2."""
+
+    def __init__(self):
+        super().__init__()
+        self.weight = nn.Parameter(torch.tensor([[0.3, 0.0, -0.2, 0.0]]))
+        self.register_buffer("mask", torch.tensor([[1.0, 0.0, 1.0, 0.0]]))
+        self.log_sigma2 = nn.Parameter(torch.full((1, 4), -4.0), requires_grad=False)
+        self.log_std = nn.Parameter(torch.zeros(1))
+
+    def distribution(self, obs):
+        features = torch.cat([obs, obs ** 2, torch.sin(3 * obs), torch.ones_like(obs)], dim=-1)
+        mean = features @ (self.weight * self.mask).T
+        return Normal(mean, self.log_std.exp().expand_as(mean))
+
+
+def make_env(num_envs=2, dict_obs=False):
+    return make_vec_env(lambda: PointReach(dict_obs), num_envs)
+
+
+# ---------------------------------------------------------------------------------------------
+# The pieces
+# ---------------------------------------------------------------------------------------------
+def test_conjugate_gradient_solves_spd_system():
+    rng = np.random.default_rng(0)
+    M = rng.normal(size=(6, 6))
+    A = M @ M.T + 0.5 * np.eye(6)
+    b = rng.normal(size=6)
+    A_t, b_t = torch.tensor(A), torch.tensor(b)
+    x = conjugate_gradient(lambda v: A_t @ v, b_t, iters=20)
+    np.testing.assert_allclose(x.numpy(), np.linalg.solve(A, b), rtol=1e-8, atol=1e-10)
+
+
+def test_fisher_vector_product_matches_explicit_fisher():
+    torch.manual_seed(0)
+    policy = LinearPolicy(obs_dim=2, act_dim=1, dtype=torch.float64)  # 4 parameters
+    params = list(policy.parameters())
+    obs = torch.randn(50, 2, dtype=torch.float64)
+    with torch.no_grad():
+        old = policy.distribution(obs)
+        old = Normal(old.mean.clone(), old.stddev.clone())
+    theta0 = torch.cat([p.reshape(-1) for p in params]).detach()
+
+    def mean_kl_at(theta):  # the same policy as a function of the flat vector (log_std, weight, bias)
+        log_std, w, b = theta[0], theta[1:3], theta[3]
+        mean = (obs @ w + b).unsqueeze(-1)
+        return kl_divergence(old, Normal(mean, log_std.exp().expand_as(mean))).sum(-1).mean()
+
+    fisher = torch.autograd.functional.hessian(mean_kl_at, theta0)
+    # Second definition of the Fisher matrix: E[grad log pi grad log pi^T] for a ~ pi_old(.|s).
+    # For a Gaussian with a linear mean it has the closed form below (per sample):
+    #   d/d(w,b) log pi = (a - mu) / sigma^2 * [s, 1],  d/d log_std log pi = (a - mu)^2 / sigma^2 - 1
+    sigma2 = old.stddev.pow(2).squeeze(-1)
+    x = torch.cat([obs, torch.ones(50, 1, dtype=torch.float64)], dim=1)
+    expected = torch.zeros(4, 4, dtype=torch.float64)
+    expected[0, 0] = 2.0
+    expected[1:, 1:] = (x.T * (1 / sigma2)) @ x / 50
+    torch.testing.assert_close(fisher, expected)
+
+    kl_grad = flat_grad(kl_divergence(old, policy.distribution(obs)).sum(-1).mean(), params, create_graph=True)
+    for seed in range(3):
+        v = torch.randn(4, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+        torch.testing.assert_close(fisher_vector_product(kl_grad, params, v, damping=0.1), fisher @ v + 0.1 * v)
+
+
+def test_gae_against_hand_computation():
+    gamma, lam = 0.9, 0.5
+    rewards = np.array([1.0, 2.0, 3.0, 4.0])
+    values = np.array([0.5, 1.0, 1.5, 2.0])
+    dones = np.array([0.0, 1.0, 0.0, 0.0])  # the episode ends with step 1; steps 2-3 are cut off
+    last_value = 10.0
+    d3 = 4 + 0.9 * 10.0 - 2.0                # bootstrapped with the baseline after the cut
+    d2 = 3 + 0.9 * 2.0 - 1.5
+    d1 = 2 + 0.0 - 1.0                       # terminal: no value after it
+    d0 = 1 + 0.9 * 1.0 - 0.5
+    expected = [d0 + 0.45 * d1, d1, d2 + 0.45 * d3, d3]
+    np.testing.assert_allclose(gae(rewards, values, np.array(last_value), dones, gamma, lam), expected)
+    # lam = 1 gives the discounted returns minus the values
+    returns = gae(rewards, values, np.array(last_value), dones, gamma, 1.0) + values
+    np.testing.assert_allclose(returns, [1 + 0.9 * 2, 2, 3 + 0.9 * 4 + 0.81 * 10, 4 + 0.9 * 10])
+    # (T, N): columns are independent environments
+    two = gae(np.stack([rewards, rewards], 1), np.stack([values, values], 1), np.array([10.0, 10.0]),
+              np.stack([dones, dones], 1), gamma, lam)
+    np.testing.assert_allclose(two[:, 1], expected)
+
+
+def test_line_search_restores_parameters_when_no_step_is_acceptable():
+    p = nn.Parameter(torch.tensor([1.0, 2.0]))
+    fraction, improvement, kl = line_search([p], torch.tensor([1.0, 1.0]), surrogate=lambda: -p.sum(),
+                                            mean_kl=lambda: p.sum() * 0, max_kl=0.01)
+    assert fraction is None and improvement == 0.0 and kl == 0.0
+    assert p.tolist() == [1.0, 2.0]
+    # accepts the first fraction (1, 0.5, 0.25, ...) whose KL is within the bound
+    fraction, improvement, kl = line_search([p], torch.tensor([1.0, 1.0]), surrogate=lambda: p.sum(),
+                                            mean_kl=lambda: (p - torch.tensor([1.0, 2.0])).pow(2).sum(),
+                                            max_kl=0.2)
+    assert fraction == 0.25 and kl == pytest.approx(0.125) and improvement == pytest.approx(0.5)
+    assert p.tolist() == [1.25, 2.25]
+
+
+# ---------------------------------------------------------------------------------------------
+# The algorithm
+# ---------------------------------------------------------------------------------------------
+def test_accepted_steps_stay_within_the_kl_bound():
+    torch.manual_seed(0)
+    policy = LinearPolicy()
+    config = TRPOConfig(steps_per_iter=40, max_kl=0.005)
+    algo = TRPO(policy, make_env(), config, seed=1)
+    accepted = 0
+    for _ in range(6):
+        batch = algo.collect()
+        old = copy.deepcopy(policy)
+        stats = algo.update(batch)
+        algo.iteration_index += 1
+        with torch.no_grad():
+            kl = kl_divergence(old.distribution(batch.obs), policy.distribution(batch.obs)).sum(-1).mean().item()
+        assert kl == pytest.approx(stats["mean_kl"], abs=1e-7)
+        assert kl <= config.max_kl + 1e-7
+        if stats["line_search"] != "rejected":
+            accepted += 1
+            assert stats["surrogate_improvement"] > 0 and kl > 0
+    assert accepted >= 4
+
+
+def test_pruned_weights_stay_exactly_zero_and_frozen_parameters_fixed():
+    torch.manual_seed(0)
+    policy = MaskedPolicy()
+    frozen = policy.log_sigma2.detach().clone()
+    weight_before = policy.weight.detach().clone()
+    algo = TRPO(policy, make_env(), TRPOConfig(steps_per_iter=40), seed=0)
+    assert algo.params == [policy.weight, policy.log_std]
+    rows = [algo.iteration() for _ in range(4)]
+    assert any(r["line_search"] != "rejected" for r in rows)
+    w = policy.weight.detach()
+    assert torch.all(w[policy.mask == 0] == 0)
+    assert not torch.equal(w[policy.mask == 1], weight_before[policy.mask == 1])  # the live weights moved
+    assert torch.equal(policy.log_sigma2, frozen)
+
+
+def test_success_and_episode_accounting():
+    algo = TRPO(LinearPolicy(), make_env(num_envs=2), TRPOConfig(steps_per_iter=50), seed=3)
+    batch = algo.collect()
+    # 25 steps per env, 10-step episodes: 2 finished episodes per env, the third one cut off
+    assert len(batch.episode_returns) == 4
+    assert 0 <= batch.successes <= 4
+    # replay the same (seeded) iteration by hand and count the successes
+    env = make_env(num_envs=2)
+    from vdtutorial.trpo import _iteration_seeds, _to_tensor
+    env_seeds, noise_seed = _iteration_seeds(3, 0, 2)
+    gen = torch.Generator().manual_seed(noise_seed)
+    obs, _ = env.reset(seed=env_seeds)
+    successes, returns, running = 0, [], np.zeros(2)
+    for _ in range(25):
+        with torch.no_grad():
+            d = algo.policy.distribution(_to_tensor(obs))
+            a = d.mean + d.stddev * torch.randn(d.mean.shape, generator=gen)
+        obs, r, term, trunc, info = env.step(np.clip(a.numpy(), -1, 1))
+        running += r
+        for i in np.flatnonzero(term | trunc):
+            successes += int(abs(info["final_obs"][i][0]) < 0.1)
+            returns.append(running[i])
+            running[i] = 0
+    assert batch.successes == successes
+    np.testing.assert_allclose(sorted(batch.episode_returns), sorted(returns))
+
+
+def test_rejects_next_step_autoreset():
+    env = gymnasium.vector.SyncVectorEnv([PointReach], autoreset_mode=gymnasium.vector.AutoresetMode.NEXT_STEP)
+    with pytest.raises(ValueError, match="SAME_STEP"):
+        TRPO(LinearPolicy(), env)
+
+
+def test_dict_observations_use_the_joints_for_the_baseline():
+    torch.manual_seed(0)
+    algo = TRPO(LinearPolicy(), make_env(dict_obs=True), TRPOConfig(steps_per_iter=40), seed=0)
+    algo.iteration()
+    algo.iteration()
+    assert algo.baseline.weights.shape == (1 + 1 + 4,)  # [x, x^2, t, t^2, t^3, 1]
+
+
+def test_checkpoint_resume_reproduces_the_uninterrupted_run(tmp_path):
+    config = TRPOConfig(steps_per_iter=40)
+
+    def fresh():
+        torch.manual_seed(0)
+        return TRPO(LinearPolicy(), lambda: make_env(), config, seed=7)
+
+    full = fresh()
+    full.run(6 * 40, csv_path=tmp_path / "full.csv", progress=False)
+
+    first = fresh()
+    first.run(2 * 40, csv_path=tmp_path / "resumed.csv", checkpoint_path=tmp_path / "ckpt.pt", progress=False)
+    assert torch.load(tmp_path / "ckpt.pt", weights_only=True)["iteration"] == 2
+    torch.manual_seed(123)  # a different initialisation, overwritten by the checkpoint
+    second = TRPO(LinearPolicy(), lambda: make_env(), config, seed=7)
+    second.load(tmp_path / "ckpt.pt")
+    second.run(6 * 40, csv_path=tmp_path / "resumed.csv", progress=False)
+
+    def without_wall_time(path):
+        lines = path.read_text().splitlines()
+        return [line.rsplit(",", 1)[0] for line in lines]
+
+    full_lines = without_wall_time(tmp_path / "full.csv")
+    assert len(full_lines) == 7  # header + 6 rows
+    assert without_wall_time(tmp_path / "resumed.csv") == full_lines
+    for a, b in zip(full.policy.parameters(), second.policy.parameters()):
+        assert torch.equal(a, b)
+    with pytest.raises(ValueError, match="different seed"):
+        TRPO(LinearPolicy(), make_env(), config, seed=8).load(tmp_path / "ckpt.pt")
+
+
+def test_learns_point_reach():
+    torch.manual_seed(0)
+    algo = TRPO(LinearPolicy(), make_env(num_envs=4), TRPOConfig(steps_per_iter=200, max_kl=0.05), seed=0)
+    rows = algo.run(30 * 200, progress=False)
+    first, last = np.mean([r["mean_return"] for r in rows[:3]]), np.mean([r["mean_return"] for r in rows[-3:]])
+    assert last > first + 1.0
+    assert sum(r["successes"] for r in rows[-3:]) > sum(r["successes"] for r in rows[:3])
