@@ -287,6 +287,13 @@ def test_mirroring_twice_replaces_old_geometry_and_meshes(scene, tmp_path):
     assert np.diag(world_transform(rec.tree, "meshcat/mesh/link0/visual0/mesh"))[:3] == pytest.approx([0.1, 0.2, 0.3])
     assert not node(rec.tree, "meshcat/raw/link0/visual0")
 
+    plane = p.createMultiBody(0, -1, p.createVisualShape(p.GEOM_PLANE, physicsClientId=cid), physicsClientId=cid)
+    viz.mirror_bodies(rec, cid, {"plane": plane})
+    p.removeBody(plane, physicsClientId=cid)
+    square = geometry(rec.tree, "meshcat/plane/link0/visual0/plane")
+    top = world_transform(rec.tree, "meshcat/plane/link0/visual0/plane")[2, 3] + square["depth"] / 2
+    assert (square["width"], square["height"], top) == pytest.approx((viz.PLANE_SIZE, viz.PLANE_SIZE, 0.0))
+
 
 def test_show_and_save(scene, tmp_path):
     cid, bodies = scene
