@@ -117,7 +117,8 @@ class Demos:
                                 f"this package reads version {FORMAT_VERSION}. {_regenerate_hint(path, meta)}")
         for key, want in expected.items():
             if meta.get(key) != want:
-                raise DemoFileError(f"demonstrations file {path} has {key}={meta.get(key)!r}, expected {want!r}. {hint}")
+                raise DemoFileError(f"demonstrations file {path} has {key}={meta.get(key)!r}, expected {want!r}. "
+                                    f"{_regenerate_hint(path, {**meta, **expected})}")
         n = len(arrays["actions"])
         if n != meta.get("samples") or any(len(a) != n for a in arrays.values()):
             raise DemoFileError(f"demonstrations file {path} is inconsistent (array lengths vs samples={meta.get('samples')}). {hint}")
