@@ -80,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if QUICK:
-        print("[quick mode: VDTUTORIAL_QUICK=1, small budgets]", file=sys.stderr)
+        print("[quick mode: small budgets]", file=sys.stderr)
     args.func(args)
     return 0
 

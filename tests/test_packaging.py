@@ -1,0 +1,60 @@
+"""The project's own promises: dependency lists agree, notebooks carry no outputs, the quick switch is
+read in one place, CI runs the README's test command, and every notebook is under test."""
+import json
+import re
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _name(requirement: str) -> str:
+    return re.split(r"[<>=!~ \[]", requirement.strip(), maxsplit=1)[0].lower()
+
+
+def test_environment_yml_matches_pyproject():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    wanted = {_name(r) for r in project["dependencies"] + project["optional-dependencies"]["test"]}
+    listed = set()
+    text = (ROOT / "environment.yml").read_text()
+    for line in text[text.index("dependencies:"):].splitlines():
+        m = re.match(r"\s*-\s+([A-Za-z0-9_.\-]+[^#]*)", line)
+        if m and not line.strip().startswith("- pip:"):
+            listed.add(_name(m.group(1)))
+    listed -= {"python", "pip", "-e"}
+    assert listed == wanted
+
+
+def test_torch_is_pinned_to_the_cpu_build_everywhere():
+    assert '"torch==2.13.0"' in (ROOT / "pyproject.toml").read_text()
+    assert "torch==2.13.0" in (ROOT / "environment.yml").read_text()
+
+
+def test_notebooks_are_committed_without_outputs():
+    notebooks = sorted((ROOT / "notebooks").glob("*.ipynb"))
+    assert notebooks
+    for nb in notebooks:
+        for cell in json.loads(nb.read_text())["cells"]:
+            if cell["cell_type"] == "code":
+                assert not cell.get("outputs") and cell.get("execution_count") is None, f"{nb.name} has outputs"
+
+
+def test_quick_switch_is_read_in_exactly_one_place():
+    readers = [p for p in (ROOT / "vdtutorial").rglob("*.py") if "VDTUTORIAL_QUICK" in p.read_text()]
+    assert [p.name for p in readers] == ["settings.py"]
+    for nb in (ROOT / "notebooks").glob("*.ipynb"):
+        assert "VDTUTORIAL_QUICK\"" not in nb.read_text() and "environ" not in nb.read_text(), nb.name
+
+
+def test_ci_runs_the_readme_test_command():
+    readme = (ROOT / "README.md").read_text()
+    ci = (ROOT / ".ci" / "run").read_text()
+    test_line = ci.strip().splitlines()[-1]
+    assert test_line.startswith("pytest") and "--nbmake" in test_line and "notebooks" in test_line
+    assert test_line in readme
+    assert "VDTUTORIAL_QUICK=1" in ci
+
+
+def test_data_folder_stays_small():
+    size = sum(p.stat().st_size for p in (ROOT / "data").rglob("*") if p.is_file())
+    assert size < 60 * 2**20
