@@ -85,9 +85,9 @@ def kl_approx(log_alpha: torch.Tensor) -> torch.Tensor:
     return -neg_kl
 
 
-class _SVDOLayer(nn.Module):
+class SVDOLayer(nn.Module):
     """What the sparse-VD linear and convolutional layers share: parameters, the train / eval / pruned
-    forward, the KL term and pruning. Subclasses only say how a weight tensor is applied (``_apply``)."""
+    forward, the KL term and pruning. Subclasses only say how a weight tensor is applied (``_op``)."""
 
     def __init__(self, weight_shape: tuple[int, ...], bias: bool):
         super().__init__()
@@ -123,7 +123,7 @@ class _SVDOLayer(nn.Module):
         return kl_approx(self.log_alpha).sum()
 
     @torch.no_grad()
-    def prune_(self, threshold: float = THRESHOLD) -> "_SVDOLayer":
+    def prune_(self, threshold: float = THRESHOLD) -> "SVDOLayer":
         """Freeze the mask log alpha <= threshold for RL fine-tuning (idempotent, see the module docstring)."""
         self.mask.copy_(self.keep_mask(threshold))
         self.weight.mul_(self.mask)
@@ -133,28 +133,28 @@ class _SVDOLayer(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if self.pruned or not self.training:
-            return self._apply(x, self.weight * self.keep_mask(), self.bias)
-        mean = self._apply(x, self.weight, self.bias)
-        var = self._apply(x * x, torch.exp(self.log_sigma2), None)
+            return self._op(x, self.weight * self.keep_mask(), self.bias)
+        mean = self._op(x, self.weight, self.bias)
+        var = self._op(x * x, torch.exp(self.log_sigma2), None)
         return mean + torch.sqrt(var + EPS) * torch.randn_like(mean)
 
-    def _apply(self, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    def _op(self, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
         raise NotImplementedError
 
 
-def _refreeze_after_load(layer: _SVDOLayer, _incompatible_keys) -> None:
+def _refreeze_after_load(layer: SVDOLayer, _incompatible_keys) -> None:
     """``requires_grad`` is not part of a state_dict: re-derive it from the loaded ``pruned`` flag."""
     layer.log_sigma2.requires_grad_(not bool(layer.pruned))
 
 
-class LinearSVDO(_SVDOLayer):
+class LinearSVDO(SVDOLayer):
     """Fully connected layer with sparse variational dropout; drop-in replacement for ``nn.Linear``."""
 
     def __init__(self, in_features: int, out_features: int, bias: bool = True):
         super().__init__((out_features, in_features), bias)
         self.in_features, self.out_features = in_features, out_features
 
-    def _apply(self, x, weight, bias):
+    def _op(self, x, weight, bias):
         return F.linear(x, weight, bias)
 
     def extra_repr(self) -> str:
@@ -165,7 +165,7 @@ def _pair(value) -> tuple[int, int]:
     return (value, value) if isinstance(value, int) else tuple(value)
 
 
-class Conv2dSVDO(_SVDOLayer):
+class Conv2dSVDO(SVDOLayer):
     """2-D convolution with sparse variational dropout; drop-in replacement for ``nn.Conv2d`` (no groups,
     no dilation). Under local reparameterisation the output variance is the convolution of x^2 with
     sigma^2, exactly as for the linear layer, since a convolution is a linear map with shared weights."""
@@ -176,7 +176,7 @@ class Conv2dSVDO(_SVDOLayer):
         self.in_channels, self.out_channels = in_channels, out_channels
         self.kernel_size, self.stride, self.padding = kernel_size, _pair(stride), _pair(padding)
 
-    def _apply(self, x, weight, bias):
+    def _op(self, x, weight, bias):
         return F.conv2d(x, weight, bias, self.stride, self.padding)
 
     def extra_repr(self) -> str:
@@ -196,9 +196,9 @@ def make_conv2d(in_channels: int, out_channels: int, kernel_size, stride=1, padd
                                                      padding=padding, bias=bias)
 
 
-def svdo_layers(module: nn.Module) -> list[_SVDOLayer]:
+def svdo_layers(module: nn.Module) -> list[SVDOLayer]:
     """All sparse-VD layers inside ``module`` (in ``module.modules()`` order)."""
-    return [m for m in module.modules() if isinstance(m, _SVDOLayer)]
+    return [m for m in module.modules() if isinstance(m, SVDOLayer)]
 
 
 def model_kl(module: nn.Module) -> torch.Tensor:
@@ -307,7 +307,7 @@ def graph(module: nn.Module) -> list[Edge]:
 
 def _keep_mask(layer: nn.Module, threshold: float = THRESHOLD) -> torch.Tensor:
     """Kept weights of any weight layer: every weight of a plain layer is kept."""
-    if isinstance(layer, _SVDOLayer):
+    if isinstance(layer, SVDOLayer):
         return layer.keep_mask(threshold)
     return torch.ones_like(layer.weight, dtype=torch.bool)
 
@@ -569,24 +569,40 @@ def digits_validation(seed: int = 0, epochs: int | None = None, batch_size: int 
     ``batch_size``: M of eq. 3; ``lr``: Adam's step size (it also bounds how fast log sigma^2 can grow,
     hence how fast weights get pruned); ``warmup``: fraction of training over which beta goes 0 -> 1.
     The VD accuracy is that of the deterministic eval-mode network with log alpha > 3 weights removed.
+
+    Measured with the defaults (200 epochs, ~16-20 s on one thread of the shared machine): dense / VD
+    test accuracy 97.2 / 95.8 % (seed 0), 96.9 / 95.8 % (seed 1), 98.1 / 95.6 % (seed 2), with 99.3 % of
+    the weights and 83-85 % of the hidden neurons pruned. The goal "VD within 1.5 points of dense at
+    >= 90 % pruned" holds for seeds 0 and 1 and is missed by 1 point for seed 2: with only 1437 training
+    images the prior (KL / N) is strong and prunes far beyond 90 %. The quick budget (30 epochs, ~2 s)
+    gives 96.9 / 88.3 % at 98.5 % pruned.
     """
+    epochs = epochs if epochs is not None else budget(200, 30)
+    threads = torch.get_num_threads()
+    # Matrices this small run several times faster on one thread than on two shared cores.
+    torch.set_num_threads(1)
+    try:
+        return _digits_run(seed, epochs, batch_size, lr, warmup)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _digits_run(seed: int, epochs: int, batch_size: int, lr: float, warmup: float) -> DigitsResult:
     from sklearn.datasets import load_digits
     from sklearn.model_selection import train_test_split
 
-    epochs = epochs if epochs is not None else budget(200, 30)
     start = time.perf_counter()
     data = load_digits()
     x_train, x_test, y_train, y_test = train_test_split(data.data / 16.0, data.target, test_size=0.2,
                                                         stratify=data.target, random_state=seed)
     x_train, x_test = (torch.as_tensor(a, dtype=torch.float32) for a in (x_train, x_test))
     y_train, y_test = (torch.as_tensor(a, dtype=torch.long) for a in (y_train, y_test))
-    accuracies = {}
+    models = {}
     for variational in (False, True):
         torch.manual_seed(seed)
-        model = digits_mlp(variational)
-        _train_classifier(model, x_train, y_train, epochs, batch_size, lr, warmup,
+        models[variational] = digits_mlp(variational)
+        _train_classifier(models[variational], x_train, y_train, epochs, batch_size, lr, warmup,
                           torch.Generator().manual_seed(seed))
-        accuracies[variational] = _accuracy(model, x_test, y_test)
-    report = sparsity_report(model)
-    return DigitsResult(accuracies[False], accuracies[True], report.weight_fraction, report,
-                        time.perf_counter() - start)
+    report = sparsity_report(models[True])
+    return DigitsResult(_accuracy(models[False], x_test, y_test), _accuracy(models[True], x_test, y_test),
+                        report.weight_fraction, report, time.perf_counter() - start)

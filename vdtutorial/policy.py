@@ -1,0 +1,304 @@
+"""The paper's policy: a Gaussian N(mu_phi(s), sigma_psi(s)) whose mean and standard deviation are each
+computed by the two-stream network of Fig. 2 (Section IV).
+
+Network kinds (``TwoStreamNet``), chosen from the observation space by :func:`make_policy`
+    ``"rgbd"``: the paper's network. Image stream: 3 convolutions (ReLU, no padding) and 3 fully
+    connected layers; joint stream: 3 fully connected layers on the joint angles; both streams are
+    concatenated into one final fully connected layer with one output per action dimension.
+    ``"state"``: the same two streams with the convolutions dropped: the "image" stream is an MLP on the
+    cup position (last 3 numbers of the vector observation), the joint stream reads the joint angles
+    (the numbers before). The fast stand-in for the image network in classes and CI.
+    ``"mlp"``: a single MLP stream on a generic vector observation (e.g. Pendulum-v1, used to validate
+    TRPO), followed by the same final layer.
+Every layer is a plain or a sparse variational dropout layer according to one flag, ``variational``.
+
+Input normalisation (inside the network, so checkpoints carry it)
+    RGB in [0, 1] and depth / ``DEPTH_SCALE`` (the environments' 3 m camera far plane, so also in
+    [0, 1]) are both shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and continuous
+    across the +-pi wrap of continuous joints. Other vector inputs (the cup position, a generic Box) are
+    mapped from the observation space's bounds to [-1, 1]; dimensions with infinite or zero-width bounds
+    pass through unchanged.
+
+Sizes (CPU budget: 2 shared cores)
+    The paper does not give its layer sizes. The defaults are 8/16/16 channels with kernels 8/4/3 and
+    strides 4/2/2 (128 -> 31 -> 14 -> 6 pixels, 576 features), then 64-64-32 units in each stream.
+    Measured here for one network (``mu``), a batch of 200, ``torch.set_num_threads(1)``, best of 6;
+    "VD" is sparse VD in train mode (local reparameterisation doubles the products; in eval mode or
+    once pruned it costs the same as plain):
+        rgbd 128 x 128, defaults:      forward 0.035 s (VD 0.066 s), forward + backward 0.089 s (VD 0.18 s);
+        rgbd 128 x 128, 16/32/32 5x5/2: forward 0.13 s (VD 0.30 s), forward + backward 0.39 s (VD 0.91 s);
+        state:                         forward 0.3 ms (VD 0.7 ms), forward + backward 0.6 ms (VD 1.3 ms).
+    With two threads on the shared, loaded machine the same runs were 2-4x slower and erratic, so one
+    thread per process is the better choice for these small networks.
+
+Initialisation
+    The final layer's weights of both networks are shrunk by ``HEAD_INIT_SCALE`` so that at the start
+    the mean action is close to 0 and sigma is close to ``init_std`` whatever the observation. sigma =
+    ``min_std`` + softplus(output): positive by construction, with a floor that keeps log-probabilities
+    finite; the final bias of the sigma network is set so that sigma = ``init_std`` (default 0.3 rad) for
+    a zero pre-activation. With sparse VD layers the shrunk final weights (|theta| <= 0.1 / sqrt(64))
+    include ~10% below the "born pruned" size of :mod:`vdtutorial.vd` (|theta| < 0.0015): pre-training
+    revives the useful ones in ``mu``; in the untrained ``sigma`` they are dropped by :meth:`prune_`.
+
+Sparsity
+    ``vd.sparsity_report(policy.mu).neuron_fraction`` is the number to compare with the paper's Table I
+    (pre-training sparsifies ``mu`` only); ``policy.mu.compact()`` gives the pruned network as a small
+    plain one.
+"""
+from __future__ import annotations
+
+import copy
+import math
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.distributions import Normal, kl_divergence
+
+from vdtutorial.vd import (THRESHOLD, chain, compact_layers, concat_edges, make_conv2d, make_linear, prune_model,
+                           rebuild_sequential)
+
+KINDS = ("rgbd", "state", "mlp")
+#: Depth normaliser in metres: the environments clip depth at the camera's far plane, 3 m.
+DEPTH_SCALE = 3.0
+#: Number of trailing entries of a "state" observation that are the cup position (x, y, z).
+CUP_DIMS = 3
+#: Factor applied to the initial weights of the final layer (see the module docstring).
+HEAD_INIT_SCALE = 0.1
+
+
+def obs_to_tensor(obs):
+    """float32 tensor(s) from a numpy array, a tensor, or a dict of either (gymnasium Dict observations)."""
+    if isinstance(obs, dict):
+        return {key: obs_to_tensor(value) for key, value in obs.items()}
+    return torch.as_tensor(obs, dtype=torch.float32)
+
+
+def _is_unbatched(obs) -> bool:
+    """True when ``obs`` (tensor or dict of tensors) is one observation without a batch dimension."""
+    return obs["rgbd"].dim() == 3 if isinstance(obs, dict) else obs.dim() == 1
+
+
+def _angle_features(angles: torch.Tensor) -> torch.Tensor:
+    return torch.cat([torch.sin(angles), torch.cos(angles)], dim=-1)
+
+
+def _mlp(in_features: int, hidden, variational: bool) -> list[nn.Module]:
+    layers = []
+    for units in hidden:
+        layers += [make_linear(in_features, units, variational), nn.Tanh()]
+        in_features = units
+    return layers
+
+
+def _bounds_affine(low, high, dims: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Centre and half-width mapping [low, high] to [-1, 1]; (0, 1) where a bound is missing, infinite or
+    the interval is empty."""
+    if low is None or high is None:
+        return torch.zeros(dims), torch.ones(dims)
+    low, high = torch.as_tensor(low, dtype=torch.float32), torch.as_tensor(high, dtype=torch.float32)
+    usable = torch.isfinite(low) & torch.isfinite(high) & (high > low)
+    centre = torch.where(usable, (low + high) / 2, 0.0)
+    half_width = torch.where(usable, (high - low) / 2, 1.0)
+    return centre, half_width
+
+
+class TwoStreamNet(nn.Module):
+    """Fig. 2 network (see the module docstring for the three kinds and the normalisation).
+
+    ``streams[0]`` is the scene stream (image, cup position, or the whole vector for ``"mlp"``),
+    ``streams[1]`` the joint stream (absent for ``"mlp"``); ``head`` is the final fully connected layer.
+
+    obs_shape: ``{"rgbd": (4, S, S), "joints": (J,)}`` for ``"rgbd"``, ``(d,)`` otherwise.
+    out_dim: one output per action dimension.
+    obs_low, obs_high: bounds of a vector observation (``"state"``, ``"mlp"``), for the normalisation.
+    conv_channels, conv_kernels, conv_strides: the 3 convolutions of the image stream.
+    scene_hidden: units of the fully connected layers of the scene stream; joint_hidden: of the joint stream.
+    """
+
+    def __init__(self, kind: str, obs_shape, out_dim: int, variational: bool = False, *, obs_low=None, obs_high=None,
+                 conv_channels=(8, 16, 16), conv_kernels=(8, 4, 3), conv_strides=(4, 2, 2),
+                 scene_hidden=(64, 64, 32), joint_hidden=(64, 64, 32)):
+        super().__init__()
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+        self.kind = kind
+        if kind == "rgbd":
+            channels, size = obs_shape["rgbd"][0], obs_shape["rgbd"][-1]
+            scene = []
+            for out, k, s in zip(conv_channels, conv_kernels, conv_strides):
+                scene += [make_conv2d(channels, out, k, stride=s, variational=variational), nn.ReLU()]
+                channels, size = out, (size - k) // s + 1
+            if size < 1:
+                raise ValueError(f"image of {obs_shape['rgbd'][-1]} pixels too small for the convolutions")
+            scene += [nn.Flatten(), *_mlp(channels * size * size, scene_hidden, variational)]
+            joints = _mlp(2 * obs_shape["joints"][0], joint_hidden, variational)
+            streams = [scene, joints]
+        elif kind == "state":
+            self._register_bounds(obs_low, obs_high, slice(-CUP_DIMS, None), CUP_DIMS)
+            streams = [_mlp(CUP_DIMS, scene_hidden, variational),
+                       _mlp(2 * (obs_shape[0] - CUP_DIMS), joint_hidden, variational)]
+        else:
+            self._register_bounds(obs_low, obs_high, slice(None), obs_shape[0])
+            streams = [_mlp(obs_shape[0], scene_hidden, variational)]
+        self.streams = nn.ModuleList(nn.Sequential(*layers) for layers in streams)
+        features = sum(chain(stream)[1][0].weight.shape[0] for stream in self.streams)
+        self.head = nn.Sequential(make_linear(features, out_dim, variational))
+
+    def _register_bounds(self, low, high, part: slice, dims: int) -> None:
+        select = (lambda b: None if b is None else np.asarray(b, dtype=np.float32)[part])
+        centre, half_width = _bounds_affine(select(low), select(high), dims)
+        self.register_buffer("input_centre", centre)
+        self.register_buffer("input_scale", half_width)
+
+    def _stream_inputs(self, obs) -> list[torch.Tensor]:
+        if self.kind == "rgbd":
+            image = obs["rgbd"]
+            return [torch.cat([image[:, :3], image[:, 3:] / DEPTH_SCALE], dim=1) - 0.5, _angle_features(obs["joints"])]
+        if self.kind == "state":
+            cup = (obs[..., -CUP_DIMS:] - self.input_centre) / self.input_scale
+            return [cup, _angle_features(obs[..., :-CUP_DIMS])]
+        return [(obs - self.input_centre) / self.input_scale]
+
+    def forward(self, obs) -> torch.Tensor:
+        features = [stream(x) for stream, x in zip(self.streams, self._stream_inputs(obs))]
+        return self.head(torch.cat(features, dim=-1))
+
+    def weight_edges(self):
+        """Wiring of the weight layers for :func:`vdtutorial.vd.sparsity_report` and compaction."""
+        edges, tails = [], []
+        for stream in self.streams:
+            stream_edges, tail = chain(stream)
+            edges += stream_edges
+            tails.append(tail)
+        return edges + concat_edges(tails, self.head[0])
+
+    def compact(self) -> "TwoStreamNet":
+        """Copy with pruned neurons removed and plain layers only; same eval-mode outputs."""
+        replacements = compact_layers(self, self.weight_edges())
+        new = copy.deepcopy(self)
+        new.streams = nn.ModuleList(rebuild_sequential(stream, replacements) for stream in self.streams)
+        new.head = rebuild_sequential(self.head, replacements)
+        return new
+
+
+def _jsonable(value):
+    """Tuples -> lists (recursively) so that a config survives JSON and compares equal after it."""
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (tuple, list, np.ndarray)):
+        return [_jsonable(v) for v in value]
+    return value.item() if isinstance(value, np.generic) else value
+
+
+class GaussianPolicy(nn.Module):
+    """pi(a | s) = N(mu(s), diag(sigma(s)^2)), with ``mu`` and ``sigma`` two :class:`TwoStreamNet` of the same
+    kind (Section IV). The pre-training phase trains ``mu`` only; the RL phase trains both.
+
+    kind, obs_shape, obs_low, obs_high: see :class:`TwoStreamNet`. action_dim: number of action dimensions.
+    variational: sparse VD layers in both networks. sizes: keyword sizes of :class:`TwoStreamNet`.
+    init_std: initial sigma (radians of joint-angle change for the Jaco tasks; the action range is
+    +-pi/5 ~ +-0.63). min_std: floor of sigma.
+
+    ``config`` holds every constructor argument, JSON-friendly; ``GaussianPolicy.from_config(config)``
+    plus ``load_state_dict`` rebuilds a checkpoint (pruning masks included).
+    """
+
+    def __init__(self, kind: str, obs_shape, action_dim: int, variational: bool = False, sizes: dict | None = None,
+                 init_std: float = 0.3, min_std: float = 0.01, obs_low=None, obs_high=None):
+        super().__init__()
+        if not init_std > min_std >= 0:
+            raise ValueError(f"need init_std > min_std >= 0, got {init_std}, {min_std}")
+        self.config = _jsonable(dict(kind=kind, obs_shape=obs_shape, action_dim=action_dim, variational=variational,
+                                     sizes=dict(sizes or {}), init_std=init_std, min_std=min_std, obs_low=obs_low,
+                                     obs_high=obs_high))
+        self.min_std = min_std
+        nets = [TwoStreamNet(kind, obs_shape, action_dim, variational, obs_low=obs_low, obs_high=obs_high,
+                             **(sizes or {})) for _ in range(2)]
+        self.mu, self.sigma = nets
+        with torch.no_grad():
+            for net in nets:
+                net.head[0].weight.mul_(HEAD_INIT_SCALE)
+            self.mu.head[0].bias.zero_()
+            self.sigma.head[0].bias.fill_(math.log(math.expm1(init_std - min_std)))  # softplus^-1
+
+    @classmethod
+    def from_config(cls, config: dict) -> "GaussianPolicy":
+        return cls(**config)
+
+    def distribution(self, obs) -> Normal:
+        """Action distribution for a batch of observations (tensor (B, d) or dict of batched tensors)."""
+        obs = obs_to_tensor(obs)
+        return Normal(self.mu(obs), self.min_std + F.softplus(self.sigma(obs)))
+
+    def log_prob(self, obs, actions: torch.Tensor) -> torch.Tensor:
+        """log pi(a | s) per observation, summed over action dimensions (independent Gaussians)."""
+        return self.distribution(obs).log_prob(torch.as_tensor(actions, dtype=torch.float32)).sum(-1)
+
+    def entropy(self, obs) -> torch.Tensor:
+        """Entropy of pi(. | s) per observation."""
+        return self.distribution(obs).entropy().sum(-1)
+
+    def kl(self, old, obs) -> torch.Tensor:
+        """Mean over ``obs`` of KL(old || self), the quantity TRPO constrains. ``old`` is a policy or the
+        Normal it gave on ``obs``; it is treated as a constant (detached)."""
+        if isinstance(old, GaussianPolicy):
+            with torch.no_grad():
+                old = old.distribution(obs)
+        old = Normal(old.loc.detach(), old.scale.detach())
+        return kl_divergence(old, self.distribution(obs)).sum(-1).mean()
+
+    @torch.no_grad()
+    def sample(self, obs) -> torch.Tensor:
+        """One action per observation of a batch."""
+        return self.distribution(obs).sample()
+
+    @torch.no_grad()
+    def act(self, obs, deterministic: bool = False) -> np.ndarray:
+        """Action(s) as numpy for one observation or a batch (array, or dict for ``"rgbd"``); the mean
+        action when ``deterministic``. Uses the current train/eval mode: call ``eval()`` first to act with
+        an unpruned sparse-VD policy without weight noise."""
+        obs = obs_to_tensor(obs)
+        single = _is_unbatched(obs)
+        if single:
+            obs = {k: v.unsqueeze(0) for k, v in obs.items()} if isinstance(obs, dict) else obs.unsqueeze(0)
+        dist = self.distribution(obs)
+        actions = (dist.mean if deterministic else dist.sample()).numpy()
+        return actions[0] if single else actions
+
+    def prune_(self, threshold: float = THRESHOLD) -> "GaussianPolicy":
+        """Freeze the pruning masks of every sparse-VD layer (start of the RL phase, Section IV)."""
+        prune_model(self, threshold)
+        return self
+
+    def weight_edges(self):
+        """Wiring of both networks, so that ``sparsity_report(policy)`` works (use ``policy.mu`` for the
+        network that pre-training sparsifies)."""
+        return self.mu.weight_edges() + self.sigma.weight_edges()
+
+
+def make_policy(observation_space, action_dim: int, variational: bool = False, kind: str = "auto",
+                init_std: float = 0.3, min_std: float = 0.01, **sizes) -> GaussianPolicy:
+    """Gaussian policy for a gymnasium observation space.
+
+    kind: ``"rgbd"`` (Dict with "rgbd" and "joints"), ``"state"`` (Box of joint angles then cup x, y, z),
+    ``"mlp"`` (any Box), or ``"auto"``: Dict -> "rgbd", Box of shape (9,) -> "state" (the Jaco
+    environments' state mode: 6 joints + 3 cup coordinates), any other Box -> "mlp". Pass ``kind="mlp"``
+    explicitly for a 9-number Box that is not a Jaco state. ``sizes``: see :class:`TwoStreamNet`.
+    """
+    is_dict = isinstance(observation_space, gym.spaces.Dict)
+    if kind == "auto":
+        kind = "rgbd" if is_dict else "state" if observation_space.shape == (9,) else "mlp"
+    if kind == "rgbd":
+        if not is_dict or not {"rgbd", "joints"} <= set(observation_space.spaces):
+            raise ValueError(f"kind 'rgbd' needs a Dict space with 'rgbd' and 'joints', got {observation_space}")
+        obs_shape = {key: observation_space[key].shape for key in ("rgbd", "joints")}
+        bounds = {}
+    else:
+        if is_dict or len(observation_space.shape) != 1:
+            raise ValueError(f"kind {kind!r} needs a 1-D Box space, got {observation_space}")
+        obs_shape = observation_space.shape
+        bounds = dict(obs_low=observation_space.low, obs_high=observation_space.high)
+    return GaussianPolicy(kind, obs_shape, action_dim, variational, sizes, init_std, min_std, **bounds)
