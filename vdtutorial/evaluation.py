@@ -2,7 +2,8 @@
 
 The paper's reaching metric is the number of successful trajectories per episode of 200 time steps
 (Figs. 4-6): run the controller for 200 environment steps, starting a new trajectory whenever one
-ends, and count the trajectories that ended in success.
+ends, and count the trajectories that ended in success. A controller here is anything with
+``reset(env)`` (called after every ``env.reset``) and ``action(obs)``.
 """
 from __future__ import annotations
 
@@ -11,6 +12,55 @@ import numpy as np
 
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.expert import IKExpert
+
+#: Length of the paper's evaluation episode, in environment steps.
+EPISODE_STEPS = 200
+
+
+class ExpertController:
+    """The IK expert as a controller (it rebuilds G for every new cup)."""
+
+    def __init__(self, env: gym.Env):
+        self.expert = IKExpert(env)
+
+    def reset(self, env) -> None:
+        self.expert.reset()
+
+    def action(self, obs) -> np.ndarray:
+        return self.expert.action()
+
+
+class PolicyController:
+    """A Gaussian policy as a controller: its mean action when ``deterministic``, else a sample."""
+
+    def __init__(self, policy, deterministic: bool = True):
+        self.policy, self.deterministic = policy, deterministic
+
+    def reset(self, env) -> None:
+        pass
+
+    def action(self, obs) -> np.ndarray:
+        return self.policy.act(obs, deterministic=self.deterministic)
+
+
+def successes_per_episode(env: gym.Env, controller, steps: int = EPISODE_STEPS, seed: int = 0) -> dict:
+    """Run ``controller`` for ``steps`` env steps (new trajectory whenever one ends) and count.
+
+    Returns successes (trajectories ending in success), failures (ending in a collision), trajectories
+    finished, and the total reward."""
+    obs, _ = env.reset(seed=seed)
+    controller.reset(env)
+    out = {"successes": 0, "failures": 0, "trajectories": 0, "reward": 0.0}
+    for _ in range(steps):
+        obs, reward, terminated, truncated, info = env.step(controller.action(obs))
+        out["reward"] += float(reward)
+        if terminated or truncated:
+            out["trajectories"] += 1
+            out["successes"] += bool(info["is_success"])
+            out["failures"] += bool(info["is_failure"])
+            obs, _ = env.reset()
+            controller.reset(env)
+    return out
 
 
 def expert_success_rate(task: str, episodes: int, seed: int = 0) -> tuple[float, float]:

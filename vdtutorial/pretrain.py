@@ -1,0 +1,239 @@
+"""Behavioural cloning of the IK expert: the pre-training phase of Section IV (Fig. 1, top).
+
+Both regularisers fit the same Gaussian policy pi(a|s) = N(mu(s), sigma(s)) to the data set D of eq. 8
+by maximising the log-likelihood of the expert's actions. Only ``mu`` is trained; ``sigma`` keeps its
+initial parameters (the paper: "only the parameters of mu are trained in this stage, while those of
+sigma remain fixed"), so the likelihood is a weighted squared error whose weights sigma(s)^-2 come
+from the untrained sigma network.
+
+``reg="vd"`` -- sparse variational dropout. ``mu`` has SVDO layers and the loss is the negative ELBO of
+eqs. 1-3 divided by N (dividing by the data set size keeps the loss on the scale of one sample and
+leaves its optimum unchanged):
+
+    loss = - (1/M) sum_m log N(a_m | mu(s_m), sigma(s_m))  +  beta * KL(q(W) || p(W)) / N
+
+with the local reparameterisation trick inside the SVDO layers (eq. 4) and Molchanov's approximation of
+the KL to the log-uniform prior. ``beta`` warms up linearly from 0 to 1 over the first
+``beta_warmup`` fraction of the epochs: early on the data term shapes the weights, and the KL, which
+pushes every weight towards being dropped, comes in gradually (without it many weights are pruned
+before the network has learnt anything).
+
+``reg="l2"`` -- the baseline: ``mu`` has plain layers and the loss adds ``l2 * sum(W^2)`` over the
+weights of ``mu`` (weight decay; biases excluded).
+
+Both use Adam, minibatches of ``batch_size``, a held-out split by whole episodes (samples of one
+trajectory are strongly correlated; splitting by sample would leak), and log per epoch the training
+loss, the held-out mean squared error of the (deterministic, pruned) mean action and, for VD, the
+fraction of weights of ``mu`` with log alpha > 3.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+import vdtutorial
+from vdtutorial.demos import Demos
+from vdtutorial.envs import ENV_IDS
+from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor
+from vdtutorial.settings import DATA_DIR, budget
+from vdtutorial.vd import model_kl, sparsity_report
+
+REGULARISERS = ("vd", "l2")
+
+
+@dataclass
+class PretrainConfig:
+    """Hyperparameters of behavioural cloning.
+
+    epochs: passes over the training split (the quick setting keeps a few).
+    batch_size: M in eq. 3.
+    lr: Adam's step size.
+    beta_warmup: fraction of the epochs over which the KL weight beta rises from 0 to 1 (VD only).
+    l2: weight-decay coefficient of the L2 baseline (L2 only).
+    val_fraction: fraction of the episodes held out.
+    image_size: camera image side for ``obs_mode="rgbd"``.
+    """
+
+    reg: str = "vd"
+    obs_mode: str = "state"
+    epochs: int = budget(150, 4)
+    batch_size: int = 100
+    lr: float = 1e-3
+    beta_warmup: float = 0.3
+    l2: float = 1e-4
+    val_fraction: float = 0.1
+    image_size: int = 128
+
+    def __post_init__(self):
+        if self.reg not in REGULARISERS:
+            raise ValueError(f"reg must be one of {REGULARISERS}, got {self.reg!r}")
+        if self.obs_mode not in ("state", "rgbd"):
+            raise ValueError(f"obs_mode must be 'state' or 'rgbd', got {self.obs_mode!r}")
+        if self.epochs < 1 or self.batch_size < 1 or not 0 <= self.val_fraction < 1:
+            raise ValueError("epochs and batch_size must be >= 1 and val_fraction in [0, 1)")
+
+
+def observation_space(task: str, obs_mode: str, image_size: int = 128) -> gym.Space:
+    env = gym.make(ENV_IDS[task], obs_mode=obs_mode, image_size=image_size)
+    space = env.observation_space
+    env.close()
+    return space
+
+
+def demo_observations(demos: Demos, obs_mode: str, image_size: int = 128, progress: bool = False):
+    """The policy inputs of every sample: the state vectors, or RGBD images re-rendered from the stored
+    states (float16 to halve the memory of a data set of images; converted per batch)."""
+    if obs_mode == "state":
+        return demos.states
+    env = gym.make(ENV_IDS[demos.meta["task"]], obs_mode="rgbd", image_size=image_size)
+    n = len(demos)
+    images = np.empty((n, 4, image_size, image_size), dtype=np.float16)
+    for i in tqdm(range(n), desc="rendering demonstration images", disable=not progress):
+        images[i] = env.unwrapped.observation_at(demos.joints[i], demos.cup[i, :2])["rgbd"]
+    env.close()
+    return {"rgbd": images, "joints": demos.joints.astype(np.float32)}
+
+
+def _take(obs, idx):
+    if isinstance(obs, dict):
+        return {k: torch.as_tensor(v[idx], dtype=torch.float32) for k, v in obs.items()}
+    return obs_to_tensor(obs[idx])
+
+
+def split_by_episode(demos: Demos, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the training and held-out samples, holding out whole episodes."""
+    episodes = np.unique(demos.episode)
+    rng = np.random.default_rng(seed)
+    held = rng.permutation(episodes)[: int(round(val_fraction * len(episodes)))]
+    is_val = np.isin(demos.episode, held)
+    return np.flatnonzero(~is_val), np.flatnonzero(is_val)
+
+
+def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
+             observations=None) -> tuple[GaussianPolicy, list[dict]]:
+    """Behavioural cloning of ``demos`` with the chosen regulariser. Returns the policy (in eval mode;
+    a VD policy is not yet pruned: call ``policy.prune_()`` to start RL) and one log row per epoch.
+    ``observations`` may pass inputs already made by :func:`demo_observations`."""
+    cfg = config or PretrainConfig()
+    torch.manual_seed(seed)
+    task = demos.meta["task"]
+    space = observation_space(task, cfg.obs_mode, cfg.image_size)
+    policy = make_policy(space, demos.actions.shape[1], variational=cfg.reg == "vd")
+    policy.sigma.requires_grad_(False)
+    obs = observations if observations is not None else demo_observations(demos, cfg.obs_mode, cfg.image_size, progress)
+    actions = torch.as_tensor(demos.actions, dtype=torch.float32)
+    train_idx, val_idx = split_by_episode(demos, cfg.val_fraction, seed)
+    n_train = len(train_idx)
+    params = list(policy.mu.parameters())
+    weights = [p for name, p in policy.mu.named_parameters() if name.endswith("weight")]
+    optimiser = torch.optim.Adam(params, lr=cfg.lr)
+    generator = torch.Generator().manual_seed(seed)
+    history = []
+    bar = tqdm(range(cfg.epochs), desc=f"pre-training ({cfg.reg}, {cfg.obs_mode})", disable=not progress)
+    step, total_steps = 0, cfg.epochs * math.ceil(n_train / cfg.batch_size)
+    for epoch in bar:
+        policy.train()
+        losses = []
+        for batch in torch.randperm(n_train, generator=generator).split(cfg.batch_size):
+            idx = train_idx[batch.numpy()]
+            o, a = _take(obs, idx), actions[idx]
+            nll = -policy.log_prob(o, a).mean()
+            if cfg.reg == "vd":
+                beta = min(1.0, step / max(1.0, cfg.beta_warmup * total_steps))
+                loss = nll + beta * model_kl(policy.mu) / n_train
+            else:
+                loss = nll + cfg.l2 * sum((w ** 2).sum() for w in weights)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            losses.append(loss.item())
+            step += 1
+        row = {"epoch": epoch + 1, "train_loss": float(np.mean(losses)), **evaluate_imitation(policy, obs, actions, val_idx)}
+        if cfg.reg == "vd":
+            row["weights_pruned"] = sparsity_report(policy.mu).weight_fraction
+        history.append(row)
+        bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
+    policy.eval()
+    policy.pretrain_info = {"config": asdict(cfg), "seed": seed, "demos": dict(demos.meta), "history": history}
+    return policy, history
+
+
+@torch.no_grad()
+def evaluate_imitation(policy: GaussianPolicy, obs, actions: torch.Tensor, idx: np.ndarray, batch: int = 500) -> dict:
+    """Held-out mean squared error of the mean action (eval mode: deterministic, log alpha > 3 dropped)
+    and mean log-likelihood of the expert's actions."""
+    if len(idx) == 0:
+        return {"val_mse": float("nan"), "val_loglik": float("nan")}
+    was_training = policy.training
+    policy.eval()
+    se = ll = 0.0
+    for start in range(0, len(idx), batch):
+        part = idx[start:start + batch]
+        dist = policy.distribution(_take(obs, part))
+        se += ((dist.mean - actions[part]) ** 2).sum().item()
+        ll += dist.log_prob(actions[part]).sum().item()
+    policy.train(was_training)
+    return {"val_mse": se / (len(idx) * actions.shape[1]), "val_loglik": ll / len(idx)}
+
+
+# -- checkpoints -----------------------------------------------------------------------------------------
+
+def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str) -> str:
+    return f"python -m vdtutorial pretrain --reg {reg} --demos {demos_path} --seed {seed} --obs {obs_mode}"
+
+
+def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None) -> Path:
+    """Conventional checkpoint name under ``data/checkpoints``."""
+    m = demos_meta
+    return Path(root or DATA_DIR) / "checkpoints" / f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}_{reg}_{obs_mode}_seed{seed}.pt"
+
+
+def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> Path:
+    """``state_dict`` plus the policy's config and how it was made; written atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"vdtutorial": vdtutorial.__version__, **getattr(policy, "pretrain_info", {}), **(extra or {})}
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save({"config": policy.config, "state_dict": policy.state_dict(), "meta": meta}, tmp)
+    tmp.replace(path)
+    return path
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing, unreadable, or not the policy that was asked for."""
+
+
+def load_checkpoint(path, **expected) -> GaussianPolicy:
+    """Rebuild a policy from a checkpoint (``weights_only=True``: plain tensors and containers only).
+
+    ``expected`` entries are checked against the policy config (e.g. ``kind="state"``,
+    ``variational=True``) or the checkpoint's meta (e.g. ``task``); a mismatch raises
+    :class:`CheckpointError` naming the file and what differs."""
+    path = Path(path)
+    fix = "Make it with `python -m vdtutorial pretrain ...` (see README.md)."
+    if not path.exists():
+        raise CheckpointError(f"checkpoint {path} does not exist. {fix}")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+        config, state, meta = blob["config"], blob["state_dict"], blob.get("meta", {})
+    except Exception as exc:  # torch raises several types for a damaged or foreign file
+        raise CheckpointError(f"checkpoint {path} is corrupt or not a vdtutorial checkpoint ({exc}). {fix}") from exc
+    where = {**meta.get("demos", {}), **meta.get("config", {}), **config}
+    for key, want in expected.items():
+        if where.get(key) != want:
+            raise CheckpointError(f"checkpoint {path} has {key}={where.get(key)!r}, expected {want!r}. "
+                                  f"{meta.get('command', fix)}")
+    policy = GaussianPolicy.from_config(config)
+    try:
+        policy.load_state_dict(state)
+    except RuntimeError as exc:
+        raise CheckpointError(f"checkpoint {path} does not fit its own config ({exc}). {fix}") from exc
+    policy.eval()
+    policy.pretrain_info = meta
+    return policy
