@@ -101,3 +101,18 @@ def test_bad_arguments():
         generate_demos("reach", 0, 0.5)
     with pytest.raises(ValueError, match="noise"):
         generate_demos("reach", 10, -1.0)
+
+
+def test_shipped_data_sets_load_and_match_a_fresh_generation():
+    """Each shipped set is what its recorded command makes: its first samples are regenerated here."""
+    from vdtutorial.settings import DATA_DIR
+
+    shipped = [("reach", n, s) for n, s in ((8000, 0.5), (4000, 0.5), (2000, 0.5), (8000, 0.25), (8000, 0.05))]
+    shipped.append(("grasp", 8000, 0.5))
+    for task, n, sigma in shipped:
+        demos = Demos.load(demo_path(task, n, sigma, 0, root=DATA_DIR), task=task, samples=n, noise=sigma, seed=0)
+        assert len(demos) == n
+    head = generate_demos("reach", 150, 0.5, seed=0, progress=False)
+    full = Demos.load(demo_path("reach", 8000, 0.5, 0, root=DATA_DIR))
+    np.testing.assert_array_equal(head.joints, full.joints[:150])
+    np.testing.assert_array_equal(head.actions, full.actions[:150])
