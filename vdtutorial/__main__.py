@@ -26,11 +26,29 @@ def _cmd_expert(args) -> None:
               f"(mean episode length {mean_len:.2f} steps)")
 
 
+def _cmd_pretrain(args) -> None:
+    import torch
+
+    from vdtutorial.demos import Demos
+    from vdtutorial.pretrain import PretrainConfig, checkpoint_path, pretrain, pretrain_command, save_checkpoint
+    from vdtutorial.vd import sparsity_report
+
+    torch.set_num_threads(1)
+    demos = Demos.load(args.demos)
+    config = PretrainConfig(reg=args.reg, obs_mode=args.obs, **({"epochs": args.epochs} if args.epochs else {}))
+    policy, history = pretrain(demos, config, seed=args.seed)
+    command = pretrain_command(args.reg, args.demos, args.seed, args.obs) + (f" --epochs {args.epochs}" if args.epochs else "")
+    out = save_checkpoint(policy, args.out or checkpoint_path(demos.meta, args.reg, args.obs, args.seed), {"command": command})
+    print(f"held-out imitation MSE {history[-1]['val_mse']:.4f}")
+    if args.reg == "vd":
+        print(sparsity_report(policy.mu))
+    print(f"wrote {out}")
+
+
 def _cmd_bench(args) -> None:
     from vdtutorial import bench
 
-    if args.what == "env":
-        bench.bench_env()
+    {"env": bench.bench_env, "policy": bench.bench_policy}[args.what]()
 
 
 def _cmd_reproduce(args) -> None:
@@ -66,8 +84,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_expert)
 
-    p = sub.add_parser("bench", help="benchmarks (env)")
-    p.add_argument("what", choices=("env",))
+    p = sub.add_parser("pretrain", help="behavioural cloning with sparse VD or L2 (eqs. 1-4)")
+    p.add_argument("--reg", choices=("vd", "l2"), required=True)
+    p.add_argument("--demos", required=True, help="a demonstrations file (python -m vdtutorial demos ...)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--obs", choices=("state", "rgbd"), default="state")
+    p.add_argument("--epochs", type=int, default=None, help="default: the PretrainConfig setting")
+    p.add_argument("--out", default=None, help="checkpoint file (default: data/checkpoints/...)")
+    p.set_defaults(func=_cmd_pretrain)
+
+    p = sub.add_parser("bench", help="benchmarks (env, policy)")
+    p.add_argument("what", choices=("env", "policy"))
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("reproduce", help="the main job: expert success rates and a demonstrations set")

@@ -89,3 +89,86 @@ def bench_env(steps: int | None = None) -> list[dict]:
         rows.append({"task": task, "expert": True, **t})
         print(f"expert {task}: {t['action_ms']:.3f} ms per action, {t['solution_set_ms']:.1f} ms to build G per cup")
     return rows
+
+
+def _best_time(fn, repeats: int) -> float:
+    fn()  # warm-up
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def _network_times(net, obs, repeats: int) -> tuple[float, float]:
+    """Best forward and forward+backward time of ``net`` on a batch."""
+    import torch
+
+    def forward():
+        with torch.no_grad():
+            net(obs)
+
+    def forward_backward():
+        net.zero_grad()
+        net(obs).square().mean().backward()
+
+    return _best_time(forward, repeats), _best_time(forward_backward, repeats)
+
+
+def bench_policy(samples: int | None = None, repeats: int | None = None) -> list[dict]:
+    """Cost of the mu network for a batch of 200 observations, plain vs sparse VD (training mode, local
+    reparameterisation) vs the compacted pruned network, for state and rgbd 128x128 inputs; then one
+    pre-training epoch over ``samples`` demonstrations (state inputs; rgbd images re-rendered first).
+
+    The compacted network comes from a VD policy pre-trained on the shipped 8000-sample reach set (the
+    shipped checkpoint when present; else trained here for the state network, and for the rgbd network
+    the untrained VD network is compacted, which removes almost nothing -- the row says so)."""
+    import torch
+
+    from vdtutorial.demos import Demos, demo_path
+    from vdtutorial.pretrain import PretrainConfig, checkpoint_path, demo_observations, load_checkpoint, observation_space, pretrain
+    from vdtutorial.policy import make_policy, obs_to_tensor
+    from vdtutorial.vd import compact, sparsity_report
+
+    torch.set_num_threads(1)
+    samples = samples or budget(8000, 400)
+    repeats = repeats or budget(10, 2)
+    demos = Demos.load(demo_path("reach", 8000, 0.5, 0))
+    rows = []
+    print(f"{'obs':6} {'network':26} {'forward ms':>11} {'fwd+bwd ms':>11} {'weights':>9}")
+    for obs_mode in ("state", "rgbd"):
+        space = observation_space("reach", obs_mode, 128)
+        idx = np.arange(200)
+        obs = obs_to_tensor(demo_observations(Demos(**{k: getattr(demos, k)[idx] for k in ("joints", "cup", "actions", "episode", "t")},
+                                                       meta=demos.meta), obs_mode, 128))
+        torch.manual_seed(0)
+        plain = make_policy(space, 6, variational=False).mu
+        vd = make_policy(space, 6, variational=True).mu.train()
+        ckpt = checkpoint_path(demos.meta, "vd", obs_mode, 0)
+        if ckpt.exists():
+            trained, source = load_checkpoint(ckpt).mu, f"shipped {ckpt.name}"
+        elif obs_mode == "state":
+            trained = pretrain(demos, PretrainConfig(reg="vd", epochs=budget(150, 3)), progress=False)[0].mu
+            source = "pre-trained here"
+        else:
+            trained, source = make_policy(space, 6, variational=True).mu.eval(), "untrained VD net (no checkpoint)"
+        small = compact(trained.eval())
+        for name, net in (("plain", plain), ("sparse VD (train mode)", vd), ("compacted pruned", small)):
+            fwd, fb = _network_times(net, obs, repeats)
+            n_weights = sum(p.numel() for n, p in net.named_parameters() if n.endswith("weight"))
+            rows.append({"obs_mode": obs_mode, "network": name, "forward_ms": 1e3 * fwd, "forward_backward_ms": 1e3 * fb, "weights": n_weights})
+            print(f"{obs_mode:6} {name:26} {1e3 * fwd:>11.2f} {1e3 * fb:>11.2f} {n_weights:>9d}")
+        report = sparsity_report(trained)
+        print(f"       compacted from: {source}; {report.weight_fraction:.1%} weights, {report.neuron_fraction:.1%} neurons pruned")
+    for obs_mode in ("state", "rgbd"):
+        part = Demos(**{k: getattr(demos, k)[:samples] for k in ("joints", "cup", "actions", "episode", "t")},
+                     meta={**demos.meta, "samples": samples})
+        obs = demo_observations(part, obs_mode, 128)
+        for reg in ("l2", "vd"):
+            start = time.perf_counter()
+            pretrain(part, PretrainConfig(reg=reg, obs_mode=obs_mode, epochs=1, val_fraction=0.0), progress=False, observations=obs)
+            seconds = time.perf_counter() - start
+            rows.append({"obs_mode": obs_mode, "epoch": reg, "samples": samples, "seconds": seconds})
+            print(f"one pre-training epoch, {obs_mode}, {reg}, {samples} samples: {seconds:.2f} s")
+    return rows
