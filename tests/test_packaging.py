@@ -43,7 +43,8 @@ def test_quick_switch_is_read_in_exactly_one_place():
     readers = [p for p in (ROOT / "vdtutorial").rglob("*.py") if "VDTUTORIAL_QUICK" in p.read_text()]
     assert [p.name for p in readers] == ["settings.py"]
     for nb in (ROOT / "notebooks").glob("*.ipynb"):
-        assert "VDTUTORIAL_QUICK\"" not in nb.read_text() and "environ" not in nb.read_text(), nb.name
+        text = nb.read_text()  # notebooks may mention the variable, but read budgets from vdtutorial.settings
+        assert "os.environ" not in text and "getenv" not in text, nb.name
 
 
 def test_ci_runs_the_readme_test_command():

@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
-from vdtutorial.settings import QUICK, budget
+from vdtutorial.settings import QUICK
 
 
 def _cmd_demos(args) -> None:
@@ -30,12 +31,14 @@ def _cmd_pretrain(args) -> None:
     import torch
 
     from vdtutorial.demos import Demos
-    from vdtutorial.pretrain import PretrainConfig, checkpoint_path, pretrain, pretrain_command, save_checkpoint
+    from vdtutorial.pretrain import checkpoint_path, default_config, pretrain, pretrain_command, save_checkpoint
     from vdtutorial.vd import sparsity_report
 
     torch.set_num_threads(1)
     demos = Demos.load(args.demos)
-    config = PretrainConfig(reg=args.reg, obs_mode=args.obs, **({"epochs": args.epochs} if args.epochs else {}))
+    config = default_config(args.reg, args.obs)
+    if args.epochs:
+        config = dataclasses.replace(config, epochs=args.epochs)
     policy, history = pretrain(demos, config, seed=args.seed)
     command = pretrain_command(args.reg, args.demos, args.seed, args.obs) + (f" --epochs {args.epochs}" if args.epochs else "")
     out = save_checkpoint(policy, args.out or checkpoint_path(demos.meta, args.reg, args.obs, args.seed), {"command": command})
@@ -52,17 +55,29 @@ def _cmd_bench(args) -> None:
 
 
 def _cmd_reproduce(args) -> None:
-    """The package's main job (so far): the expert's success rates and a demonstrations data set."""
-    from vdtutorial.demos import demo_path, generate_demos
-    from vdtutorial.evaluation import expert_success_rate
+    """The package's main job: the whole pipeline at small scale (see experiments.reproduce_quick)."""
+    from vdtutorial.experiments import reproduce_quick
 
-    episodes = budget(200, 20)
-    for task in ("reach", "grasp"):
-        rate, mean_len = expert_success_rate(task, episodes, seed=args.seed)
-        print(f"expert {task}: success rate {rate:.3f} over {episodes} episodes (mean length {mean_len:.2f} steps)")
-    samples = budget(8000, 500)
-    demos = generate_demos("reach", samples, 0.5, args.seed)
-    print(f"wrote {demos.save(demo_path('reach', samples, 0.5, args.seed, root=args.out))}")
+    reproduce_quick(out=args.out, workers=args.workers)
+
+
+def _cmd_experiment(args) -> None:
+    import warnings
+
+    from vdtutorial import experiments
+
+    if args.name == "table1":
+        experiments.table1(obs_mode=args.obs, seed=args.seeds[0] if args.seeds else 0, out=args.out, workers=args.workers)
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        result = getattr(experiments, args.name)(seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs,
+                                                 out=args.out, workers=args.workers)
+    for label, final in result.summary["final"].items():
+        print(f"{label:>32}: final {final}")
+    if "vd_reaches_l2_final" in result.summary:
+        print(result.summary["vd_reaches_l2_final"]["text"])
+    print(f"wrote {result.out}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -89,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--demos", required=True, help="a demonstrations file (python -m vdtutorial demos ...)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--obs", choices=("state", "rgbd"), default="state")
-    p.add_argument("--epochs", type=int, default=None, help="default: the PretrainConfig setting")
+    p.add_argument("--epochs", type=int, default=None, help="default: pretrain.default_config's setting")
     p.add_argument("--out", default=None, help="checkpoint file (default: data/checkpoints/...)")
     p.set_defaults(func=_cmd_pretrain)
 
@@ -97,9 +112,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("what", choices=("env", "policy"))
     p.set_defaults(func=_cmd_bench)
 
-    p = sub.add_parser("reproduce", help="the main job: expert success rates and a demonstrations set")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=None, help="data folder for the generated demonstrations")
+    p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1")
+    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1"))
+    p.add_argument("--seeds", type=int, nargs="+", default=None, help="default: 0 1 2 (table1: the first seed)")
+    p.add_argument("--steps", type=int, default=None, help="RL env steps per run (default: the paper's 3e5)")
+    p.add_argument("--obs", choices=("state", "rgbd"), default="state")
+    p.add_argument("--workers", type=int, default=2, help="runs in parallel (one per core)")
+    p.add_argument("--out", default=None, help="output folder (default: data/results/NAME)")
+    p.set_defaults(func=_cmd_experiment)
+
+    p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (< 5 min on 2 cores)")
+    p.add_argument("--quick", action="store_true", help="accepted for clarity; reproduce always runs small")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--out", default=None, help="output folder (default: runs/reproduce_quick)")
     p.set_defaults(func=_cmd_reproduce)
     return parser
 

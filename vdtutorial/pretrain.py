@@ -79,6 +79,20 @@ class PretrainConfig:
             raise ValueError("epochs and batch_size must be >= 1 and val_fraction in [0, 1)")
 
 
+#: Settings that differ for image policies. A policy that sees the cup only through the camera must
+#: learn image features before they pay off; with the state-mode warm-up (30% of the epochs) the KL
+#: term pruned the whole image stream of the VD network before it was useful (measured: 100% of the
+#: image stream's weights dropped, held-out MSE 0.043 vs L2's 0.028). Raising beta over all epochs
+#: keeps the stream alive (held-out MSE 0.022). Epochs are fewer because an image epoch costs ~500x a
+#: state epoch on a CPU.
+RGBD_SETTINGS = {"epochs": budget(40, 2), "beta_warmup": 1.0}
+
+
+def default_config(reg: str = "vd", obs_mode: str = "state") -> PretrainConfig:
+    """The pre-training settings used for shipped checkpoints and experiments, per observation mode."""
+    return PretrainConfig(reg=reg, obs_mode=obs_mode, **(RGBD_SETTINGS if obs_mode == "rgbd" else {}))
+
+
 def observation_space(task: str, obs_mode: str, image_size: int = 128) -> gym.Space:
     env = gym.make(ENV_IDS[task], obs_mode=obs_mode, image_size=image_size)
     space = env.observation_space
@@ -117,8 +131,9 @@ def split_by_episode(demos: Demos, val_fraction: float, seed: int) -> tuple[np.n
 
 def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
              observations=None) -> tuple[GaussianPolicy, list[dict]]:
-    """Behavioural cloning of ``demos`` with the chosen regulariser. Returns the policy (in eval mode;
-    a VD policy is not yet pruned: call ``policy.prune_()`` to start RL) and one log row per epoch.
+    """Behavioural cloning of ``demos`` with the chosen regulariser (default: :func:`default_config` for
+    state inputs). Returns the policy (in eval mode, sigma trainable again; a VD policy is not yet pruned:
+    call ``policy.prune_()`` to start RL) and one log row per epoch.
     ``observations`` may pass inputs already made by :func:`demo_observations`."""
     cfg = config or PretrainConfig()
     torch.manual_seed(seed)
@@ -160,6 +175,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
         history.append(row)
         bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
     policy.eval()
+    policy.sigma.requires_grad_(True)  # frozen for behavioural cloning only: the RL phase trains sigma too
     policy.pretrain_info = {"config": asdict(cfg), "seed": seed, "demos": dict(demos.meta), "history": history}
     return policy, history
 

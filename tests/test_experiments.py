@@ -1,0 +1,187 @@
+"""Tests of vdtutorial.experiments: tiny real runs of each method (seeded, no writes to data/), and the
+numbers the figures and Table I report, on hand-made inputs."""
+import csv
+import json
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from vdtutorial.demos import Demos, demo_path
+from vdtutorial.experiments import (METHOD_LABELS, TABLE1, Curve, RunSpec, curves_from_rows, expert_reference,
+                                    finetune, format_table1, mean_band, moving_average, pretrained_policy, read_rows,
+                                    run_experiment, sparsity_trends, steps_to_reach, vd_reaches_l2_final)
+from vdtutorial.pretrain import PretrainConfig, checkpoint_path
+from vdtutorial.vd import svdo_layers
+
+#: A shipped data set (read only) and budgets that keep each run to about a second.
+DEMOS = demo_path("reach", 2000, 0.5, 0)
+TINY = PretrainConfig(epochs=1)
+STEPS = 400  # two TRPO iterations of 200 steps
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def _tiny_run(method, tmp_path, seed=0, name="run"):
+    return finetune(method, "reach", DEMOS, seed=seed, total_steps=STEPS, csv_path=tmp_path / f"{name}.csv",
+                    pretrain_config=TINY, checkpoints_root=tmp_path)
+
+
+def _without_wall_time(rows):
+    return [{k: v for k, v in row.items() if k != "wall_time"} for row in rows]
+
+
+# ---------------------------------------------------------------------------------------------
+# Runs
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("method", ["vd", "l2", "none"])
+def test_finetune_writes_a_row_per_iteration(method, tmp_path):
+    _, rows = _tiny_run(method, tmp_path)
+    assert [r["env_steps"] for r in rows] == [200, 400]
+    with open(tmp_path / "run.csv", newline="") as f:
+        written = list(csv.DictReader(f))
+    assert len(written) == 2
+    assert {"iteration", "env_steps", "successes", "episodes", "mean_return", "mean_kl"} <= set(written[0])
+    # every sub-environment starts a trajectory at the iteration start and it ends within 25 steps
+    assert all(r["episodes"] >= 8 and math.isfinite(r["mean_return"]) for r in rows)
+    meta = Demos.load(DEMOS).meta
+    assert checkpoint_path(meta, method, "state", 0, root=tmp_path).exists() == (method != "none")
+
+
+def test_vd_finetuning_keeps_pruned_weights_at_zero_and_trains_mu_and_sigma(tmp_path):
+    policy, _ = _tiny_run("vd", tmp_path)
+    start = pretrained_policy("vd", Demos.load(DEMOS), "state", 0, TINY, tmp_path).prune_()
+    layers, start_layers = svdo_layers(policy), svdo_layers(start)
+    assert sum(int((~layer.mask).sum()) for layer in layers) > 0
+    for layer, before in zip(layers, start_layers):
+        assert torch.equal(layer.mask, before.mask)
+        assert torch.all(layer.weight[~layer.mask] == 0)
+        assert torch.equal(layer.log_sigma2, before.log_sigma2)  # alpha is not trained in the RL phase
+    for net in ("mu", "sigma"):
+        changed = [not torch.equal(a, b) for a, b in zip(getattr(policy, net).parameters(),
+                                                           getattr(start, net).parameters())]
+        assert any(changed), f"TRPO did not train {net}"
+
+
+def test_same_seed_same_run_and_another_seed_another(tmp_path):
+    _, first = _tiny_run("l2", tmp_path, seed=3, name="a")    # pre-trains and saves the checkpoint
+    _, again = _tiny_run("l2", tmp_path, seed=3, name="b")    # reuses it
+    _, other = _tiny_run("l2", tmp_path, seed=4, name="c")
+    assert _without_wall_time(first) == _without_wall_time(again)
+    assert _without_wall_time(first) != _without_wall_time(other)
+
+
+def test_stale_checkpoint_is_regenerated(tmp_path):
+    demos = Demos.load(DEMOS)
+    pretrained_policy("l2", demos, "state", 0, TINY, tmp_path)
+    with pytest.warns(UserWarning, match="epochs"):
+        policy = pretrained_policy("l2", demos, "state", 0, PretrainConfig(epochs=2), tmp_path)
+    assert policy.pretrain_info["config"]["epochs"] == 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the replaced checkpoint now matches: reused without a warning
+        reused = pretrained_policy("l2", demos, "state", 0, PretrainConfig(epochs=2), tmp_path)
+    assert reused.pretrain_info["config"]["epochs"] == 2
+
+
+def test_results_do_not_depend_on_the_number_of_workers(tmp_path):
+    specs = [RunSpec("l2", "reach", 2000, 0.5, seed, "state", STEPS, "L2") for seed in (0, 1)]
+    specs.append(RunSpec("none", "reach", None, None, 0, "state", STEPS, "none"))
+    results = {}
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        results[workers] = run_experiment("tiny", specs, "tiny", out, workers, checkpoints_root=out,
+                                          pretrain_config=TINY, window=2, command="test")
+        assert {p.name for p in out.iterdir()} >= {"tiny.csv", "tiny.png", "tiny.json", "runs", "checkpoints"}
+        assert len(list((out / "runs").glob("*.csv"))) == 3
+    assert _without_wall_time(results[1].rows) == _without_wall_time(results[2].rows)
+    record = json.loads((tmp_path / "w2" / "tiny.json").read_text())
+    assert record["command"] == "test" and len(record["runs"]) == 3 and record["pretrain_config"]["epochs"] == 1
+    # the combined CSV reads back into the same curves
+    rows = read_rows(tmp_path / "w2" / "tiny.csv")
+    again = curves_from_rows(rows, "successes", window=2)["L2"]
+    assert np.allclose(again.mean, results[2].curves["L2"].mean)
+
+
+def test_expert_reference_counts_like_a_trpo_iteration():
+    rows = expert_reference("grasp", seed=0, episodes=1)
+    row = rows[0]
+    assert row["episodes"] >= 8 and 0 < row["successes"] <= row["episodes"]
+    # sparse reward: -1 per step, +25 success, -25 collision; a grasp of a few steps returns ~20
+    assert 10 < row["mean_return"] < 25
+
+
+# ---------------------------------------------------------------------------------------------
+# Curves and summaries on hand-made numbers
+# ---------------------------------------------------------------------------------------------
+def test_trailing_moving_average():
+    assert np.allclose(moving_average([1, 2, 3, 4], 2), [1, 1.5, 2.5, 3.5])
+    assert np.allclose(moving_average([[1, 2, 3], [3, 3, 3]], 5), [[1, 1.5, 2], [3, 3, 3]])
+    assert np.allclose(moving_average([4, 0, 2], 1), [4, 0, 2])
+
+
+def test_t_band_on_a_hand_example():
+    mean, low, high = mean_band([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    # sd = 1, n = 3: half width t_{0.975, 2} / sqrt(3) = 4.3027 / 1.7321 = 2.4841
+    assert np.allclose(mean, [2.0, 0.0])
+    assert np.allclose(high - mean, [2.4841, 0.0], atol=1e-4) and np.allclose(mean - low, high - mean)
+    mean, low, high = mean_band([[5.0]])
+    assert mean[0] == 5.0 and np.isnan(low[0]) and np.isnan(high[0])
+
+
+def test_steps_to_reach_on_hand_made_curves():
+    steps = [200, 400, 600, 800, 1000]
+    assert steps_to_reach(steps, [0, 1, 3, 2, 5], 3) == 600
+    assert steps_to_reach(steps, [0, 1, 3, 2, 5], 0) == 200
+    assert steps_to_reach(steps, [0, 1, 3, 2, 5], 5.5) is None
+
+
+def _curve(method, values):
+    values = np.asarray(values, dtype=float)
+    return Curve(METHOD_LABELS[method], method, 200.0 * np.arange(1, len(values) + 1), values, values, values, 3)
+
+
+def test_vd_reaches_l2_final_on_hand_made_curves():
+    curves = {c.label: c for c in (_curve("vd", [0, 2, 4, 6, 6]), _curve("l2", [0, 1, 2, 3, 4]))}
+    summary = vd_reaches_l2_final(curves)
+    assert summary["l2_final_level"] == 4 and summary["steps"] == 600 and summary["fraction_of_budget"] == 0.6
+    curves = {c.label: c for c in (_curve("vd", [0, 1, 1, 1, 1]), _curve("l2", [0, 1, 2, 3, 4]))}
+    assert vd_reaches_l2_final(curves)["steps"] is None and "never" in vd_reaches_l2_final(curves)["text"]
+
+
+def test_curves_from_rows_smooths_each_seed_then_averages():
+    rows = [{"label": "VD", "method": "vd", "seed": s, "iteration": i, "env_steps": 200 * (i + 1), "successes": v}
+            for s, values in ((0, [0, 2, 4]), (1, [2, 2, 2])) for i, v in enumerate(values)]
+    rows += [{"label": "IK expert", "method": "expert", "seed": s, "episode": 0, "successes": v}
+             for s, v in ((0, 70), (1, 72))]
+    curves = curves_from_rows(rows, "successes", window=2)
+    # seed 0 smoothed: [0, 1, 3]; seed 1: [2, 2, 2]; mean [1, 1.5, 2.5]
+    assert np.allclose(curves["VD"].mean, [1, 1.5, 2.5]) and np.allclose(curves["VD"].steps, [200, 400, 600])
+    assert curves["IK expert"].mean[0] == 71 and curves["IK expert"].steps.size == 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Table I
+# ---------------------------------------------------------------------------------------------
+def _table_rows(values):
+    return [{"experiment": row, "task": task, "samples": n, "noise": s, "neuron_fraction": v,
+             "neuron_fraction_paper": paper, "weight_fraction": 0.5}
+            for (row, task, n, s, paper), v in zip(TABLE1, values)]
+
+
+def test_table1_trends_on_hand_made_numbers():
+    paper = [row[-1] for row in TABLE1]
+    rows = _table_rows(paper)
+    assert sparsity_trends(rows) == {"more demonstrations -> sparser": True, "less noise -> sparser": True}
+    # 4000 demonstrations sparser than 8000; Sigma 0.25 less sparse than 0.5
+    rows = _table_rows([0.60, 0.65, 0.40, 0.55, 0.70, 0.5])
+    assert sparsity_trends(rows) == {"more demonstrations -> sparser": False, "less noise -> sparser": False}
+    text = format_table1(rows)
+    assert "does NOT hold" in text and "0.677" in text
