@@ -48,10 +48,51 @@ def _cmd_pretrain(args) -> None:
     print(f"wrote {out}")
 
 
+def _cmd_evaluate(args) -> None:
+    """The covariate-shift check before any RL (Section III-A): pre-trained policies vs the expert."""
+    import gymnasium as gym
+    import numpy as np
+
+    from vdtutorial.demos import Demos
+    from vdtutorial.envs import ENV_IDS
+    from vdtutorial.evaluation import ExpertController, PolicyController, successes_per_episode
+    from vdtutorial.pretrain import checkpoint_path, load_checkpoint
+    from vdtutorial.settings import budget
+
+    demos = Demos.load(args.demos)
+    task = demos.meta["task"]
+    env = gym.make(ENV_IDS[task], obs_mode=args.obs)
+    episodes = args.episodes or budget(5, 2)
+    controllers = {reg: PolicyController(load_checkpoint(checkpoint_path(demos.meta, reg, args.obs, 0)))
+                   for reg in ("vd", "l2")}
+    controllers["expert"] = ExpertController(env)
+    for name, controller in controllers.items():
+        runs = [successes_per_episode(env, controller, seed=100 + k) for k in range(episodes)]
+        wins = np.array([r["successes"] for r in runs])
+        reward = np.array([r["reward"] for r in runs])
+        print(f"{name:7s} successes per 200-step episode {wins.mean():5.1f} +- {wins.std():4.1f}   "
+              f"reward per episode {reward.mean():8.1f}   ({episodes} episodes, mean action)")
+    env.close()
+
+
+def _cmd_digits(args) -> None:
+    from vdtutorial.vd import digits_validation
+
+    result = digits_validation(seed=args.seed)
+    print(f"dense MLP accuracy {result.dense_accuracy:.4f}; sparse VD MLP accuracy {result.vd_accuracy:.4f} "
+          f"with {result.fraction_pruned:.1%} of weights pruned ({result.seconds:.1f} s)")
+    print(result.report)
+
+
 def _cmd_bench(args) -> None:
     from vdtutorial import bench
 
-    {"env": bench.bench_env, "policy": bench.bench_policy}[args.what]()
+    if args.what == "trpo":
+        from vdtutorial.trpo import bench_trpo_pendulum
+
+        bench_trpo_pendulum()
+    else:
+        {"env": bench.bench_env, "policy": bench.bench_policy}[args.what]()
 
 
 def _cmd_reproduce(args) -> None:
@@ -108,8 +149,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="checkpoint file (default: data/checkpoints/...)")
     p.set_defaults(func=_cmd_pretrain)
 
-    p = sub.add_parser("bench", help="benchmarks (env, policy)")
-    p.add_argument("what", choices=("env", "policy"))
+    p = sub.add_parser("evaluate", help="successful trajectories per 200-step episode: pre-trained VD, L2, expert")
+    p.add_argument("--demos", default="data/demos/reach_n8000_sigma0.5_seed0.npz")
+    p.add_argument("--obs", choices=("state", "rgbd"), default="state")
+    p.add_argument("--episodes", type=int, default=None, help="200-step episodes per controller (default 5)")
+    p.set_defaults(func=_cmd_evaluate)
+
+    p = sub.add_parser("digits", help="validate sparse VD on scikit-learn's digits (dense vs VD MLP)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_digits)
+
+    p = sub.add_parser("bench", help="benchmarks (env, policy, trpo)")
+    p.add_argument("what", choices=("env", "policy", "trpo"),
+                   help="env: steps/s; policy: network and pre-training cost; trpo: Pendulum-v1 vs sb3-contrib")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1")

@@ -613,7 +613,3 @@ def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int |
               f"wall time {seconds.mean():6.1f} s/seed   (seeds {list(seeds)}, {total_steps} steps)")
     torch.set_num_threads(threads)
     return results
-
-
-if __name__ == "__main__":
-    bench_trpo_pendulum()
