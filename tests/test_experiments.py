@@ -22,14 +22,6 @@ TINY = PretrainConfig(epochs=1)
 STEPS = 400  # two TRPO iterations of 200 steps
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def _tiny_run(method, tmp_path, seed=0, name="run"):
     return finetune(method, "reach", DEMOS, seed=seed, total_steps=STEPS, csv_path=tmp_path / f"{name}.csv",
                     pretrain_config=TINY, checkpoints_root=tmp_path)

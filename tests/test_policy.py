@@ -16,15 +16,6 @@ IMAGE = 48  # smallest convenient size for the default convolutions: 48 -> 11 ->
 JOINT_LIMIT = np.float32(2 * math.pi)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny tensors: one thread avoids synchronisation costs on the shared 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def rgbd_space(size: int = IMAGE) -> gym.spaces.Dict:
     return gym.spaces.Dict({
         "rgbd": gym.spaces.Box(0.0, 3.0, shape=(4, size, size), dtype=np.float32),

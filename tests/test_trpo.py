@@ -14,15 +14,6 @@ from vdtutorial.trpo import (TRPO, TRPOConfig, _iteration_seeds, _MLPGaussianPol
                              fisher_vector_product, flat_grad, gae, line_search, make_vec_env)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny networks: a second torch thread only adds contention on a shared 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 # ---------------------------------------------------------------------------------------------
 # A tiny task and tiny policies
 # ---------------------------------------------------------------------------------------------

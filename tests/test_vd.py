@@ -12,15 +12,6 @@ from torch import nn
 from vdtutorial import vd
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny tensors: one thread avoids synchronisation costs on the shared 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def true_neg_kl_up_to_constant(log_alpha: float) -> float:
     """-KL(q || log-uniform) + C = 0.5 log alpha - E log|1 + sqrt(alpha) eps|. Writing
     1 + sqrt(alpha) eps = sqrt(alpha) (eps + c) with c = alpha^-1/2, the log alpha terms cancel and
