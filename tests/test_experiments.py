@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from vdtutorial.demos import Demos, demo_path
+from vdtutorial.demos import Demos, demo_path, generate_demos
 from vdtutorial.experiments import (METHOD_LABELS, TABLE1, Curve, RunSpec, curves_from_rows, expert_reference,
                                     finetune, format_table1, mean_band, moving_average, pretrained_policy, read_rows,
                                     run_experiment, sparsity_trends, steps_to_reach, vd_reaches_l2_final)
@@ -177,3 +177,15 @@ def test_table1_trends_on_hand_made_numbers():
     assert sparsity_trends(rows) == {"more demonstrations -> sparser": False, "less noise -> sparser": False}
     text = format_table1(rows)
     assert "does NOT hold" in text and "0.677" in text
+
+
+def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):
+    """With no checkpoints_root, quick mode looks up and saves checkpoints under runs/quick, not data/."""
+    from vdtutorial import experiments
+
+    monkeypatch.setattr(experiments, "RUNS_DIR", tmp_path)
+    monkeypatch.setattr(experiments, "budget", lambda full, quick: quick)
+    demos = generate_demos("reach", 40, 0.3, seed=1, progress=False)
+    experiments.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
+    saved = list(tmp_path.rglob("*.pt"))
+    assert [p.name for p in saved] == ["reach_n40_sigma0.3_l2_state_seed0.pt"]

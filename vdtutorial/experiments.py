@@ -135,7 +135,8 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
                       config: PretrainConfig | None = None, checkpoints_root: Path | None = None,
                       progress: bool = False) -> GaussianPolicy:
     """The policy pre-trained with ``reg`` ("vd" or "l2") on ``demos``: loaded from its checkpoint
-    (``pretrain.checkpoint_path`` under ``checkpoints_root``, default ``data/``) when that file was made
+    (``pretrain.checkpoint_path`` under ``checkpoints_root``, default ``data/``, or ``runs/quick/`` in quick
+    mode so that quick runs never replace shipped checkpoints) when that file was made
     from the same data set (task, samples, Sigma, demonstration seed) with the same pre-training
     configuration and seed; otherwise pre-trained now and saved there (replacing a stale file).
 
@@ -144,6 +145,8 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     default: pre-training freezes sigma, the RL phase trains it). It is not pruned yet."""
     cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
     meta = demos.meta
+    if checkpoints_root is None:  # quick mode never replaces the shipped full-scale checkpoints in data/
+        checkpoints_root = budget(None, RUNS_DIR / "quick")
     path = checkpoint_path(meta, reg, obs_mode, seed, root=checkpoints_root)
     expected = {**{k: meta[k] for k in ("task", "samples", "noise", "seed")}, **asdict(cfg)}
     if path.exists():
@@ -500,7 +503,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     record = {
         "experiment": name, "command": command, "argv": sys.argv, "quick": QUICK, "title": title,
         "metric": metric, "num_envs": NUM_ENVS, "steps_per_iteration": (trpo_config or TRPOConfig()).steps_per_iter,
-        "smoothing": f"trailing moving average over {window} iterations", "band": f"{CONFIDENCE:.0%} Student-t "
+        "window": window, "smoothing": f"trailing moving average over {window} iterations", "band": f"{CONFIDENCE:.0%} Student-t "
         "interval of the mean over seeds", "workers": workers, "wall_time_s": wall,
         "pretrain_config": {k: v for k, v in asdict(pretrain_config or default_config("vd", specs[0].obs_mode)).items()
                             if k not in ("reg", "obs_mode")},  # these two are set per run
