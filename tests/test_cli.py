@@ -3,6 +3,7 @@ import pytest
 
 from vdtutorial.__main__ import build_parser, main
 from vdtutorial.demos import Demos
+from vdtutorial.settings import QUICK
 
 
 @pytest.mark.parametrize("command", ["demos", "expert", "pretrain", "evaluate", "digits", "bench", "experiment", "reproduce"])
@@ -32,3 +33,13 @@ def test_bad_arguments_are_refused():
         build_parser().parse_args(["demos", "--task", "push"])
     with pytest.raises(SystemExit):
         build_parser().parse_args(["experiment", "fig9"])
+
+
+@pytest.mark.skipif(not QUICK, reason="the full-size main job takes minutes; CI runs it in quick mode")
+def test_reproduce_runs_the_whole_pipeline(tmp_path, capsys):
+    main(["reproduce", "--quick", "--out", str(tmp_path)])
+    printed = capsys.readouterr().out
+    for label in ("VD: final", "L2: final", "no pre-training: final", f"wrote {tmp_path}"):
+        assert label in printed
+    assert (tmp_path / "reproduce_quick.png").exists() and (tmp_path / "sparsity.txt").exists()
+    assert len(list((tmp_path / "runs").glob("*.csv"))) == 9  # 3 methods x 3 seeds

@@ -99,7 +99,17 @@ def _cmd_reproduce(args) -> None:
     """The package's main job: the whole pipeline at small scale (see experiments.reproduce_quick)."""
     from vdtutorial.experiments import reproduce_quick
 
-    reproduce_quick(out=args.out, workers=args.workers)
+    _print_summary(reproduce_quick(out=args.out, workers=args.workers))
+
+
+def _print_summary(result) -> None:
+    """Final level of every curve, the fig4-style "VD reaches L2" line if any, and where files went."""
+    for label, final in result.summary["final"].items():
+        print(f"{label:>32}: final {final['mean']:.2f} (95% band {final['low']:.2f} to {final['high']:.2f}, "
+              f"{final['seeds']} seeds)")
+    if "vd_reaches_l2_final" in result.summary:
+        print(result.summary["vd_reaches_l2_final"]["text"])
+    print(f"wrote {result.out}")
 
 
 def _cmd_experiment(args) -> None:
@@ -114,11 +124,7 @@ def _cmd_experiment(args) -> None:
         warnings.simplefilter("default")
         result = getattr(experiments, args.name)(seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs,
                                                  out=args.out, workers=args.workers)
-    for label, final in result.summary["final"].items():
-        print(f"{label:>32}: final {final}")
-    if "vd_reaches_l2_final" in result.summary:
-        print(result.summary["vd_reaches_l2_final"]["text"])
-    print(f"wrote {result.out}")
+    _print_summary(result)
 
 
 def build_parser() -> argparse.ArgumentParser:
