@@ -10,7 +10,8 @@ from gymnasium import spaces
 from torch import nn
 from torch.distributions import Normal, kl_divergence
 
-from vdtutorial.trpo import (TRPO, TRPOConfig, _iteration_seeds, _MLPGaussianPolicy, _to_tensor, conjugate_gradient,
+from vdtutorial.policy import obs_to_tensor
+from vdtutorial.trpo import (TRPO, TRPOConfig, _iteration_seeds, _MLPGaussianPolicy, conjugate_gradient,
                              fisher_vector_product, flat_grad, gae, line_search, make_vec_env)
 
 
@@ -211,7 +212,7 @@ def test_success_and_episode_accounting():
     successes, returns, running = 0, [], np.zeros(2)
     for _ in range(25):
         with torch.no_grad():
-            d = algo.policy.distribution(_to_tensor(obs))
+            d = algo.policy.distribution(obs_to_tensor(obs))
             a = d.mean + d.stddev * torch.randn(d.mean.shape, generator=gen)
         obs, r, term, trunc, info = env.step(np.clip(a.numpy(), -1, 1))
         running += r

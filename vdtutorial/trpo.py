@@ -58,6 +58,7 @@ from torch import nn
 from torch.distributions import Normal, kl_divergence
 from tqdm.auto import tqdm
 
+from vdtutorial.policy import obs_to_tensor
 from vdtutorial.settings import budget
 
 Obs = np.ndarray | dict[str, np.ndarray]
@@ -285,13 +286,6 @@ def make_vec_env(env: str | Callable[[], gymnasium.Env], num_envs: int = 1, asyn
     return vector_cls([make] * num_envs, autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
 
 
-def _to_tensor(obs: Obs) -> TensorObs:
-    """numpy observation batch (array or dict of arrays) -> float32 tensor(s)."""
-    if isinstance(obs, dict):
-        return {key: torch.as_tensor(value, dtype=torch.float32) for key, value in obs.items()}
-    return torch.as_tensor(obs, dtype=torch.float32)
-
-
 def _stack(steps: list[Obs]) -> Obs:
     """T observation batches of shape (N, ...) -> one batch of shape (T * N, ...), time-major."""
     if isinstance(steps[0], dict):
@@ -381,7 +375,7 @@ class TRPO:
 
         for k in range(steps_per_env):
             with torch.no_grad():  # one policy forward for all sub-environments
-                dist = self.policy.distribution(_to_tensor(obs))
+                dist = self.policy.distribution(obs_to_tensor(obs))
                 action = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=generator,
                                                               dtype=dist.mean.dtype)
             next_obs, reward, terminated, truncated, info = self.env.step(
@@ -412,7 +406,7 @@ class TRPO:
         advantages = gae(rewards, values, last_values, dones, cfg.gamma, cfg.gae_lambda).reshape(-1)
         returns = (gae(rewards, values, last_values, dones, cfg.gamma, 1.0) + values).reshape(-1)
         advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-        return Batch(obs=_to_tensor(flat_obs), actions=torch.cat(actions),
+        return Batch(obs=obs_to_tensor(flat_obs), actions=torch.cat(actions),
                      advantages=torch.as_tensor(advantages, dtype=torch.float32), features=features,
                      timesteps=flat_t, returns=returns, episode_returns=episode_returns,
                      successes=successes)
