@@ -127,16 +127,22 @@ def test_reach_reward_is_eq_11():
     env.close()
 
 
-def test_reach_success_and_failure_terminate_with_their_rewards():
-    env = gym.make(ENV_IDS["reach"], obs_mode="state")
+def expert_episode(task: str):
+    """Run the IK expert on cup seed 0 until the trajectory ends; the env and the last step's results."""
+    env = gym.make(ENV_IDS[task], obs_mode="state")
     env.reset(seed=0)
     expert = IKExpert(env)
     expert.reset()
-    while True:
+    for _ in range(HORIZON):
         a = expert.action()
         _, reward, terminated, truncated, info = env.step(a)
         if terminated or truncated:
             break
+    return env, a, reward, terminated, info
+
+
+def test_reach_success_and_failure_terminate_with_their_rewards():
+    env, a, reward, terminated, info = expert_episode("reach")
     assert info["is_success"] and terminated and not info["is_failure"]
     assert reward == pytest.approx(-np.linalg.norm(a) - info["distance"] + C_SUCCESS)
     env.reset(seed=0)
@@ -174,14 +180,7 @@ def test_grasp_cup_is_an_obstacle_and_reward_is_sparse():
 
 
 def test_grasp_success_gives_25_minus_step_cost():
-    env = gym.make(ENV_IDS["grasp"], obs_mode="state")
-    env.reset(seed=0)
-    expert = IKExpert(env)
-    expert.reset()
-    for _ in range(HORIZON):
-        _, reward, terminated, truncated, info = env.step(expert.action())
-        if terminated or truncated:
-            break
+    env, _, reward, _, info = expert_episode("grasp")
     assert info["is_success"]
     assert reward == 24.0
     tcp, _ = env.unwrapped.scene.tcp_pose()
