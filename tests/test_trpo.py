@@ -162,10 +162,11 @@ def test_line_search_restores_parameters_when_no_step_is_acceptable():
 # ---------------------------------------------------------------------------------------------
 # The algorithm
 # ---------------------------------------------------------------------------------------------
-def test_accepted_steps_stay_within_the_kl_bound():
+@pytest.mark.parametrize("fvp_subsample", [1.0, 0.25])
+def test_accepted_steps_stay_within_the_kl_bound(fvp_subsample):
     torch.manual_seed(0)
     policy = LinearPolicy()
-    config = TRPOConfig(steps_per_iter=40, max_kl=0.005)
+    config = TRPOConfig(steps_per_iter=40, max_kl=0.005, fvp_subsample=fvp_subsample)
     algo = TRPO(policy, make_env(), config, seed=1)
     accepted = 0
     for _ in range(6):
@@ -181,6 +182,62 @@ def test_accepted_steps_stay_within_the_kl_bound():
             accepted += 1
             assert stats["surrogate_improvement"] > 0 and kl > 0
     assert accepted >= 4
+
+
+@pytest.mark.parametrize("fvp_subsample", [1.0, 0.25])
+def test_step_is_the_natural_gradient_with_fisher_on_the_subsample(fvp_subsample):
+    """The update's full step, rebuilt by hand: g from the whole batch, F explicitly from the
+    samples in batch.fvp_index (all of them for fvp_subsample=1), s = (F + damping I)^-1 g,
+    scaled to a quadratic-model KL of max_kl."""
+    torch.manual_seed(0)
+    policy = LinearPolicy(dtype=torch.float64)
+    config = TRPOConfig(steps_per_iter=40, fvp_subsample=fvp_subsample)
+    algo = TRPO(policy, make_env(), config, seed=2)
+    batch = algo.collect()
+    index = torch.arange(40) if fvp_subsample == 1.0 else batch.fvp_index
+    assert len(index) == int(40 * fvp_subsample) and len(set(index.tolist())) == len(index)
+    params = algo.params
+    theta_old = torch.cat([p.detach().reshape(-1) for p in params]).clone()
+    with torch.no_grad():
+        old = policy.distribution(batch.obs)
+    dist = policy.distribution(batch.obs)
+    ratio = torch.exp(dist.log_prob(batch.actions).sum(-1) - old.log_prob(batch.actions).sum(-1))
+    g = flat_grad((ratio * batch.advantages.double()).mean(), params)
+    sub_old = Normal(old.mean[index], old.stddev[index])
+    fisher = torch.autograd.functional.hessian(
+        lambda flat: _kl_at(policy, flat, batch.obs[index], sub_old), theta_old)
+    damped = fisher + config.cg_damping * torch.eye(len(g), dtype=g.dtype)
+    direction = torch.linalg.solve(damped, g)  # CG is exact here: 3 parameters, 10 iterations
+    full_step = direction * np.sqrt(2 * config.max_kl / (direction @ damped @ direction).item())
+
+    stats = algo.update(batch)
+    assert stats["line_search"] != "rejected"
+    theta_new = torch.cat([p.detach().reshape(-1) for p in params])
+    torch.testing.assert_close((theta_new - theta_old) / stats["line_search"], full_step, rtol=1e-5, atol=1e-8)
+
+
+def _kl_at(policy, flat, obs, old):
+    """Mean KL(old || policy with its parameters replaced by ``flat``), differentiable in ``flat``."""
+    log_std, weight, bias = flat[:1], flat[1:2].view(1, 1), flat[2:3]  # policy.parameters() order
+    mean = obs.double() @ weight.T + bias
+    return kl_divergence(old, Normal(mean, log_std.exp().expand_as(mean))).sum(-1).mean()
+
+
+def test_fvp_subsample_is_seeded_after_the_rollout_and_validated():
+    batches = {}
+    for f in (1.0, 0.25):
+        torch.manual_seed(0)
+        algo = TRPO(LinearPolicy(), make_env(), TRPOConfig(steps_per_iter=40, fvp_subsample=f), seed=4)
+        batches[f] = [algo.collect()]
+        algo.iteration_index += 1
+        batches[f].append(algo.collect())
+    for full, sub in zip(batches[1.0], batches[0.25]):  # the subsample does not change the rollouts
+        assert full.fvp_index is None
+        assert torch.equal(full.actions, sub.actions) and torch.equal(full.obs, sub.obs)
+    assert not torch.equal(batches[0.25][0].fvp_index, batches[0.25][1].fvp_index)  # redrawn per iteration
+    for bad in (0.0, -0.1, 1.5):
+        with pytest.raises(ValueError, match="fvp_subsample"):
+            TRPOConfig(fvp_subsample=bad)
 
 
 def test_pruned_weights_stay_exactly_zero_and_frozen_parameters_fixed():
@@ -238,8 +295,9 @@ def test_dict_observations_use_the_joints_for_the_baseline():
     assert algo.baseline.weights.shape == (1 + 1 + 4,)  # [x, x^2, t, t^2, t^3, 1]
 
 
-def test_checkpoint_resume_reproduces_the_uninterrupted_run(tmp_path):
-    config = TRPOConfig(steps_per_iter=40)
+@pytest.mark.parametrize("fvp_subsample", [1.0, 0.25])
+def test_checkpoint_resume_reproduces_the_uninterrupted_run(tmp_path, fvp_subsample):
+    config = TRPOConfig(steps_per_iter=40, fvp_subsample=fvp_subsample)
 
     def fresh():
         torch.manual_seed(0)

@@ -120,10 +120,13 @@ def _cmd_experiment(args) -> None:
     if args.name == "table1":
         experiments.table1(obs_mode=args.obs, seed=args.seeds[0] if args.seeds else 0, out=args.out, workers=args.workers)
         return
+    trpo_config = None
+    if args.fvp_subsample is not None:
+        trpo_config = dataclasses.replace(experiments.default_trpo_config(args.obs), fvp_subsample=args.fvp_subsample)
     with warnings.catch_warnings():
         warnings.simplefilter("default")
         result = getattr(experiments, args.name)(seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs,
-                                                 out=args.out, workers=args.workers)
+                                                 out=args.out, workers=args.workers, trpo_config=trpo_config)
     _print_summary(result)
 
 
@@ -177,6 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--obs", choices=("state", "rgbd"), default="state")
     p.add_argument("--workers", type=int, default=2, help="runs in parallel (one per core)")
     p.add_argument("--out", default=None, help="output folder (default: data/results/NAME)")
+    p.add_argument("--fvp-subsample", type=float, default=None,
+                   help="fraction of each TRPO batch for the Fisher-vector products (default: 1 state, 0.1 rgbd)")
     p.set_defaults(func=_cmd_experiment)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (< 5 min on 2 cores)")

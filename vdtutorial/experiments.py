@@ -104,6 +104,9 @@ EXPERT_EPISODES = budget(5, 1)
 #: The paper's RL budget, 3e5 env steps, and the quick one.
 TOTAL_STEPS = budget(300_000, 2_000)
 SEEDS = budget((0, 1, 2), (0, 1))
+#: TRPO for image policies: Fisher-vector products on 10% of each batch, as in rllab (which the paper
+#: used) -- they dominate the update of the convolutional networks (see ``TRPOConfig.fvp_subsample``).
+IMAGE_TRPO_CONFIG = TRPOConfig(fvp_subsample=0.1)
 #: Quick-mode results and ``reproduce_quick``'s default folder: ``runs/`` beside ``data/``, not shipped.
 RUNS_DIR = DATA_DIR.parent / "runs"
 
@@ -121,6 +124,11 @@ TABLE1 = (
 # ----------------------------------------------------------------------------------------------
 # One run: pre-trained policy -> TRPO; the expert's reference
 # ----------------------------------------------------------------------------------------------
+def default_trpo_config(obs_mode: str) -> TRPOConfig:
+    """TRPO settings of the experiments: :data:`IMAGE_TRPO_CONFIG` for "rgbd", ``TRPOConfig()`` otherwise."""
+    return IMAGE_TRPO_CONFIG if obs_mode == "rgbd" else TRPOConfig()
+
+
 def load_demos(task: str, demos: Demos | str | Path | None = None, root: Path | None = None) -> Demos:
     """``demos`` as a data set: itself, loaded from a path, or (None) the task's shipped 8000-sample,
     Sigma = 0.5 set under ``root`` (default ``data/``). The task must match."""
@@ -178,6 +186,7 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
         Sigma = 0.5 set); ignored by "none".
     pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
         ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.
+    trpo_config: default :func:`default_trpo_config` of ``obs_mode``.
     checkpoints_root: where pre-trained checkpoints are looked up and saved (see :func:`pretrained_policy`).
     """
     if method not in RL_METHODS:
@@ -198,7 +207,8 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
         if csv_path is not None:
             Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
             Path(csv_path).unlink(missing_ok=True)  # TRPO appends: a stale file would mix two runs
-        rows = TRPO(policy, env, trpo_config, seed=seed).run(total_steps, csv_path=csv_path, progress=progress)
+        algo = TRPO(policy, env, trpo_config or default_trpo_config(obs_mode), seed=seed)
+        rows = algo.run(total_steps, csv_path=csv_path, progress=progress)
     finally:
         env.close()
     return policy, rows
@@ -486,6 +496,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     ``data/``; checkpoints in ``data/`` at full scale and in ``out`` in quick mode."""
     out = Path(out) if out is not None else _default_out(name)
     checkpoints_root = checkpoints_root if checkpoints_root is not None else budget(None, out)
+    trpo_config = trpo_config or default_trpo_config(specs[0].obs_mode)
     task = specs[0].task
     metric = METRIC[task]
     jobs = [_Job(spec, out / "runs" / f"{spec.name}.csv", demos_root, checkpoints_root, pretrain_config,
@@ -502,12 +513,12 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
                **(summarise(curves) if summarise else {})}
     record = {
         "experiment": name, "command": command, "argv": sys.argv, "quick": QUICK, "title": title,
-        "metric": metric, "num_envs": NUM_ENVS, "steps_per_iteration": (trpo_config or TRPOConfig()).steps_per_iter,
+        "metric": metric, "num_envs": NUM_ENVS, "steps_per_iteration": trpo_config.steps_per_iter,
         "window": window, "smoothing": f"trailing moving average over {window} iterations", "band": f"{CONFIDENCE:.0%} Student-t "
         "interval of the mean over seeds", "workers": workers, "wall_time_s": wall,
         "pretrain_config": {k: v for k, v in asdict(pretrain_config or default_config("vd", specs[0].obs_mode)).items()
                             if k not in ("reg", "obs_mode")},  # these two are set per run
-        "trpo_config": asdict(trpo_config or TRPOConfig()),
+        "trpo_config": asdict(trpo_config),
         "demos_root": str(demos_root or DATA_DIR), "checkpoints_root": str(checkpoints_root or DATA_DIR),
         "runs": [{**asdict(job.spec), "name": job.spec.name, "seconds": result["seconds"]}
                  for job, result in zip(jobs, results)],
@@ -560,7 +571,12 @@ def _figure(name: str, title: str, methods, task: str, seeds, total_steps, obs_m
         else:
             specs += [RunSpec(method, task, None, None, seed, obs_mode, total_steps, METHOD_LABELS[method])
                       for seed in seeds]
-    command = experiment_command(name, seeds=seeds, steps=total_steps, obs=obs_mode, workers=workers, out=out)
+    trpo_config = kwargs.get("trpo_config")
+    fvp_subsample = None  # in the command only when it is not the default of obs_mode
+    if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config(obs_mode).fvp_subsample:
+        fvp_subsample = trpo_config.fvp_subsample
+    command = experiment_command(name, seeds=seeds, steps=total_steps, obs=obs_mode, workers=workers, out=out,
+                                 fvp_subsample=fvp_subsample)
     return run_experiment(name, specs, title, out, workers, command=command, **kwargs)
 
 

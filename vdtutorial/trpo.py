@@ -14,7 +14,8 @@ One iteration, as pseudocode::
                  trajectory was cut off; then normalise A to mean 0, std 1
     3. gradient  g = grad of the surrogate L(theta) = mean[ pi_theta(a|s) / pi_old(a|s) * A ]
     4. direction s ~= F^-1 g by conjugate gradient, where F v is a Fisher-vector product: the
-                 Hessian of the mean KL(pi_old || pi_theta) times v, plus damping * v
+                 Hessian of the mean KL(pi_old || pi_theta) times v, plus damping * v; the mean
+                 KL of this step may be taken over a random subset of the batch (``fvp_subsample``)
     5. step      beta = sqrt(2 delta / s^T F s), so the full step beta * s has a quadratic-model
                  KL of exactly delta
     6. search    try theta_old + beta s, then halve the step; accept the first one whose mean
@@ -71,7 +72,8 @@ TensorObs = torch.Tensor | dict[str, torch.Tensor]
 @dataclass
 class TRPOConfig:
     """TRPO hyperparameters. ``steps_per_iter`` is the paper's; the paper reports no others, so
-    ``max_kl`` and ``cg_iters`` are rllab's defaults and the rest are common choices.
+    ``max_kl``, ``cg_iters`` and the choice of ``fvp_subsample`` are rllab's and the rest are common
+    choices.
 
     steps_per_iter: environment steps per iteration, summed over the sub-environments of the
         vector environment (must be a multiple of their number). The paper uses 200 with a
@@ -85,6 +87,15 @@ class TRPOConfig:
         that an accepted step may have. 0.01 is the value from the TRPO paper and rllab.
     cg_iters: conjugate-gradient iterations used to approximate F^-1 g. 10 is enough to get a good
         direction without ever building F (which has as many rows as the policy has parameters).
+    fvp_subsample: the fraction of the batch on which the Fisher-vector products are computed (at
+        least one sample). The Fisher matrix only sets the metric of the step, so a random subset
+        (drawn per iteration from the iteration's seed) gives nearly the same direction, while
+        the gradient g, the step size and the line search's KL check still use the whole batch.
+        CG needs ``cg_iters + 1`` products, each costing about two backward passes through the
+        policy, so for image policies they dominate the update: Schulman et al. (2015) computed
+        them on 10% of the data, and rllab's optimiser (which the paper used) defaults to 0.1. 1.0
+        (the whole batch) is the default here because the state-mode results in ``data/results``
+        were made with it; :data:`vdtutorial.experiments.IMAGE_TRPO_CONFIG` uses 0.1.
     cg_damping: added to the Fisher matrix (F + damping * I) so that CG works on a well-conditioned
         positive-definite matrix even when F is singular, e.g. along the directions of pruned
         weights or with fewer samples than parameters.
@@ -104,6 +115,11 @@ class TRPOConfig:
     backtrack_iters: int = 10
     backtrack_coeff: float = 0.5
     baseline_reg: float = 1e-5
+    fvp_subsample: float = 1.0
+
+    def __post_init__(self):
+        if not 0.0 < self.fvp_subsample <= 1.0:
+            raise ValueError(f"fvp_subsample must be in (0, 1], got {self.fvp_subsample}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -191,7 +207,8 @@ def set_flat_params(params: list[nn.Parameter], flat: torch.Tensor) -> None:
 
 def line_search(params: list[nn.Parameter], full_step: torch.Tensor,
                 surrogate_and_kl: Callable[[], tuple[torch.Tensor, torch.Tensor]], max_kl: float,
-                backtrack_iters: int = 10, backtrack_coeff: float = 0.5) -> tuple[float | None, float, float]:
+                backtrack_iters: int = 10, backtrack_coeff: float = 0.5,
+                surrogate_old: float | None = None) -> tuple[float | None, float, float]:
     """Backtracking line search along ``full_step`` from the current parameters.
 
     ``surrogate_and_kl()`` evaluates the surrogate and the mean KL(old || current) at the current
@@ -199,11 +216,13 @@ def line_search(params: list[nn.Parameter], full_step: torch.Tensor,
     ``backtrack_coeff``) of the full step and accepts the first one whose mean KL is at most
     ``max_kl`` and whose surrogate is larger than at the start. Returns (accepted fraction,
     surrogate improvement, mean KL), leaving the parameters at the accepted point; or
-    (None, 0.0, 0.0) with the parameters restored when no step passes.
+    (None, 0.0, 0.0) with the parameters restored when no step passes. ``surrogate_old``, the
+    surrogate at the current parameters, saves one evaluation when the caller already has it.
     """
     with torch.no_grad():
         theta_old = torch.cat([p.reshape(-1) for p in params]).clone()
-        surrogate_old = surrogate_and_kl()[0].item()
+        if surrogate_old is None:
+            surrogate_old = surrogate_and_kl()[0].item()
         for i in range(backtrack_iters):
             fraction = backtrack_coeff ** i
             set_flat_params(params, theta_old + fraction * full_step)
@@ -312,6 +331,7 @@ class Batch:
     returns: np.ndarray           # (n,) discounted returns, the baseline's regression targets
     episode_returns: list[float]  # undiscounted returns of the episodes that ended in the batch
     successes: int                # how many of those ended with info["is_success"] True
+    fvp_index: torch.Tensor | None = None  # (m,) the samples of the Fisher-vector products; None = all
 
 
 # ----------------------------------------------------------------------------------------------
@@ -406,10 +426,14 @@ class TRPO:
         advantages = gae(rewards, values, last_values, dones, cfg.gamma, cfg.gae_lambda).reshape(-1)
         returns = (gae(rewards, values, last_values, dones, cfg.gamma, 1.0) + values).reshape(-1)
         advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        fvp_index = None
+        if cfg.fvp_subsample < 1.0:  # drawn after the actions, so the rollouts do not depend on it
+            size = max(1, int(cfg.steps_per_iter * cfg.fvp_subsample))
+            fvp_index = torch.randperm(cfg.steps_per_iter, generator=generator)[:size]
         return Batch(obs=obs_to_tensor(flat_obs), actions=torch.cat(actions),
                      advantages=torch.as_tensor(advantages, dtype=torch.float32), features=features,
                      timesteps=flat_t, returns=returns, episode_returns=episode_returns,
-                     successes=successes)
+                     successes=successes, fvp_index=fvp_index)
 
     # -- 3-7. the update --------------------------------------------------------------------------
     def update(self, batch: Batch) -> dict:
@@ -417,18 +441,30 @@ class TRPO:
         step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
         outcome (accepted fraction of the full step, or "rejected")."""
         cfg = self.config
-        with torch.no_grad():
-            old = self.policy.distribution(batch.obs)
-            old = Normal(old.mean.clone(), old.stddev.clone())
-            old_log_prob = old.log_prob(batch.actions).sum(-1)
+        # One forward with graph at theta_old gives pi_old (detached), the surrogate and g.
+        dist = self.policy.distribution(batch.obs)
+        old = Normal(dist.mean.detach().clone(), dist.stddev.detach().clone())
+        old_log_prob = old.log_prob(batch.actions).sum(-1)
+
+        def surrogate_of(dist: Normal) -> torch.Tensor:
+            ratio = torch.exp(dist.log_prob(batch.actions).sum(-1) - old_log_prob)
+            return (ratio * batch.advantages).mean()
 
         def surrogate_and_kl() -> tuple[torch.Tensor, torch.Tensor]:
             dist = self.policy.distribution(batch.obs)
-            ratio = torch.exp(dist.log_prob(batch.actions).sum(-1) - old_log_prob)
-            return (ratio * batch.advantages).mean(), kl_divergence(old, dist).sum(-1).mean()
+            return surrogate_of(dist), kl_divergence(old, dist).sum(-1).mean()
 
-        surrogate, mean_kl = surrogate_and_kl()
-        g = flat_grad(surrogate, self.params, retain_graph=True)
+        surrogate = surrogate_of(dist)
+        if batch.fvp_index is None:
+            g = flat_grad(surrogate, self.params, retain_graph=True)
+            mean_kl = kl_divergence(old, dist).sum(-1).mean()
+        else:
+            g = flat_grad(surrogate, self.params)
+            index = batch.fvp_index
+            sub_obs = ({k: x[index] for k, x in batch.obs.items()} if isinstance(batch.obs, dict)
+                       else batch.obs[index])
+            sub_old = Normal(old.mean[index], old.stddev[index])
+            mean_kl = kl_divergence(sub_old, self.policy.distribution(sub_obs)).sum(-1).mean()
         kl_grad = flat_grad(mean_kl, self.params, create_graph=True)
 
         def Fvp(v: torch.Tensor) -> torch.Tensor:
@@ -440,7 +476,7 @@ class TRPO:
         # gradient gives a zero step, which the line search rejects (no improvement).
         full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction if sFs > 0 else torch.zeros_like(direction)
         fraction, improvement, kl = line_search(self.params, full_step, surrogate_and_kl, cfg.max_kl,
-                                                cfg.backtrack_iters, cfg.backtrack_coeff)
+                                                cfg.backtrack_iters, cfg.backtrack_coeff, surrogate.item())
         self.baseline.fit(batch.features, batch.timesteps, batch.returns)
         return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(),
                 "surrogate_improvement": improvement,
