@@ -1,4 +1,6 @@
 """The command line: each subcommand parses, and the cheap ones run end to end."""
+import json
+
 import pytest
 
 from vdtutorial.__main__ import build_parser, main
@@ -43,3 +45,13 @@ def test_reproduce_runs_the_whole_pipeline(tmp_path, capsys):
         assert label in printed
     assert (tmp_path / "reproduce_quick.png").exists() and (tmp_path / "sparsity.txt").exists()
     assert len(list((tmp_path / "runs").glob("*.csv"))) == 9  # 3 methods x 3 seeds
+
+
+@pytest.mark.skipif(not QUICK, reason="pre-trains VD and L2 policies: quick mode keeps it to seconds")
+def test_experiment_fvp_subsample_reaches_the_runs_and_the_record(tmp_path, capsys):
+    main(["experiment", "fig4", "--seeds", "0", "--steps", "200", "--fvp-subsample", "0.5", "--workers", "1",
+          "--out", str(tmp_path)])
+    assert "VD: final" in capsys.readouterr().out
+    record = json.loads((tmp_path / "fig4.json").read_text())
+    assert record["trpo_config"]["fvp_subsample"] == 0.5
+    assert "--fvp-subsample 0.5" in record["command"]

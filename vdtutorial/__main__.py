@@ -92,7 +92,7 @@ def _cmd_bench(args) -> None:
 
         bench_trpo_pendulum()
     else:
-        {"env": bench.bench_env, "policy": bench.bench_policy}[args.what]()
+        {"env": bench.bench_env, "policy": bench.bench_policy, "finetune": bench.bench_finetune}[args.what]()
 
 
 def _cmd_reproduce(args) -> None:
@@ -169,8 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_digits)
 
     p = sub.add_parser("bench", help="benchmarks (env, policy, trpo)")
-    p.add_argument("what", choices=("env", "policy", "trpo"),
-                   help="env: steps/s; policy: network and pre-training cost; trpo: Pendulum-v1 vs sb3-contrib")
+    p.add_argument("what", choices=("env", "policy", "finetune", "trpo"),
+                   help="env: steps/s; policy: network and pre-training cost; finetune: TRPO fine-tuning steps/s "
+                        "end to end; trpo: Pendulum-v1 vs sb3-contrib")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1")

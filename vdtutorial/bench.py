@@ -2,6 +2,8 @@
 
 ``env``: environment steps per second for each task x observation mode x image size, in one process
 and with two worker processes (gymnasium's AsyncVectorEnv), and the IK expert's time per action.
+``policy``: network and pre-training cost (:func:`bench_policy`).
+``finetune``: TRPO fine-tuning throughput end to end, rollouts + updates (:func:`bench_finetune`).
 """
 from __future__ import annotations
 
@@ -171,4 +173,62 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
             seconds = time.perf_counter() - start
             rows.append({"obs_mode": obs_mode, "epoch": reg, "samples": samples, "seconds": seconds})
             print(f"one pre-training epoch, {obs_mode}, {reg}, {samples} samples: {seconds:.2f} s")
+    return rows
+
+
+def bench_finetune(iterations: int | None = None) -> list[dict]:
+    """TRPO fine-tuning of the pruned VD reach policy (8000 demonstrations, Sigma = 0.5, seed 0), state
+    and rgbd 128 x 128, in one process with one torch thread: seconds per 200-step iteration spent
+    collecting (rendering + policy) and updating, env steps per second end to end, and the mean KL and
+    accepted step fraction of the updates -- with the Fisher-vector products on the whole batch and on
+    the fraction the experiments use for rgbd (``experiments.IMAGE_TRPO_CONFIG``). One warm-up
+    iteration, then ``iterations`` timed ones (default 10; quick mode 2)."""
+    import torch
+
+    from vdtutorial.demos import Demos, demo_path
+    from vdtutorial.experiments import IMAGE_TRPO_CONFIG, NUM_ENVS
+    from vdtutorial.policy import make_policy
+    from vdtutorial.pretrain import checkpoint_path, load_checkpoint
+    from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
+
+    iterations = iterations or budget(10, 2)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    meta = Demos.load(demo_path("reach", 8000, 0.5, 0)).meta
+    rows = []
+    print(f"{'obs':6} {'fvp_subsample':>13} {'collect s':>10} {'update s':>9} {'steps/s':>8} {'mean KL':>8} "
+          f"{'step fraction':>13}")
+    for obs_mode in ("state", "rgbd"):
+        env = make_vec_env(ENV_IDS["reach"], NUM_ENVS, obs_mode=obs_mode, image_size=128)
+        ckpt = checkpoint_path(meta, "vd", obs_mode, 0)
+        source = f"shipped {ckpt.name}" if ckpt.exists() else "untrained VD net (no checkpoint)"
+        for config in (TRPOConfig(), IMAGE_TRPO_CONFIG):
+            torch.manual_seed(0)
+            policy = (load_checkpoint(ckpt) if ckpt.exists()
+                      else make_policy(env.single_observation_space, 6, variational=True))
+            policy.prune_()
+            algo = TRPO(policy, env, config, seed=0)
+            collect = update = 0.0
+            stats = []
+            for i in range(iterations + 1):
+                start = time.perf_counter()
+                batch = algo.collect()
+                middle = time.perf_counter()
+                step = algo.update(batch)
+                end = time.perf_counter()
+                algo.iteration_index += 1
+                if i > 0:  # the first iteration warms up
+                    collect, update = collect + middle - start, update + end - middle
+                    stats.append(step)
+            steps_per_s = iterations * config.steps_per_iter / (collect + update)
+            fractions = [0.0 if s["line_search"] == "rejected" else s["line_search"] for s in stats]
+            row = {"obs_mode": obs_mode, "fvp_subsample": config.fvp_subsample, "policy": source,
+                   "collect_s": collect / iterations, "update_s": update / iterations, "steps_per_s": steps_per_s,
+                   "mean_kl": float(np.mean([s["mean_kl"] for s in stats])), "step_fraction": float(np.mean(fractions))}
+            rows.append(row)
+            print(f"{obs_mode:6} {config.fvp_subsample:>13g} {row['collect_s']:>10.3f} {row['update_s']:>9.3f} "
+                  f"{steps_per_s:>8.0f} {row['mean_kl']:>8.4f} {row['step_fraction']:>13.3f}", flush=True)
+        env.close()
+        print(f"       policy: {source}, pruned; {iterations} iterations of {config.steps_per_iter} steps after one warm-up")
+    torch.set_num_threads(threads)
     return rows
