@@ -31,14 +31,16 @@ def test_check_env(env_id, obs_mode):
 def test_observation_shapes_and_render(env_id):
     env = gym.make(env_id, obs_mode="rgbd", image_size=48, render_mode="rgb_array")
     obs, _ = env.reset(seed=1)
-    assert obs["rgbd"].shape == (4, 48, 48) and obs["rgbd"].dtype == np.float32
+    assert obs["rgb"].shape == (3, 48, 48) and obs["rgb"].dtype == np.uint8
+    assert obs["depth"].shape == (48 * 48,) and obs["depth"].dtype == np.float32
     assert obs["joints"].shape == (6,)
     np.testing.assert_allclose(obs["joints"], HOME, atol=1e-6)
-    rgb, depth = obs["rgbd"][:3], obs["rgbd"][3]
-    assert 0 <= rgb.min() and rgb.max() <= 1
+    rgb, depth = obs["rgb"], obs["depth"].reshape(48, 48)
+    assert rgb.max() > rgb.min()  # a real picture, not a blank frame
     assert 0.3 < depth.min() and depth.max() <= 3.0  # metres: nothing nearer than 30 cm to the camera
     frame = env.render()
     assert frame.shape == (48, 48, 3) and frame.dtype == np.uint8
+    np.testing.assert_array_equal(frame, rgb.transpose(1, 2, 0))  # the observation is the camera's picture
     env.close()
     env.close()  # closing twice is fine
 
@@ -46,7 +48,8 @@ def test_observation_shapes_and_render(env_id):
 def test_default_image_sizes_follow_the_paper():
     for env_id, size in ((ENV_IDS["reach"], 128), (ENV_IDS["grasp"], 256)):
         env = gym.make(env_id)
-        assert env.observation_space["rgbd"].shape == (4, size, size)
+        assert env.observation_space["rgb"].shape == (3, size, size)
+        assert env.observation_space["depth"].shape == (size * size,)
         env.close()
 
 

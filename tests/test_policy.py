@@ -18,7 +18,8 @@ JOINT_LIMIT = np.float32(2 * math.pi)
 
 def rgbd_space(size: int = IMAGE) -> gym.spaces.Dict:
     return gym.spaces.Dict({
-        "rgbd": gym.spaces.Box(0.0, 3.0, shape=(4, size, size), dtype=np.float32),
+        "rgb": gym.spaces.Box(0, 255, shape=(3, size, size), dtype=np.uint8),
+        "depth": gym.spaces.Box(0.0, 3.0, shape=(size * size,), dtype=np.float32),
         "joints": gym.spaces.Box(-JOINT_LIMIT, JOINT_LIMIT, shape=(6,), dtype=np.float32),
     })
 
@@ -189,7 +190,8 @@ def test_compacting_a_trained_and_pruned_policy_keeps_its_outputs():
 
 def test_compacting_an_image_network():
     torch.manual_seed(6)
-    net = TwoStreamNet("rgbd", {"rgbd": (4, IMAGE, IMAGE), "joints": (6,)}, 6, variational=True).eval()
+    net = TwoStreamNet("rgbd", {"rgb": (3, IMAGE, IMAGE), "depth": (IMAGE * IMAGE,), "joints": (6,)}, 6,
+                       variational=True).eval()
     with torch.no_grad():
         for layer in vd.svdo_layers(net):
             layer.log_sigma2.copy_(torch.where(torch.rand_like(layer.weight) < 0.7, 10.0, -10.0))

@@ -88,7 +88,8 @@ def test_checkpoint_round_trip_and_errors(demos, trained, tmp_path):
 def test_rgbd_pretraining_runs_on_rerendered_images(demos):
     small = generate_demos("reach", 40, 0.3, seed=3, progress=False)
     obs = demo_observations(small, "rgbd", image_size=64)
-    assert obs["rgbd"].shape == (40, 4, 64, 64)
+    assert obs["rgb"].shape == (40, 3, 64, 64) and obs["rgb"].dtype == np.uint8
+    assert obs["depth"].shape == (40, 64 * 64)
     policy, history = pretrain(small, PretrainConfig(reg="vd", obs_mode="rgbd", image_size=64, epochs=1, batch_size=20, val_fraction=0.3),
                                seed=0, progress=False, observations=obs)
     assert np.isfinite(history[-1]["val_mse"])

@@ -13,8 +13,8 @@ Network kinds (``TwoStreamNet``), chosen from the observation space by :func:`ma
 Every layer is a plain or a sparse variational dropout layer according to one flag, ``variational``.
 
 Input normalisation (inside the network, so checkpoints carry it)
-    RGB in [0, 1] and depth / ``DEPTH_SCALE`` (the environments' 3 m camera far plane, so also in
-    [0, 1]) are both shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and continuous
+    RGB (uint8 from the environments) / 255 and depth / ``DEPTH_SCALE`` (the environments' 3 m camera
+    far plane), both in [0, 1], are stacked into one 4-channel image and shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and continuous
     across the +-pi wrap of continuous joints. Other vector inputs (the cup position, a generic Box) are
     mapped from the observation space's bounds to [-1, 1]; dimensions with infinite or zero-width bounds
     pass through unchanged.
@@ -61,6 +61,8 @@ from vdtutorial.vd import (THRESHOLD, chain, compact_layers, concat_edges, make_
                            rebuild_sequential)
 
 KINDS = ("rgbd", "state", "mlp")
+#: Keys of the environments' image observation (see :class:`vdtutorial.envs.base.JacoEnv`).
+IMAGE_KEYS = ("rgb", "depth", "joints")
 #: Depth normaliser in metres: the environments clip depth at the camera's far plane, 3 m.
 DEPTH_SCALE = 3.0
 #: Number of trailing entries of a "state" observation that are the cup position (x, y, z).
@@ -70,15 +72,27 @@ HEAD_INIT_SCALE = 0.1
 
 
 def obs_to_tensor(obs):
-    """float32 tensor(s) from a numpy array, a tensor, or a dict of either (gymnasium Dict observations)."""
+    """Tensor(s) from a numpy array, a tensor, or a dict of either (gymnasium Dict observations):
+    uint8 images stay uint8 (4x less memory in a rollout batch; the network scales them), anything
+    else becomes float32."""
     if isinstance(obs, dict):
         return {key: obs_to_tensor(value) for key, value in obs.items()}
-    return torch.as_tensor(obs, dtype=torch.float32)
+    tensor = torch.as_tensor(obs)
+    return tensor if tensor.dtype == torch.uint8 else tensor.to(torch.float32)
 
 
 def _is_unbatched(obs) -> bool:
     """True when ``obs`` (tensor or dict of tensors) is one observation without a batch dimension."""
-    return obs["rgbd"].dim() == 3 if isinstance(obs, dict) else obs.dim() == 1
+    return obs["rgb"].dim() == 3 if isinstance(obs, dict) else obs.dim() == 1
+
+
+def image_shape(obs_shape: dict) -> tuple[int, int]:
+    """(channels, side) of the network's input image. ``obs_shape`` has ``"rgb"`` (3, S, S) and
+    ``"depth"`` (S * S, flattened) entries, or, in checkpoints made before the environments split the image by dtype, one
+    4-channel ``"rgbd"`` entry: both describe the same 4-channel network input."""
+    if "rgbd" in obs_shape:
+        return obs_shape["rgbd"][0], obs_shape["rgbd"][-1]
+    return obs_shape["rgb"][0] + 1, obs_shape["rgb"][-1]
 
 
 def _angle_features(angles: torch.Tensor) -> torch.Tensor:
@@ -111,7 +125,8 @@ class TwoStreamNet(nn.Module):
     ``streams[0]`` is the scene stream (image, cup position, or the whole vector for ``"mlp"``),
     ``streams[1]`` the joint stream (absent for ``"mlp"``); ``head`` is the final fully connected layer.
 
-    obs_shape: ``{"rgbd": (4, S, S), "joints": (J,)}`` for ``"rgbd"``, ``(d,)`` otherwise.
+    obs_shape: ``{"rgb": (3, S, S), "depth": (S * S,), "joints": (J,)}`` for ``"rgbd"`` (see
+        :func:`image_shape`), ``(d,)`` otherwise.
     out_dim: one output per action dimension.
     obs_low, obs_high: bounds of a vector observation (``"state"``, ``"mlp"``), for the normalisation.
     conv_channels, conv_kernels, conv_strides: the 3 convolutions of the image stream.
@@ -126,13 +141,14 @@ class TwoStreamNet(nn.Module):
             raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
         self.kind = kind
         if kind == "rgbd":
-            channels, size = obs_shape["rgbd"][0], obs_shape["rgbd"][-1]
+            channels, size = image_shape(obs_shape)
+            side = size
             scene = []
             for out, k, s in zip(conv_channels, conv_kernels, conv_strides):
                 scene += [make_conv2d(channels, out, k, stride=s, variational=variational), nn.ReLU()]
                 channels, size = out, (size - k) // s + 1
             if size < 1:
-                raise ValueError(f"image of {obs_shape['rgbd'][-1]} pixels too small for the convolutions")
+                raise ValueError(f"image of {side} pixels too small for the convolutions")
             scene += [nn.Flatten(), *_mlp(channels * size * size, scene_hidden, variational)]
             joints = _mlp(2 * obs_shape["joints"][0], joint_hidden, variational)
             streams = [scene, joints]
@@ -155,8 +171,10 @@ class TwoStreamNet(nn.Module):
 
     def _stream_inputs(self, obs) -> list[torch.Tensor]:
         if self.kind == "rgbd":
-            image = obs["rgbd"]
-            return [torch.cat([image[:, :3], image[:, 3:] / DEPTH_SCALE], dim=1) - 0.5, _angle_features(obs["joints"])]
+            rgb = obs["rgb"]
+            depth = obs["depth"].reshape(rgb.shape[0], 1, *rgb.shape[2:])
+            image = torch.cat([rgb.to(torch.float32) / 255.0, depth / DEPTH_SCALE], dim=1)
+            return [image - 0.5, _angle_features(obs["joints"])]
         if self.kind == "state":
             cup = (obs[..., -CUP_DIMS:] - self.input_centre) / self.input_scale
             return [cup, _angle_features(obs[..., :-CUP_DIMS])]
@@ -283,7 +301,7 @@ def make_policy(observation_space, action_dim: int, variational: bool = False, k
                 init_std: float = 0.3, min_std: float = 0.01, **sizes) -> GaussianPolicy:
     """Gaussian policy for a gymnasium observation space.
 
-    kind: ``"rgbd"`` (Dict with "rgbd" and "joints"), ``"state"`` (Box of joint angles then cup x, y, z),
+    kind: ``"rgbd"`` (Dict with "rgb", "depth" and "joints"), ``"state"`` (Box of joint angles then cup x, y, z),
     ``"mlp"`` (any Box), or ``"auto"``: Dict -> "rgbd", Box of shape (9,) -> "state" (the Jaco
     environments' state mode: 6 joints + 3 cup coordinates), any other Box -> "mlp". Pass ``kind="mlp"``
     explicitly for a 9-number Box that is not a Jaco state. ``sizes``: see :class:`TwoStreamNet`.
@@ -292,9 +310,9 @@ def make_policy(observation_space, action_dim: int, variational: bool = False, k
     if kind == "auto":
         kind = "rgbd" if is_dict else "state" if observation_space.shape == (9,) else "mlp"
     if kind == "rgbd":
-        if not is_dict or not {"rgbd", "joints"} <= set(observation_space.spaces):
-            raise ValueError(f"kind 'rgbd' needs a Dict space with 'rgbd' and 'joints', got {observation_space}")
-        obs_shape = {key: observation_space[key].shape for key in ("rgbd", "joints")}
+        if not is_dict or not set(IMAGE_KEYS) <= set(observation_space.spaces):
+            raise ValueError(f"kind 'rgbd' needs a Dict space with keys {IMAGE_KEYS}, got {observation_space}")
+        obs_shape = {key: observation_space[key].shape for key in IMAGE_KEYS}
         bounds = {}
     else:
         if is_dict or len(observation_space.shape) != 1:

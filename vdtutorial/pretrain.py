@@ -102,21 +102,23 @@ def observation_space(task: str, obs_mode: str, image_size: int = 128) -> gym.Sp
 
 def demo_observations(demos: Demos, obs_mode: str, image_size: int = 128, progress: bool = False):
     """The policy inputs of every sample: the state vectors, or RGBD images re-rendered from the stored
-    states (float16 to halve the memory of a data set of images; converted per batch)."""
+    states (RGB as the env's uint8, depth as float16 to halve its memory; converted per batch)."""
     if obs_mode == "state":
         return demos.states
     env = gym.make(ENV_IDS[demos.meta["task"]], obs_mode="rgbd", image_size=image_size)
     n = len(demos)
-    images = np.empty((n, 4, image_size, image_size), dtype=np.float16)
+    rgb = np.empty((n, 3, image_size, image_size), dtype=np.uint8)
+    depth = np.empty((n, image_size * image_size), dtype=np.float16)
     for i in tqdm(range(n), desc="rendering demonstration images", disable=not progress):
-        images[i] = env.unwrapped.observation_at(demos.joints[i], demos.cup[i, :2])["rgbd"]
+        obs = env.unwrapped.observation_at(demos.joints[i], demos.cup[i, :2])
+        rgb[i], depth[i] = obs["rgb"], obs["depth"]
     env.close()
-    return {"rgbd": images, "joints": demos.joints.astype(np.float32)}
+    return {"rgb": rgb, "depth": depth, "joints": demos.joints.astype(np.float32)}
 
 
 def _take(obs, idx):
     if isinstance(obs, dict):
-        return {k: torch.as_tensor(v[idx], dtype=torch.float32) for k, v in obs.items()}
+        return {k: obs_to_tensor(v[idx]) for k, v in obs.items()}
     return obs_to_tensor(obs[idx])
 
 

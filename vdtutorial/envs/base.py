@@ -25,10 +25,17 @@ class JacoEnv(gym.Env):
 
     Parameters
     ----------
-    obs_mode: ``"rgbd"`` -- the paper's observation, a dict with ``"rgbd"`` (float32, 4 x S x S: RGB in
-        [0, 1], then depth in metres, clipped to the camera's far plane) and ``"joints"`` (6 angles,
-        radians); or ``"state"`` -- a float32 vector of the 6 joint angles followed by the cup's base
-        position (x, y, z), the fast mode for classes and CI.
+    obs_mode: ``"rgbd"`` -- the paper's observation, a dict with ``"rgb"`` (uint8, 3 x S x S, in
+        [0, 255]), ``"depth"`` (float32, S * S: the S x S depth image in metres, clipped to the camera's
+        far plane, flattened row by row; ``obs["depth"].reshape(S, S)`` gives the picture) and
+        ``"joints"`` (6 angles, radians); or ``"state"`` -- a float32 vector of the 6 joint angles
+        followed by the cup's base position (x, y, z), the fast mode for classes and CI.
+        The image layout is the one gymnasium and Stable-Baselines3 treat as an image (uint8, channels
+        first), so their CNN policies read it unchanged. Depth keeps its metric precision in its own
+        key; as a flat vector it is what Stable-Baselines3 accepts besides a uint8 image (its checker
+        warns about a float or 2-D "image"), and the 8-bit quantisation an image would need (1.1 cm
+        steps over the camera's 2.9 m range) is avoided. The
+        paper's policy scales both inside the network (:mod:`vdtutorial.policy`).
     image_size: side S of the camera image in pixels.
     render_mode: ``"rgb_array"`` makes :meth:`render` return the camera's RGB image (S x S x 3, uint8).
 
@@ -55,7 +62,8 @@ class JacoEnv(gym.Env):
         joints = gym.spaces.Box(lo.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
         if obs_mode == "rgbd":
             self.observation_space = gym.spaces.Dict({
-                "rgbd": gym.spaces.Box(0.0, CAMERA_FAR, shape=(4, s, s), dtype=np.float32),
+                "rgb": gym.spaces.Box(0, 255, shape=(3, s, s), dtype=np.uint8),
+                "depth": gym.spaces.Box(0.0, CAMERA_FAR, shape=(s * s,), dtype=np.float32),
                 "joints": joints,
             })
         else:
@@ -141,10 +149,8 @@ class JacoEnv(gym.Env):
         if self.obs_mode == "state":
             return np.concatenate([joints, self.scene.cup_position.astype(np.float32)])
         rgb, depth = self.scene.render_rgbd()
-        rgbd = np.empty((4,) + depth.shape, dtype=np.float32)
-        rgbd[:3] = rgb.transpose(2, 0, 1) / np.float32(255.0)
-        rgbd[3] = np.minimum(depth, CAMERA_FAR)
-        return {"rgbd": rgbd, "joints": joints}
+        return {"rgb": np.ascontiguousarray(rgb.transpose(2, 0, 1)),
+                "depth": np.minimum(depth, CAMERA_FAR).reshape(-1), "joints": joints}
 
     def observation_at(self, joints, cup_xy):
         """The observation the env would give in a state (joints, cup): re-renders deterministically."""
