@@ -1,11 +1,21 @@
 """The command line: each subcommand parses, and the cheap ones run end to end."""
+import argparse
+import hashlib
 import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from vdtutorial.__main__ import build_parser, main
 from vdtutorial.demos import Demos
-from vdtutorial.settings import QUICK
+from vdtutorial.settings import DATA_DIR, QUICK
+
+REPO = Path(__file__).resolve().parent.parent
 
 
 @pytest.mark.parametrize("command", ["demos", "expert", "pretrain", "evaluate", "digits", "bench", "experiment", "reproduce"])
@@ -55,3 +65,129 @@ def test_experiment_fvp_subsample_reaches_the_runs_and_the_record(tmp_path, caps
     record = json.loads((tmp_path / "fig4.json").read_text())
     assert record["trpo_config"]["fvp_subsample"] == 0.5
     assert "--fvp-subsample 0.5" in record["command"]
+
+
+# -- errors: one line, exit code 2, no traceback ----------------------------------------------------------
+def _one_line_error(capsys, argv) -> str:
+    try:
+        code = main(argv)
+    except SystemExit as exit_info:  # argparse refusals
+        code = exit_info.code
+    err = capsys.readouterr().err.replace("[quick mode: small budgets]\n", "")
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith("error: ") and "Traceback" not in err, err
+    return err
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["demos", "--samples", "-5"], "--samples: expected a positive integer, got '-5'"),
+    (["demos", "--samples", "0"], "expected a positive integer"),
+    (["demos", "--noise", "-0.1"], "--noise: expected a finite number >= 0"),
+    (["demos", "--noise", "nan"], "--noise: expected a finite number >= 0"),
+    (["demos", "--task", "push"], "invalid choice: 'push'"),
+    (["expert", "--episodes", "0"], "--episodes: expected a positive integer, got '0'"),
+    (["expert", "--episodes", "many"], "--episodes: expected a positive integer, got 'many'"),
+    (["experiment", "fig9"], "invalid choice: 'fig9'"),
+    (["experiment", "fig4", "--steps", "0"], "--steps: expected a positive integer"),
+    (["experiment", "fig4", "--workers", "-1"], "--workers: expected a positive integer"),
+    (["experiment", "fig4", "--fvp-subsample", "1.5"], "--fvp-subsample: expected a number in (0, 1]"),
+    (["pretrain", "--reg", "dropout", "--demos", "x.npz"], "invalid choice: 'dropout'"),
+    (["bench", "gpu"], "invalid choice: 'gpu'"),
+    (["train"], "invalid choice: 'train'"),
+])
+def test_bad_arguments_give_one_line(argv, expected, capsys):
+    assert expected in _one_line_error(capsys, argv)
+
+
+def test_missing_and_corrupt_files_give_one_line_with_the_real_regenerate_command(tmp_path, capsys):
+    missing = tmp_path / "grasp_n4000_sigma0.25_seed3.npz"
+    err = _one_line_error(capsys, ["evaluate", "--demos", str(missing)])
+    assert f"python -m vdtutorial demos --task grasp --samples 4000 --noise 0.25 --seed 3 --out {missing}" in err
+    corrupt = tmp_path / "reach_n100_sigma0.5_seed0.npz"
+    corrupt.write_bytes(b"not a zip archive")
+    err = _one_line_error(capsys, ["pretrain", "--reg", "vd", "--demos", str(corrupt)])
+    assert "is corrupt or not a demonstrations file" in err and "--samples 100 --noise 0.5 --seed 0" in err
+
+
+def test_truncated_checkpoint_gives_one_line(tmp_path, capsys):
+    name = "reach_n8000_sigma0.5_vd_state_seed0.pt"
+    data = (DATA_DIR / "checkpoints" / name).read_bytes()
+    (tmp_path / name).write_bytes(data[: len(data) // 2])
+    err = _one_line_error(capsys, ["evaluate", "--checkpoints", str(tmp_path), "--episodes", "1"])
+    assert "is corrupt or not a vdtutorial checkpoint" in err
+    assert "python -m vdtutorial pretrain --reg vd" in err and "--seed 0 --obs state" in err
+
+
+def test_shipped_files_are_not_replaced_without_force(tmp_path, capsys):
+    shipped = DATA_DIR / "demos" / "reach_n8000_sigma0.5_seed0.npz"
+    before = shipped.read_bytes()
+    err = _one_line_error(capsys, ["demos", "--samples", "5", "--out", str(shipped)])
+    assert "pass --force" in err and shipped.read_bytes() == before
+
+
+# -- the help ---------------------------------------------------------------------------------------------
+def _subparsers():
+    parser = build_parser()
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return parser, action.choices
+
+
+def test_help_is_complete():
+    parser, commands = _subparsers()
+    assert "`" not in parser.format_help()
+    assert all(word in parser.format_help() for word in ("demos", "pretrain", "experiment", "reproduce"))
+    for name, sub in commands.items():
+        assert "`" not in sub.format_help(), name
+        for action in sub._actions:
+            if not isinstance(action, argparse._HelpAction):
+                assert action.help, f"{name} {action.option_strings or action.dest} has no help text"
+    assert "finetune" in commands["bench"].format_help() and "trpo" in commands["bench"].format_help()
+    epochs = next(a for a in commands["pretrain"]._actions if "--epochs" in a.option_strings)
+    assert any(ch.isdigit() for ch in epochs.help) and "default_config" not in epochs.help
+
+
+def test_no_pybullet_banner_on_help():
+    result = subprocess.run([sys.executable, "-m", "vdtutorial", "--help"], capture_output=True, text=True, check=True)
+    assert "build time" not in result.stdout + result.stderr
+    assert result.stdout.startswith("usage: python -m vdtutorial")
+
+
+# -- the README's examples leave data/ as shipped ---------------------------------------------------------
+def _readme_examples() -> list[list[str]]:
+    """The command lines of the README's "The command line" block, options in brackets dropped."""
+    text = (REPO / "README.md").read_text()
+    block = text.split("## The command line", 1)[1].split("```bash", 1)[1].split("```", 1)[0]
+    commands = []
+    for line in block.splitlines():
+        line = re.sub(r"\[[^\]]*\]", "", line.split("#", 1)[0]).strip()
+        if line.startswith("python -m vdtutorial "):
+            commands.append(shlex.split(line)[3:])
+    return commands
+
+
+#: Budgets shrunk for a test (the commands' meaning is unchanged); bench and digits only measure.
+SMALLER = {"--samples": "60", "--episodes": "1", "--steps": "200"}
+EXTRA = {"pretrain": ["--epochs", "1"], "evaluate": ["--episodes", "1"], "experiment": ["--seeds", "0", "--workers", "1"],
+         "reproduce": ["--workers", "1"]}
+
+
+def _digest(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.skipif(not QUICK, reason="runs every README example: quick mode keeps it to a minute")
+def test_readme_examples_leave_data_untouched(tmp_path):
+    examples = _readme_examples()
+    assert [e[0] for e in examples] == ["demos", "expert", "pretrain", "evaluate", "experiment", "reproduce", "digits", "bench"]
+    before = _digest(DATA_DIR)
+    env = {**os.environ, "VDTUTORIAL_QUICK": "1", "VDTUTORIAL_RUNS": str(tmp_path / "runs"), "MPLBACKEND": "Agg"}
+    for argv in examples:
+        if argv[0] in ("digits", "bench"):
+            continue
+        argv = [SMALLER.get(prev, arg) for prev, arg in zip([None] + argv, argv)] + EXTRA.get(argv[0], [])
+        result = subprocess.run([sys.executable, "-m", "vdtutorial", *argv], cwd=REPO, env=env, capture_output=True, text=True)
+        assert result.returncode == 0, f"{argv}: {result.stderr[-2000:]}"
+    assert _digest(DATA_DIR) == before
+    written = {p.relative_to(tmp_path / "runs").parts[0] for p in (tmp_path / "runs").rglob("*") if p.is_file()}
+    assert {"demos", "checkpoints"} <= written

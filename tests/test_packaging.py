@@ -25,7 +25,7 @@ def test_environment_yml_matches_pyproject():
     assert listed == wanted
 
 
-def test_torch_is_pinned_to_the_cpu_build_everywhere():
+def test_torch_is_pinned_to_one_version_everywhere():
     assert '"torch==2.13.0"' in (ROOT / "pyproject.toml").read_text()
     assert "torch==2.13.0" in (ROOT / "environment.yml").read_text()
 

@@ -1,18 +1,102 @@
-"""Command line: ``python -m vdtutorial COMMAND ...`` (``--help`` lists the commands)."""
+"""The command line of vdtutorial: python -m vdtutorial COMMAND ... (COMMAND --help for its options).
+
+Commands write what they make under runs/ unless --out says otherwise; they never replace a file in
+data/ (the shipped artefacts the notebooks and figures rely on) without --force.
+"""
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
+import os
 import sys
+from pathlib import Path
 
-from vdtutorial.settings import QUICK
+from vdtutorial.settings import DATA_DIR, QUICK, RUNS_DIR
+
+#: Set this environment variable to see the full traceback of an expected error.
+TRACEBACK_VARIABLE = "VDTUTORIAL_TRACEBACK"
 
 
+class CommandError(Exception):
+    """An error the user can fix: printed as one line, exit code 2."""
+
+
+# -- argument types: bad values are refused at parse time ------------------------------------------------
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def nonnegative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
+
+
+def fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}") from None
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}")
+    return value
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (``error: ...``, exit code 2) instead of the usage
+    block followed by the message: ``--help`` shows the usage."""
+
+    def error(self, message):
+        self.exit(2, f"error: {self.prog}: {message} (see {self.prog} --help)\n")
+
+
+# -- where outputs go ------------------------------------------------------------------------------------
+def _inside(path: Path, folder: Path) -> bool:
+    return path.resolve().is_relative_to(folder.resolve())
+
+
+def output_path(out: str | None, default: Path, force: bool) -> Path:
+    """``--out`` if given, else ``default`` (under runs/). Refuses to replace an existing file in data/
+    unless ``force``: the notebooks and figures rely on the shipped files."""
+    path = Path(out) if out else default
+    if path.exists() and _inside(path, DATA_DIR) and not force:
+        raise CommandError(f"{path} is a shipped file in data/; pass --force to replace it, or --out another path")
+    return path
+
+
+def _progress(args) -> bool:
+    """Progress bars: on in a terminal, off in logs and pipes, unless --progress / --no-progress says."""
+    return sys.stderr.isatty() if args.progress is None else args.progress
+
+
+# -- the commands ----------------------------------------------------------------------------------------
 def _cmd_demos(args) -> None:
     from vdtutorial.demos import demo_path, generate_demos
 
-    demos = generate_demos(args.task, args.samples, args.noise, args.seed, progress=not args.no_progress)
-    out = demos.save(args.out or demo_path(args.task, args.samples, args.noise, args.seed))
+    out = output_path(args.out, demo_path(args.task, args.samples, args.noise, args.seed, root=RUNS_DIR), args.force)
+    demos = generate_demos(args.task, args.samples, args.noise, args.seed, progress=_progress(args))
+    demos.save(out)
     print(f"{len(demos)} samples from {demos.meta['episodes']} noisy expert episodes "
           f"(noisy success rate {demos.meta['noisy_success_rate']:.2f})")
     print(f"wrote {out}")
@@ -22,7 +106,7 @@ def _cmd_expert(args) -> None:
     from vdtutorial.evaluation import expert_success_rate
 
     for task in args.task:
-        rate, mean_len = expert_success_rate(task, args.episodes, seed=args.seed)
+        rate, mean_len = expert_success_rate(task, args.episodes, seed=args.seed, progress=_progress(args))
         print(f"expert {task}: success rate {rate:.3f} over {args.episodes} episodes "
               f"(mean episode length {mean_len:.2f} steps)")
 
@@ -36,12 +120,13 @@ def _cmd_pretrain(args) -> None:
 
     torch.set_num_threads(1)
     demos = Demos.load(args.demos)
+    out = output_path(args.out, checkpoint_path(demos.meta, args.reg, args.obs, args.seed, root=RUNS_DIR), args.force)
     config = default_config(args.reg, args.obs)
     if args.epochs:
         config = dataclasses.replace(config, epochs=args.epochs)
-    policy, history = pretrain(demos, config, seed=args.seed)
+    policy, history = pretrain(demos, config, seed=args.seed, progress=_progress(args))
     command = pretrain_command(args.reg, args.demos, args.seed, args.obs) + (f" --epochs {args.epochs}" if args.epochs else "")
-    out = save_checkpoint(policy, args.out or checkpoint_path(demos.meta, args.reg, args.obs, args.seed), {"command": command})
+    save_checkpoint(policy, out, {"command": command})
     print(f"held-out imitation MSE {history[-1]['val_mse']:.4f}")
     if args.reg == "vd":
         print(sparsity_report(policy.mu))
@@ -61,10 +146,11 @@ def _cmd_evaluate(args) -> None:
 
     demos = Demos.load(args.demos)
     task = demos.meta["task"]
+    folder = Path(args.checkpoints) if args.checkpoints else DATA_DIR / "checkpoints"
+    controllers = {reg: PolicyController(load_checkpoint(folder / checkpoint_path(demos.meta, reg, args.obs, args.seed).name))
+                   for reg in ("vd", "l2")}
     env = gym.make(ENV_IDS[task], obs_mode=args.obs)
     episodes = args.episodes or budget(5, 2)
-    controllers = {reg: PolicyController(load_checkpoint(checkpoint_path(demos.meta, reg, args.obs, 0)))
-                   for reg in ("vd", "l2")}
     controllers["expert"] = ExpertController(env)
     for name, controller in controllers.items():
         runs = [successes_per_episode(env, controller, seed=100 + k) for k in range(episodes)]
@@ -130,64 +216,94 @@ def _cmd_experiment(args) -> None:
     _print_summary(result)
 
 
+# -- the parser ------------------------------------------------------------------------------------------
+def _epochs_help() -> str:
+    from vdtutorial.pretrain import default_config
+
+    return (f"passes over the training split (default: {default_config('vd', 'state').epochs} with --obs state, "
+            f"{default_config('vd', 'rgbd').epochs} with --obs rgbd)")
+
+
+def _add_progress(p) -> None:
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bars on standard error (default: only in a terminal)")
+
+
+def _add_force(p) -> None:
+    p.add_argument("--force", action="store_true", help="allow replacing an existing file in data/")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m vdtutorial", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = OneLineParser(prog="python -m vdtutorial", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
 
     p = sub.add_parser("demos", help="generate expert demonstrations (eqs. 5-8)")
-    p.add_argument("--task", choices=("reach", "grasp"), default="reach")
-    p.add_argument("--samples", type=int, default=8000, help="state-action pairs in the data set")
-    p.add_argument("--noise", type=float, default=0.5, help="Sigma: std of the action noise, radians")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=None, help="output file (default: data/demos/TASK_nN_sigmaS_seedK.npz)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--task", choices=("reach", "grasp"), default="reach", help="which task's expert (default reach)")
+    p.add_argument("--samples", type=positive_int, default=8000, help="state-action pairs in the data set (default 8000)")
+    p.add_argument("--noise", type=nonnegative_float, default=0.5,
+                   help="Sigma: std of the action noise in radians (default 0.5)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seeds the cup positions and the noise (default 0)")
+    p.add_argument("--out", default=None, help="output file (default: runs/demos/TASK_nN_sigmaS_seedK.npz)")
+    _add_force(p)
+    _add_progress(p)
     p.set_defaults(func=_cmd_demos)
 
     p = sub.add_parser("expert", help="measure the IK expert's success rate")
-    p.add_argument("--task", nargs="+", choices=("reach", "grasp"), default=["reach", "grasp"])
-    p.add_argument("--episodes", type=int, default=200)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--task", nargs="+", choices=("reach", "grasp"), default=["reach", "grasp"],
+                   help="one or both tasks (default: both)")
+    p.add_argument("--episodes", type=positive_int, default=200, help="noiseless expert trajectories per task (default 200)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="trajectory k uses cup seed SEED + k (default 0)")
+    _add_progress(p)
     p.set_defaults(func=_cmd_expert)
 
     p = sub.add_parser("pretrain", help="behavioural cloning with sparse VD or L2 (eqs. 1-4)")
-    p.add_argument("--reg", choices=("vd", "l2"), required=True)
+    p.add_argument("--reg", choices=("vd", "l2"), required=True, help="regulariser: sparse variational dropout or L2")
     p.add_argument("--demos", required=True, help="a demonstrations file (python -m vdtutorial demos ...)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--obs", choices=("state", "rgbd"), default="state")
-    p.add_argument("--epochs", type=int, default=None, help="default: pretrain.default_config's setting")
-    p.add_argument("--out", default=None, help="checkpoint file (default: data/checkpoints/...)")
+    p.add_argument("--seed", type=nonnegative_int, default=0,
+                   help="seeds the initialisation, the held-out split and the batches (default 0)")
+    p.add_argument("--obs", choices=("state", "rgbd"), default="state",
+                   help="policy input: joint angles + cup position, or the paper's RGBD image + joints (default state)")
+    p.add_argument("--epochs", type=positive_int, default=None, help=_epochs_help())
+    p.add_argument("--out", default=None, help="checkpoint file (default: runs/checkpoints/TASK_nN_sigmaS_REG_OBS_seedK.pt)")
+    _add_force(p)
+    _add_progress(p)
     p.set_defaults(func=_cmd_pretrain)
 
     p = sub.add_parser("evaluate", help="successful trajectories per 200-step episode: pre-trained VD, L2, expert")
-    p.add_argument("--demos", default="data/demos/reach_n8000_sigma0.5_seed0.npz")
-    p.add_argument("--obs", choices=("state", "rgbd"), default="state")
-    p.add_argument("--episodes", type=int, default=None, help="200-step episodes per controller (default 5)")
+    p.add_argument("--demos", default=str(DATA_DIR / "demos" / "reach_n8000_sigma0.5_seed0.npz"),
+                   help="the demonstrations the policies were trained on (default: the shipped reach set)")
+    p.add_argument("--obs", choices=("state", "rgbd"), default="state", help="which policies to load (default state)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="pre-training seed of the checkpoints (default 0)")
+    p.add_argument("--checkpoints", default=None,
+                   help="folder holding the checkpoints (default: data/checkpoints; e.g. runs/checkpoints)")
+    p.add_argument("--episodes", type=positive_int, default=None, help="200-step episodes per controller (default 5)")
     p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("digits", help="validate sparse VD on scikit-learn's digits (dense vs VD MLP)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seeds the split and the training (default 0)")
     p.set_defaults(func=_cmd_digits)
 
-    p = sub.add_parser("bench", help="benchmarks (env, policy, trpo)")
+    p = sub.add_parser("bench", help="benchmarks: env, policy, finetune, trpo")
     p.add_argument("what", choices=("env", "policy", "finetune", "trpo"),
                    help="env: steps/s; policy: network and pre-training cost; finetune: TRPO fine-tuning steps/s "
-                        "end to end; trpo: Pendulum-v1 vs sb3-contrib")
+                        "end to end; trpo: our TRPO against sb3-contrib's on Pendulum-v1 (needs the bench extra)")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1")
-    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1"))
-    p.add_argument("--seeds", type=int, nargs="+", default=None, help="default: 0 1 2 (table1: the first seed)")
-    p.add_argument("--steps", type=int, default=None, help="RL env steps per run (default: the paper's 3e5)")
-    p.add_argument("--obs", choices=("state", "rgbd"), default="state")
-    p.add_argument("--workers", type=int, default=2, help="runs in parallel (one per core)")
-    p.add_argument("--out", default=None, help="output folder (default: data/results/NAME)")
-    p.add_argument("--fvp-subsample", type=float, default=None,
-                   help="fraction of each TRPO batch for the Fisher-vector products (default: 1 state, 0.1 rgbd)")
+    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1"), help="which figure or table")
+    p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: the first seed)")
+    p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5)")
+    p.add_argument("--obs", choices=("state", "rgbd"), default="state", help="policy input (default state)")
+    p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
+    p.add_argument("--out", default=None, help="output folder (default: runs/NAME)")
+    p.add_argument("--fvp-subsample", type=fraction, default=None,
+                   help="fraction of each TRPO batch for the Fisher-vector products (default: the whole batch)")
     p.set_defaults(func=_cmd_experiment)
 
-    p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (< 5 min on 2 cores)")
+    p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")
     p.add_argument("--quick", action="store_true", help="accepted for clarity; reproduce always runs small")
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
     p.add_argument("--out", default=None, help="output folder (default: runs/reproduce_quick)")
     p.set_defaults(func=_cmd_reproduce)
     return parser
@@ -197,7 +313,14 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if QUICK:
         print("[quick mode: small budgets]", file=sys.stderr)
-    args.func(args)
+    try:
+        args.func(args)
+    except (CommandError, ValueError, OSError) as exc:  # expected: bad path, corrupt file, bad value
+        if os.environ.get(TRACEBACK_VARIABLE):
+            raise
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"error: {message}", file=sys.stderr)
+        return 2
     return 0
 
 

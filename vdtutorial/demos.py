@@ -19,6 +19,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -125,11 +126,24 @@ class Demos:
         return cls(meta=meta, **arrays)
 
 
+#: The conventional file name of :func:`demo_path`, read back to fill in a regenerate hint.
+_NAME = re.compile(r"(?P<task>[a-z]+)_n(?P<samples>\d+)_sigma(?P<noise>[0-9.e-]+)_seed(?P<seed>\d+)\.npz")
+
+
 def _regenerate_hint(path: Path, meta: dict) -> str:
+    """The command that makes ``path`` again, with the real task, size, Sigma and seed: taken from the
+    file's metadata or the caller's expectations, else from the conventional file name."""
     keys = ("task", "samples", "noise", "seed")
-    if all(k in meta for k in keys):
-        return f"Regenerate it with: {demo_command(*(meta[k] for k in keys))} --out {path}"
-    return "Regenerate it with: python -m vdtutorial demos --task TASK --samples N --noise SIGMA --seed SEED --out " + str(path)
+    values = dict(meta)
+    match = _NAME.fullmatch(path.name)
+    if match and not all(k in values for k in keys):
+        parsed = {"task": match["task"], "samples": int(match["samples"]), "noise": float(match["noise"]),
+                  "seed": int(match["seed"])}
+        values = {**parsed, **{k: v for k, v in values.items() if k in keys}}
+    if all(k in values for k in keys) and values["task"] in ENV_IDS:
+        return f"Regenerate it with: {demo_command(*(values[k] for k in keys))} --out {path}"
+    return ("Make it with: python -m vdtutorial demos --task {reach,grasp} --samples N --noise SIGMA --seed SEED "
+            f"--out {path}")
 
 
 def generate_demos(task: str = "reach", samples: int = 8000, noise: float = 0.5, seed: int = 0,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
+from tqdm.auto import tqdm
 
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.expert import IKExpert
@@ -63,13 +64,15 @@ def successes_per_episode(env: gym.Env, controller, steps: int = EPISODE_STEPS, 
     return out
 
 
-def expert_success_rate(task: str, episodes: int, seed: int = 0) -> tuple[float, float]:
+def expert_success_rate(task: str, episodes: int, seed: int = 0, progress: bool = False) -> tuple[float, float]:
     """Fraction of noiseless expert trajectories that succeed, and their mean length in steps.
     Trajectory ``k`` uses cup seed ``seed + k``."""
+    if int(episodes) != episodes or episodes < 1:
+        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     env = gym.make(ENV_IDS[task], obs_mode="state")
     expert = IKExpert(env)
     successes, lengths = 0, []
-    for k in range(episodes):
+    for k in tqdm(range(episodes), desc=f"{task} expert", unit="episode", disable=not progress):
         env.reset(seed=seed + k)
         expert.reset()
         for t in range(1, 10**6):

@@ -82,7 +82,7 @@ from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per
 from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.pretrain import (CheckpointError, PretrainConfig, checkpoint_path, default_config, load_checkpoint,
                                  pretrain, pretrain_command, save_checkpoint)
-from vdtutorial.settings import DATA_DIR, QUICK, budget
+from vdtutorial.settings import DATA_DIR, QUICK, RUNS_DIR, budget
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 from vdtutorial.vd import sparsity_report
 
@@ -108,7 +108,6 @@ SEEDS = budget((0, 1, 2), (0, 1))
 #: used) -- they dominate the update of the convolutional networks (see ``TRPOConfig.fvp_subsample``).
 IMAGE_TRPO_CONFIG = TRPOConfig(fvp_subsample=0.1)
 #: Quick-mode results and ``reproduce_quick``'s default folder: ``runs/`` beside ``data/``, not shipped.
-RUNS_DIR = DATA_DIR.parent / "runs"
 
 #: Table I: (row, task, demonstrations, Sigma, the paper's neuron sparsification ratio).
 TABLE1 = (

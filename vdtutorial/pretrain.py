@@ -29,6 +29,7 @@ fraction of weights of ``mu`` with log alpha > 3.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -38,7 +39,7 @@ import torch
 from tqdm.auto import tqdm
 
 import vdtutorial
-from vdtutorial.demos import Demos
+from vdtutorial.demos import Demos, demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor
 from vdtutorial.settings import DATA_DIR, budget
@@ -223,6 +224,20 @@ def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> 
     return path
 
 
+#: The conventional file name of :func:`checkpoint_path`, read back to fill in a make-it hint.
+_NAME = re.compile(r"(?P<task>[a-z]+)_n(?P<samples>\d+)_sigma(?P<noise>[0-9.e-]+)_(?P<reg>vd|l2)_(?P<obs>state|rgbd)"
+                   r"_seed(?P<seed>\d+)\.pt")
+
+
+def _make_hint(path: Path) -> str:
+    """The command that makes the checkpoint ``path``, with the real values when the name is conventional."""
+    match = _NAME.fullmatch(path.name)
+    if not match:
+        return "Make it with: python -m vdtutorial pretrain --reg {vd,l2} --demos FILE --seed SEED --obs {state,rgbd} --out " + str(path)
+    demos = demo_path(match["task"], int(match["samples"]), float(match["noise"]), 0)
+    return (f"Make it with: {pretrain_command(match['reg'], demos, int(match['seed']), match['obs'])} --out {path}")
+
+
 class CheckpointError(ValueError):
     """A checkpoint is missing, unreadable, or not the policy that was asked for."""
 
@@ -234,7 +249,7 @@ def load_checkpoint(path, **expected) -> GaussianPolicy:
     ``variational=True``) or the checkpoint's meta (e.g. ``task``); a mismatch raises
     :class:`CheckpointError` naming the file and what differs."""
     path = Path(path)
-    fix = "Make it with `python -m vdtutorial pretrain ...` (see README.md)."
+    fix = _make_hint(path)
     if not path.exists():
         raise CheckpointError(f"checkpoint {path} does not exist. {fix}")
     try:

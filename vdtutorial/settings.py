@@ -20,3 +20,8 @@ def budget(full, quick):
 #: Where shipped and generated artefacts live (demonstrations, checkpoints, result CSVs): the
 #: repository's ``data/`` folder, or the folder named by ``VDTUTORIAL_DATA``.
 DATA_DIR = Path(os.environ.get("VDTUTORIAL_DATA", Path(__file__).resolve().parent.parent / "data"))
+
+#: Where commands write what they make unless told otherwise (``--out``): ``runs/`` beside ``data/``
+#: (or the folder named by ``VDTUTORIAL_RUNS``), so that the shipped artefacts in ``data/`` are never
+#: replaced by accident.
+RUNS_DIR = Path(os.environ.get("VDTUTORIAL_RUNS", DATA_DIR.parent / "runs"))

@@ -14,7 +14,7 @@ import math
 from importlib import resources
 
 import numpy as np
-import pybullet as p
+from vdtutorial.envs.bullet import pybullet as p
 
 #: Kinova's "home" pose of the Jaco 2 6-DOF in Kinova's joint convention (degrees), the start pose.
 HOME_DEG = (275.0, 167.5, 57.5, 240.0, 82.5, 75.0)

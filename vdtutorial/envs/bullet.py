@@ -1,0 +1,35 @@
+"""pybullet, imported without its build-time banner.
+
+pybullet's C extension writes ``pybullet build time: ...`` to the process's standard error when it is
+first imported. That line would otherwise open every command (``--help`` included), every worker
+process and every notebook that imports the package, so the first import happens here with file
+descriptor 2 pointed at ``/dev/null`` for the duration of the import only: warnings and errors after
+it are untouched. Importing pybullet anywhere later is free: Python hands back the module it has.
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+
+def _import_quietly():
+    if "pybullet" in sys.modules:
+        return sys.modules["pybullet"]
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no standard error at all: nothing to protect
+        import pybullet
+        return pybullet
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        import pybullet
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+    return pybullet
+
+
+pybullet = _import_quietly()
