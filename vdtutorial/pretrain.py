@@ -59,6 +59,12 @@ class PretrainConfig:
     l2: weight-decay coefficient of the L2 baseline (L2 only).
     val_fraction: fraction of the episodes held out.
     image_size: camera image side for ``obs_mode="rgbd"``.
+    kl_samples: the N that divides the KL term of the ELBO (VD only). Eq. 3 sums the likelihood over
+        the N samples of D and adds the KL once, so per sample the KL weighs 1/N: ``None`` (the
+        default) uses this data set's own training-split size, as eq. 3 reads. A fixed number (e.g. the
+        largest set's N for every set) keeps the prior's weight per sample the same across data sets of
+        different sizes, so that Table I's rows differ only by their data; the paper does not say which
+        it used (see ``experiments.table1``).
     """
 
     reg: str = "vd"
@@ -70,6 +76,7 @@ class PretrainConfig:
     l2: float = 1e-4
     val_fraction: float = 0.1
     image_size: int = 128
+    kl_samples: int | None = None
 
     def __post_init__(self):
         if self.reg not in REGULARISERS:
@@ -78,6 +85,8 @@ class PretrainConfig:
             raise ValueError(f"obs_mode must be 'state' or 'rgbd', got {self.obs_mode!r}")
         if self.epochs < 1 or self.batch_size < 1 or not 0 <= self.val_fraction < 1:
             raise ValueError("epochs and batch_size must be >= 1 and val_fraction in [0, 1)")
+        if self.kl_samples is not None and self.kl_samples < 1:
+            raise ValueError(f"kl_samples must be None or a positive integer, got {self.kl_samples!r}")
 
 
 #: Settings that differ for image policies. A policy that sees the cup only through the camera must
@@ -164,7 +173,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
             nll = -policy.log_prob(o, a).mean()
             if cfg.reg == "vd":
                 beta = min(1.0, step / max(1.0, cfg.beta_warmup * total_steps))
-                loss = nll + beta * model_kl(policy.mu) / n_train
+                loss = nll + beta * model_kl(policy.mu) / (cfg.kl_samples or n_train)
             else:
                 loss = nll + cfg.l2 * sum((w ** 2).sum() for w in weights)
             optimiser.zero_grad()
