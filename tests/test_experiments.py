@@ -181,11 +181,11 @@ def test_table1_trends_on_hand_made_numbers():
 
 def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):
     """With no checkpoints_root, quick mode looks up and saves checkpoints under runs/quick, not data/."""
-    from vdtutorial import experiments
+    from vdtutorial.experiments import runs
 
-    monkeypatch.setattr(experiments, "RUNS_DIR", tmp_path)
-    monkeypatch.setattr(experiments, "budget", lambda full, quick: quick)
+    monkeypatch.setattr(runs, "RUNS_DIR", tmp_path)
+    monkeypatch.setattr(runs, "budget", lambda full, quick: quick)
     demos = generate_demos("reach", 40, 0.3, seed=1, progress=False)
-    experiments.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
+    runs.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
     saved = list(tmp_path.rglob("*.pt"))
     assert [p.name for p in saved] == ["reach_n40_sigma0.3_l2_state_seed0.pt"]
