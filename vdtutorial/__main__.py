@@ -104,12 +104,9 @@ def _cmd_reproduce(args) -> None:
 
 def _print_summary(result) -> None:
     """Final level of every curve, the fig4-style "VD reaches L2" line if any, and where files went."""
-    for label, final in result.summary["final"].items():
-        print(f"{label:>32}: final {final['mean']:.2f} (95% band {final['low']:.2f} to {final['high']:.2f}, "
-              f"{final['seeds']} seeds)")
-    if "vd_reaches_l2_final" in result.summary:
-        print(result.summary["vd_reaches_l2_final"]["text"])
-    print(f"wrote {result.out}")
+    from vdtutorial.experiments import format_summary
+
+    print(format_summary(result))
 
 
 def _cmd_experiment(args) -> None:
@@ -117,16 +114,33 @@ def _cmd_experiment(args) -> None:
 
     from vdtutorial import experiments
 
+    problem = None
+    if args.address is not None and args.backend == "local":
+        problem = "--address names a Ray cluster: use it with --backend ray"
+    if args.checkpoint_every is not None and args.checkpoint_every < 1:
+        problem = f"--checkpoint-every must be a positive number of iterations, got {args.checkpoint_every}"
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        raise SystemExit(2)
+    backend = args.backend or ("ray" if args.address is not None else "local")
+    resumable = {"checkpoint_every": args.checkpoint_every} if args.checkpoint_every is not None else {}
     if args.name == "table1":
-        experiments.table1(obs_mode=args.obs, seed=args.seeds[0] if args.seeds else 0, out=args.out, workers=args.workers)
+        experiments.table1(obs_mode=args.obs, seed=args.seeds[0] if args.seeds else 0, out=args.out,
+                           workers=args.workers, backend=backend, address=args.address)
         return
     trpo_config = None
     if args.fvp_subsample is not None:
         trpo_config = dataclasses.replace(experiments.default_trpo_config(args.obs), fvp_subsample=args.fvp_subsample)
     with warnings.catch_warnings():
         warnings.simplefilter("default")
-        result = getattr(experiments, args.name)(seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs,
-                                                 out=args.out, workers=args.workers, trpo_config=trpo_config)
+        try:
+            result = getattr(experiments, args.name)(
+                seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs, out=args.out, workers=args.workers,
+                trpo_config=trpo_config, backend=backend, address=args.address, state_dir=args.state_dir,
+                restart=args.restart, **resumable)
+        except experiments.ResumeError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
     _print_summary(result)
 
 
@@ -180,9 +194,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=None, help="RL env steps per run (default: the paper's 3e5)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state")
     p.add_argument("--workers", type=int, default=2, help="runs in parallel (one per core)")
-    p.add_argument("--out", default=None, help="output folder (default: data/results/NAME)")
+    p.add_argument("--out", default=None, help="output folder (default: runs/NAME; data/results/NAME only when named)")
     p.add_argument("--fvp-subsample", type=float, default=None,
-                   help="fraction of each TRPO batch for the Fisher-vector products (default: 1 state, 0.1 rgbd)")
+                   help="fraction of each TRPO batch for the Fisher-vector products (default 1, the whole batch; "
+                        "0.1 is the subsampled control)")
+    p.add_argument("--backend", choices=("local", "ray"), default=None,
+                   help="where the runs execute: local worker processes (default), or Ray, one task per run "
+                        "with one CPU (pip install -e '.[cluster]'); without --address Ray starts locally "
+                        "with --workers CPUs")
+    p.add_argument("--address", default=None,
+                   help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); the nodes "
+                        "need the same install and the same paths (shared storage)")
+    p.add_argument("--state-dir", default=None,
+                   help="folder of the runs' saved states, which make the experiment resumable: rerun the same "
+                        "command to continue it (default: OUT/runs; on a cluster, a folder on shared storage)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard the saved states of this experiment's runs and start them again")
+    p.add_argument("--checkpoint-every", type=int, default=None, metavar="K",
+                   help="TRPO iterations between two saved states of a run (default 10)")
     p.set_defaults(func=_cmd_experiment)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (< 5 min on 2 cores)")

@@ -1,7 +1,9 @@
 """The paper's experiments (Section V): Figs. 4-7 and Table I, as functions that write their evidence.
 
 Modules, one idea each: :mod:`~vdtutorial.experiments.runs` (one run: pre-trained policy -> TRPO, the
-expert's reference), :mod:`~vdtutorial.experiments.grid` (many runs in parallel),
+expert's reference), :mod:`~vdtutorial.experiments.resume` (a run's saved state), :mod:`~vdtutorial.experiments.grid` (a
+restartable grid of runs), :mod:`~vdtutorial.experiments.backends` (local processes or Ray),
+:mod:`~vdtutorial.experiments.progress` (the grid's progress lines),
 :mod:`~vdtutorial.experiments.curves` (smoothing, bands, "steps to reach"),
 :mod:`~vdtutorial.experiments.plots` (the figure), :mod:`~vdtutorial.experiments.rows` (CSV files),
 :mod:`~vdtutorial.experiments.results` (an experiment's files), :mod:`~vdtutorial.experiments.figures`
@@ -47,33 +49,37 @@ Smoothing and bands
     mean +- t_{0.975, n-1} * sd / sqrt(n) (no band for a single seed). With 3 seeds t = 4.30, so bands are
     wide: they show how much the seeds disagree, not a significance test.
 
-Parallelism and reproducibility
-    Runs are independent, so they go to a ``multiprocessing`` pool (``workers=2`` for 2 cores; "spawn"
-    processes, which start clean instead of inheriting the parent's torch threads and pybullet clients).
-    Every run -- in a worker or in-process with ``workers=1`` -- uses one torch thread and is a pure
-    function of its seed, so the results do not depend on the number of workers. As with any spawned
-    pool, a *script* that calls these functions with ``workers > 1`` must do so under
-    ``if __name__ == "__main__":`` (notebooks and ``python -m vdtutorial`` need nothing).
+Parallelism, interruptions and reproducibility
+    Runs are independent, so a grid sends them to a backend: local worker processes (``workers=2`` for
+    2 cores) or Ray, on this machine or a cluster (:mod:`~vdtutorial.experiments.backends`). Every run
+    uses one torch thread and is a pure function of its settings, so the results do not depend on the
+    backend or the number of workers. Each run saves its state every ``CHECKPOINT_EVERY`` iterations;
+    running the same experiment again continues where it stopped, with the rows of an uninterrupted
+    run (:mod:`~vdtutorial.experiments.grid`, :mod:`~vdtutorial.experiments.resume`).
 
 Where files go
-    Results: ``data/results/NAME/`` at full scale (the shipped reference curves); in quick mode
-    ``runs/quick/NAME/`` next to ``data/`` (see ``RUNS_DIR``), so that a quick run never replaces the shipped
-    full-scale results. Pre-trained checkpoints: ``data/checkpoints/`` (reused when they match the
-    requested data set and configuration, regenerated and replaced when they do not); in quick mode the
-    results folder, for the same reason. Each results folder holds ``runs/RUN.csv`` (TRPO's log of each
-    run), ``NAME.csv`` (all runs, one row per iteration, labelled by method, data set and seed),
-    ``NAME.png`` (the figure) and ``NAME.json`` (the exact command, every configuration, the summary).
+    Results: ``runs/NAME/`` beside ``data/`` (``runs/quick/NAME/`` in quick mode, see ``RUNS_DIR``);
+    the shipped reference results in ``data/results/NAME/`` are only replaced when ``out`` names them.
+    Pre-trained checkpoints: the shipped ones in ``data/checkpoints/`` are used when they match the
+    requested data set and configuration; otherwise they are made in the results folder. Each results
+    folder holds ``runs/RUN.pt`` and ``runs/RUN.csv`` (each run's saved state and rows; another folder
+    with ``state_dir``), ``NAME.csv`` (all runs, one row per iteration, labelled by method, data set and
+    seed), ``NAME.png`` (the figure) and ``NAME.json`` (the exact command, every configuration, the
+    summary).
 """
 
 from vdtutorial.experiments.curves import (CONFIDENCE, SMOOTH_WINDOW, Curve, curves_from_rows, mean_band,
                                            moving_average, steps_to_reach, vd_reaches_l2_final)
 from vdtutorial.experiments.figures import fig4, fig5, fig6, fig7
-from vdtutorial.experiments.grid import RunSpec, parallel_map
+from vdtutorial.experiments.backends import run_jobs
+from vdtutorial.experiments.grid import RunSpec, run_grid
 from vdtutorial.experiments.plots import METRIC_LABELS, plot_curves
 from vdtutorial.experiments.reproduce import reproduce_quick
-from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
+from vdtutorial.experiments.resume import ResumeError
+from vdtutorial.experiments.results import ExperimentResult, experiment_command, format_summary, run_experiment
 from vdtutorial.experiments.rows import read_rows, write_csv
-from vdtutorial.experiments.runs import (EXPERT_EPISODES, IMAGE_TRPO_CONFIG, METHOD_LABELS, METHODS, METRIC,
-                                         NUM_ENVS, RL_METHODS, RUNS_DIR, SEEDS, TOTAL_STEPS, default_trpo_config,
-                                         expert_reference, finetune, load_demos, pretrained_policy)
+from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, IMAGE_TRPO_CONFIG, METHOD_LABELS, METHODS,
+                                         METRIC, NUM_ENVS, RL_METHODS, RUNS_DIR, SEEDS, SUBSAMPLED_FISHER_CONFIG,
+                                         TOTAL_STEPS, default_trpo_config, expert_reference, finetune, finetune_steps,
+                                         load_demos, pretrained_policy)
 from vdtutorial.experiments.sparsity_table import TABLE1, format_table1, sparsity_trends, table1

@@ -6,6 +6,7 @@ from vdtutorial.experiments.grid import RunSpec
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
 from vdtutorial.experiments.runs import METHOD_LABELS, SEEDS, TOTAL_STEPS, default_trpo_config
 
+
 def _figure(name: str, title: str, methods, task: str, seeds, total_steps, obs_mode, out, workers,
             datasets=((8000, 0.5),), label=None, **kwargs) -> ExperimentResult:
     """The runs of a figure -- each pre-training method on each data set, the other methods once, every
@@ -23,7 +24,7 @@ def _figure(name: str, title: str, methods, task: str, seeds, total_steps, obs_m
             specs += [RunSpec(method, task, None, None, seed, obs_mode, total_steps, METHOD_LABELS[method])
                       for seed in seeds]
     trpo_config = kwargs.get("trpo_config")
-    fvp_subsample = None  # in the command only when it is not the default of obs_mode
+    fvp_subsample = None  # in the command only when it is not the default
     if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config(obs_mode).fvp_subsample:
         fvp_subsample = trpo_config.fvp_subsample
     command = experiment_command(name, seeds=seeds, steps=total_steps, obs=obs_mode, workers=workers, out=out,
@@ -36,7 +37,8 @@ def fig4(seeds=None, total_steps: int | None = None, obs_mode: str = "state", ou
     """Fig. 4: VD vs L2 vs no pre-training vs the IK expert on reaching (8000 demonstrations, Sigma = 0.5),
     plus the paper's headline number: the env steps at which VD's smoothed mean curve first reaches L2's
     final level (paper: ~1.25e5 of 3e5), in ``result.summary["vd_reaches_l2_final"]`` (None: never).
-    ``kwargs`` go to :func:`run_experiment` (``demos_root``, ``checkpoints_root``, configs, ``window``)."""
+    ``kwargs`` go to :func:`run_experiment` (``demos_root``, ``checkpoints_root``, configs, ``window``, and
+    where and how the runs execute: ``backend``, ``address``, ``state_dir``, ``restart``, ``progress``)."""
     return _figure("fig4", "Fig. 4: reaching, different pre-training", ("vd", "l2", "none", "expert"), "reach",
                    seeds, total_steps, obs_mode, out, workers,
                    summarise=lambda curves: {"vd_reaches_l2_final": vd_reaches_l2_final(curves)}, **kwargs)

@@ -6,6 +6,7 @@ from pathlib import Path
 from vdtutorial.demos import DemoFileError, Demos, demo_command, demo_path, generate_demos
 from vdtutorial.experiments.curves import Curve, vd_reaches_l2_final
 from vdtutorial.experiments.grid import RunSpec
+from vdtutorial.experiments.progress import live_by_default
 from vdtutorial.experiments.results import ExperimentResult, run_experiment
 from vdtutorial.experiments.runs import METHOD_LABELS, RL_METHODS, RUNS_DIR, pretrained_policy
 from vdtutorial.pretrain import PretrainConfig
@@ -13,7 +14,8 @@ from vdtutorial.settings import budget
 from vdtutorial.vd import sparsity_report
 
 def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise: float = 0.5,
-                    epochs: int | None = None, total_steps: int | None = None, workers: int = 2) -> ExperimentResult:
+                    epochs: int | None = None, total_steps: int | None = None, workers: int = 2,
+                    progress: bool | None = None) -> ExperimentResult:
     """The paper's pipeline end to end at a small scale, in a few minutes on 2 cores: generate a small
     reaching data set, pre-train VD and L2 on it, fine-tune VD, L2 and no pre-training with TRPO, and
     draw the Fig. 4-style curves. There is no expert line: it would cost a worker ~40 s, and at ~75
@@ -23,7 +25,9 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
 
     Everything -- demonstrations, checkpoints, results -- goes to ``out`` (default ``runs/reproduce_quick``
     beside ``data/``), so the shipped full-scale artefacts are never touched. Quick mode shrinks the
-    defaults further."""
+    defaults further. Like every grid it is resumable: run it again to continue an interrupted one.
+    ``progress``: see :mod:`~vdtutorial.experiments.progress` (each step and each finished run prints a
+    line unless it is False)."""
     out = Path(out) if out is not None else RUNS_DIR / "reproduce_quick"
     samples = budget(2000, 300) if samples is None else samples
     epochs = budget(60, 4) if epochs is None else epochs
@@ -32,7 +36,10 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
     try:
         Demos.load(path, task="reach", samples=samples, noise=noise, seed=0)
     except DemoFileError:  # missing, corrupt or another set: make it
-        generate_demos("reach", samples, noise, 0, progress=False).save(path)
+        if progress is not False:
+            print(f"reproduce: generating {samples} demonstrations (Sigma = {noise:g}) into {path}", flush=True)
+        live = live_by_default() if progress is None else progress
+        generate_demos("reach", samples, noise, 0, progress=live).save(path)
     config = PretrainConfig(epochs=epochs)
     specs = [RunSpec(m, "reach", *((samples, noise) if m != "none" else (None, None)), seed, "state", total_steps,
                      METHOD_LABELS[m]) for m in RL_METHODS for seed in seeds]
@@ -49,4 +56,4 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
 
     title = f"Quick reproduction: reaching, {samples} demos, {total_steps} steps"
     return run_experiment("reproduce_quick", specs, title, out, workers, demos_root=out, checkpoints_root=out,
-                          pretrain_config=config, command=command, summarise=summarise)
+                          pretrain_config=config, command=command, summarise=summarise, progress=progress)

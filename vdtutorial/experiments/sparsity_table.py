@@ -5,12 +5,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from vdtutorial.demos import Demos, demo_path
-from vdtutorial.experiments.grid import parallel_map
+from vdtutorial.experiments.backends import run_jobs
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.rows import write_csv
 from vdtutorial.experiments.runs import pretrained_policy
 from vdtutorial.pretrain import PretrainConfig, default_config
-from vdtutorial.settings import budget
 from vdtutorial.vd import sparsity_report
 
 #: Table I: (row, task, demonstrations, Sigma, the paper's neuron sparsification ratio).
@@ -62,17 +61,19 @@ def format_table1(rows: list[dict]) -> str:
 
 
 def table1(obs_mode: str = "state", seed: int = 0, out=None, workers: int = 2, demos_root: Path | None = None,
-           checkpoints_root: Path | None = None, pretrain_config: PretrainConfig | None = None) -> list[dict]:
+           checkpoints_root: Path | None = None, pretrain_config: PretrainConfig | None = None, *,
+           backend: str = "local", address: str | None = None) -> list[dict]:
     """Table I: neuron sparsification of the VD-pre-trained mu on each of the five reaching data sets and
     the grasping set, beside the paper's ratios, plus the fraction of weights pruned. Reuses (or makes)
     the same checkpoints as the fine-tuning runs. Writes ``table1.csv`` and ``table1.txt`` into ``out``
-    (default ``data/results/table1``; quick mode: ``runs/quick/table1``), prints the table, and returns
-    the rows."""
+    (default ``runs/table1``; quick mode: ``runs/quick/table1``), prints the table, and returns the rows.
+    Checkpoints that must be made (the shipped ones do not match) go under ``checkpoints_root``
+    (default ``out``). ``backend``, ``address``: as for the figures (:mod:`~vdtutorial.experiments.backends`)."""
     out = Path(out) if out is not None else default_out("table1")
-    checkpoints_root = checkpoints_root if checkpoints_root is not None else budget(None, out)
-    jobs = [_SparsityJob(demo_path(task, samples, noise, 0, root=demos_root), obs_mode, seed, checkpoints_root,
-                         pretrain_config) for _, task, samples, noise, _ in TABLE1]
-    measured = parallel_map(_sparsity_job, jobs, workers)
+    checkpoints_root = Path(checkpoints_root if checkpoints_root is not None else out).resolve()
+    jobs = [_SparsityJob(demo_path(task, samples, noise, 0, root=demos_root).resolve(), obs_mode, seed,
+                         checkpoints_root, pretrain_config) for _, task, samples, noise, _ in TABLE1]
+    measured = run_jobs(_sparsity_job, jobs, workers, backend, address)
     rows = [{"experiment": row, "task": task, "samples": samples, "noise": noise, "obs_mode": obs_mode, "seed": seed,
              **m, "neuron_fraction_paper": paper} for (row, task, samples, noise, paper), m in zip(TABLE1, measured)]
     write_csv(out / "table1.csv", rows)
