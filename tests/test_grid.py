@@ -129,3 +129,13 @@ def test_the_summary_of_a_single_seed_prints_no_nan_band():
     assert "nan" not in text
     assert "final 2.00 (1 seed: no band from a single sample)" in text
     assert "final 1.00 (95% band 0.50 to 1.50, 3 seeds)" in text
+
+
+def test_wall_time_estimate_on_hand_made_runs():
+    from vdtutorial.experiments.estimate import distinct_runs, makespan
+
+    assert makespan([3.0, 3.0, 3.0, 1.0], 2) == 6.0    # runs in order on the first free core: 3+3 | 3+1
+    assert makespan([1.0, 2.0, 3.0], 5) == 3.0          # more cores than runs: the longest run
+    assert makespan([], 4) == 0.0
+    # Fig. 4's VD, L2, none; Fig. 5 adds VD and L2 on 2000 and 4000 samples; Fig. 6 on Sigma 0.05 and 0.25
+    assert len(distinct_runs(["fig4", "fig5", "fig6"], seeds=(0,))) == 3 + 4 + 4
