@@ -173,9 +173,8 @@ def run_grid(name: str, jobs: list[Job], workers: int = 2, backend: str = "local
         raise ResumeError(problems[0] + others)
     bar = GridProgress(name, [jobs[i].spec.name for i in pending], left, len(jobs) - len(pending), len(jobs), progress)
     try:
-        if len(pending) < len(jobs) or partial:
-            bar.note(f"{len(jobs) - len(pending)} of {len(jobs)} runs found finished, {partial} to resume "
-                     f"(saved in {jobs[0].state_path.parent})")
+        bar.note(f"{len(jobs)} runs: {len(jobs) - len(pending)} found finished, {partial} to resume, "
+                 f"{len(pending) - partial} to start (states saved in {jobs[0].state_path.parent})")
         for i, result in zip(pending, run_jobs(run_job, [jobs[i] for i in pending], workers, backend, address, bar)):
             results[i] = result
     finally:
