@@ -1,12 +1,5 @@
 """The fine-tuning benchmark: real TRPO iterations on the shipped pruned VD policy, timed."""
 from vdtutorial.bench import bench_finetune
-from vdtutorial.experiments import IMAGE_TRPO_CONFIG, default_trpo_config
-from vdtutorial.trpo import TRPOConfig
-
-
-def test_experiments_subsample_the_fisher_for_image_policies_only():
-    assert default_trpo_config("state") == TRPOConfig()
-    assert default_trpo_config("rgbd") == IMAGE_TRPO_CONFIG and IMAGE_TRPO_CONFIG.fvp_subsample == 0.1
 
 
 def test_bench_finetune_times_both_fisher_settings(capsys):

@@ -83,23 +83,28 @@ def test_stale_checkpoint_is_regenerated(tmp_path):
     assert reused.pretrain_info["config"]["epochs"] == 2
 
 
-def test_results_do_not_depend_on_the_number_of_workers(tmp_path):
+def test_results_do_not_depend_on_the_number_of_workers_or_the_backend(tmp_path):
+    """Local: this process and 2 worker processes; Ray: a local Ray with 2 CPUs, one task per run."""
     specs = [RunSpec("l2", "reach", 2000, 0.5, seed, "state", STEPS, "L2") for seed in (0, 1)]
     specs.append(RunSpec("none", "reach", None, None, 0, "state", STEPS, "none"))
     results = {}
-    for workers in (1, 2):
-        out = tmp_path / f"w{workers}"
-        results[workers] = run_experiment("tiny", specs, "tiny", out, workers, checkpoints_root=out,
-                                          pretrain_config=TINY, window=2, command="test")
+    for backend, workers in (("local", 1), ("local", 2), ("ray", 2)):
+        out = tmp_path / f"{backend}{workers}"
+        results[backend, workers] = run_experiment("tiny", specs, "tiny", out, workers, checkpoints_root=out,
+                                                   pretrain_config=TINY, window=2, command="test", backend=backend,
+                                                   progress=False)
         assert {p.name for p in out.iterdir()} >= {"tiny.csv", "tiny.png", "tiny.json", "runs", "checkpoints"}
-        assert len(list((out / "runs").glob("*.csv"))) == 3
-    assert _without_wall_time(results[1].rows) == _without_wall_time(results[2].rows)
-    record = json.loads((tmp_path / "w2" / "tiny.json").read_text())
+        assert len(list((out / "runs").glob("*.csv"))) == 3 and len(list((out / "runs").glob("*.pt"))) == 3
+    reference = _without_wall_time(results["local", 1].rows)
+    assert _without_wall_time(results["local", 2].rows) == reference
+    assert _without_wall_time(results["ray", 2].rows) == reference
+    record = json.loads((tmp_path / "local2" / "tiny.json").read_text())
     assert record["command"] == "test" and len(record["runs"]) == 3 and record["pretrain_config"]["epochs"] == 1
+    assert json.loads((tmp_path / "ray2" / "tiny.json").read_text())["backend"] == "ray"
     # the combined CSV reads back into the same curves
-    rows = read_rows(tmp_path / "w2" / "tiny.csv")
+    rows = read_rows(tmp_path / "local2" / "tiny.csv")
     again = curves_from_rows(rows, "successes", window=2)["L2"]
-    assert np.allclose(again.mean, results[2].curves["L2"].mean)
+    assert np.allclose(again.mean, results["local", 2].curves["L2"].mean)
 
 
 def test_expert_reference_counts_like_a_trpo_iteration():
@@ -181,11 +186,11 @@ def test_table1_trends_on_hand_made_numbers():
 
 def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):
     """With no checkpoints_root, quick mode looks up and saves checkpoints under runs/quick, not data/."""
-    from vdtutorial import experiments
+    from vdtutorial.experiments import runs
 
-    monkeypatch.setattr(experiments, "RUNS_DIR", tmp_path)
-    monkeypatch.setattr(experiments, "budget", lambda full, quick: quick)
+    monkeypatch.setattr(runs, "RUNS_DIR", tmp_path)
+    monkeypatch.setattr(runs, "budget", lambda full, quick: quick)
     demos = generate_demos("reach", 40, 0.3, seed=1, progress=False)
-    experiments.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
+    runs.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
     saved = list(tmp_path.rglob("*.pt"))
     assert [p.name for p in saved] == ["reach_n40_sigma0.3_l2_state_seed0.pt"]

@@ -190,12 +190,9 @@ def _cmd_reproduce(args) -> None:
 
 def _print_summary(result) -> None:
     """Final level of every curve, the fig4-style "VD reaches L2" line if any, and where files went."""
-    for label, final in result.summary["final"].items():
-        print(f"{label:>32}: final {final['mean']:.2f} (95% band {final['low']:.2f} to {final['high']:.2f}, "
-              f"{final['seeds']} seeds)")
-    if "vd_reaches_l2_final" in result.summary:
-        print(result.summary["vd_reaches_l2_final"]["text"])
-    print(f"wrote {result.out}")
+    from vdtutorial.experiments import format_summary
+
+    print(format_summary(result))
 
 
 def _cmd_experiment(args) -> None:
@@ -203,17 +200,37 @@ def _cmd_experiment(args) -> None:
 
     from vdtutorial import experiments
 
+    if args.address is not None and args.backend == "local":
+        raise CommandError("--address names a Ray cluster: use it with --backend ray")
+    backend = args.backend or ("ray" if args.address is not None else "local")
+    resumable = {"checkpoint_every": args.checkpoint_every} if args.checkpoint_every is not None else {}
     if args.name == "table1":
-        experiments.table1(obs_mode=args.obs, seed=args.seeds[0] if args.seeds else 0, out=args.out, workers=args.workers)
+        experiments.table1(obs_mode=args.obs, seed=args.seeds[0] if args.seeds else 0, out=args.out,
+                           workers=args.workers, backend=backend, address=args.address)
         return
     trpo_config = None
     if args.fvp_subsample is not None:
         trpo_config = dataclasses.replace(experiments.default_trpo_config(args.obs), fvp_subsample=args.fvp_subsample)
     with warnings.catch_warnings():
         warnings.simplefilter("default")
-        result = getattr(experiments, args.name)(seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs,
-                                                 out=args.out, workers=args.workers, trpo_config=trpo_config)
+        try:
+            result = getattr(experiments, args.name)(
+                seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs, out=args.out, workers=args.workers,
+                trpo_config=trpo_config, backend=backend, address=args.address, state_dir=args.state_dir,
+                restart=args.restart, **resumable)
+        except experiments.ResumeError as exc:
+            raise CommandError(str(exc)) from exc
     _print_summary(result)
+
+
+def _cmd_claims(args) -> None:
+    """The paper's claims as effect sizes with 95% intervals, from an experiment's rows (see experiments.effects)."""
+    from vdtutorial.experiments import write_claims
+
+    for folder in args.folders:
+        if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
+            raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
+        print(f"{folder}:\n{write_claims(folder)}\n")
 
 
 # -- the parser ------------------------------------------------------------------------------------------
@@ -296,10 +313,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state", help="policy input (default state)")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
-    p.add_argument("--out", default=None, help="output folder (default: runs/NAME)")
+    p.add_argument("--out", default=None, help="output folder (default: runs/NAME; data/results/NAME only when named)")
     p.add_argument("--fvp-subsample", type=fraction, default=None,
-                   help="fraction of each TRPO batch for the Fisher-vector products (default: the whole batch)")
+                   help="fraction of each TRPO batch for the Fisher-vector products (default 1, the whole batch; "
+                        "0.1 is the subsampled control)")
+    p.add_argument("--backend", choices=("local", "ray"), default=None,
+                   help="where the runs execute: local worker processes (default), or Ray, one task per run "
+                        "with one CPU (pip install -e '.[cluster]'); without --address Ray starts locally "
+                        "with --workers CPUs")
+    p.add_argument("--address", default=None,
+                   help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); the nodes "
+                        "need the same install and the same paths (shared storage)")
+    p.add_argument("--state-dir", default=None,
+                   help="folder of the runs' saved states, which make the experiment resumable: rerun the same "
+                        "command to continue it (default: OUT/runs; on a cluster, a folder on shared storage)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard the saved states of this experiment's runs and start them again")
+    p.add_argument("--checkpoint-every", type=positive_int, default=None, metavar="K",
+                   help="TRPO iterations between two saved states of a run (default 10)")
     p.set_defaults(func=_cmd_experiment)
+
+    p = sub.add_parser("claims", help="the paper's claims as effect sizes with 95%% intervals, from experiment folders")
+    p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4); their JSON records are updated")
+    p.set_defaults(func=_cmd_claims)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")
     p.add_argument("--quick", action="store_true", help="accepted for clarity; reproduce always runs small")

@@ -391,10 +391,11 @@ class SparsityReport:
         return self._neuron_fraction("dead_out")
 
     def __str__(self) -> str:
-        rows = [f"{'layer':<24}{'weights':>10}{'pruned':>9}{'units':>7}{'dead-in':>9}{'dead-out':>10}{'pruned':>8}"]
+        rows = [f"{'layer':<24}{'weights':>10}{'% pruned':>9}{'units':>7}{'dead-in':>9}{'dead-out':>10}"
+                f"{'units pruned':>14}"]
         for l in self.layers:
             rows.append(f"{l.name:<24}{l.weights:>10}{l.pruned_weights / l.weights:>9.1%}{l.hidden_units:>7}"
-                        f"{l.dead_in:>9}{l.dead_out:>10}{l.dead:>8}")
+                        f"{l.dead_in:>9}{l.dead_out:>10}{l.dead:>14}")
         rows.append(f"weights pruned {self.weight_fraction:.1%} (compression x{self.compression:.1f}); neurons pruned "
                     f"{self.neuron_fraction:.1%} (dead-in {self.neuron_fraction_in:.1%}, dead-out "
                     f"{self.neuron_fraction_out:.1%}); threshold log alpha > {self.threshold:g}")

@@ -1,0 +1,141 @@
+"""Restartable grids: a grid killed with SIGKILL and run again gives the rows of an uninterrupted grid;
+saved runs of other settings are an error (or discarded with restart); the defaults of the experiments."""
+import csv
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+from vdtutorial.experiments import (SUBSAMPLED_FISHER_CONFIG, Curve, ExperimentResult, ResumeError, RunSpec,
+                                    default_trpo_config, format_summary, run_experiment)
+from vdtutorial.experiments.resume import settings_differences
+from vdtutorial.settings import QUICK
+from vdtutorial.trpo import TRPOConfig
+
+#: 20 iterations per TRPO run, a state saved after each: a wide window in which to kill the grid.
+COMMAND = [sys.executable, "-m", "vdtutorial", "experiment", "fig4", "--seeds", "0", "--steps", "4000",
+           "--workers", "2", "--checkpoint-every", "1"]
+ITERATIONS = 20
+
+
+def _rows_without_wall_time(path):
+    with open(path, newline="") as f:
+        return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(f)]
+
+
+def _saved_iterations(runs_dir) -> dict[str, int]:
+    """Rows saved so far by each TRPO run of the grid (the expert's state has no iteration)."""
+    saved = {}
+    for path in runs_dir.glob("*.pt"):
+        try:
+            state = torch.load(path, weights_only=True)
+        except Exception:  # noqa: BLE001 -- a file being replaced right now: look again next time
+            continue
+        if "iteration" in state:
+            saved[path.stem] = state["iteration"]
+    return saved
+
+
+@pytest.mark.skipif(not QUICK, reason="runs the experiment command three times: quick mode only")
+def test_a_grid_killed_with_sigkill_resumes_to_the_rows_of_an_uninterrupted_grid(tmp_path):
+    env = {**os.environ, "VDTUTORIAL_QUICK": "1"}
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    subprocess.run([*COMMAND, "--out", str(whole)], env=env, check=True, capture_output=True)
+    # the killed grid reuses the pre-trained policies (what is tested is the RL stage, not pre-training)
+    shutil.copytree(whole / "checkpoints", killed / "checkpoints")
+
+    grid = subprocess.Popen([*COMMAND, "--out", str(killed)], env=env, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline and grid.poll() is None:
+        saved = _saved_iterations(killed / "runs")
+        if any(0 < n < ITERATIONS for n in saved.values()):
+            break
+        time.sleep(0.02)
+    os.killpg(grid.pid, signal.SIGKILL)  # the grid and its workers: a closed laptop, a preempted node
+    grid.wait()
+    at_kill = _saved_iterations(killed / "runs")
+    assert grid.returncode == -signal.SIGKILL
+    assert any(0 < n < ITERATIONS for n in at_kill.values()), f"not killed mid-run: {at_kill}"
+    assert not (killed / "fig4.csv").exists()
+
+    again = subprocess.run([*COMMAND, "--out", str(killed)], env=env, check=True, capture_output=True, text=True)
+    assert "0 to resume" not in again.stdout and "to resume" in again.stdout
+    assert _rows_without_wall_time(killed / "fig4.csv") == _rows_without_wall_time(whole / "fig4.csv")
+    record = json.loads((killed / "fig4.json").read_text())
+    resumed = {run["name"]: run["resumed_at_iteration"] for run in record["runs"]}
+    assert any(resumed[name] == n for name, n in at_kill.items() if 0 < n < ITERATIONS)
+
+
+def _tiny_grid(out, trpo_config=None, **kwargs):
+    specs = [RunSpec("none", "reach", None, None, seed, "state", 400, "none") for seed in (0, 1)]
+    return run_experiment("tiny", specs, "tiny", out, 1, window=2, command="test", trpo_config=trpo_config,
+                          progress=False, **kwargs)
+
+
+def test_saved_runs_of_other_settings_are_an_error_and_restart_discards_them(tmp_path):
+    first = _tiny_grid(tmp_path, checkpoint_every=1)
+    again = _tiny_grid(tmp_path)  # the same grid: every run is found finished and not run again
+    assert [r["wall_time"] for r in again.rows] == [r["wall_time"] for r in first.rows]
+    other = TRPOConfig(max_kl=0.02)
+    with pytest.raises(ResumeError, match=r"max_kl: 0\.01 -> 0\.02.*--restart"):
+        _tiny_grid(tmp_path, other)
+    with pytest.raises(ResumeError, match="more than the 1 asked for"):
+        run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 200, "none")], "tiny", tmp_path, 1,
+                       window=2, progress=False)
+    restarted = _tiny_grid(tmp_path, other, restart=True)
+    assert restarted.rows != first.rows
+    assert all(r["mean_kl"] <= 0.02 + 1e-7 for r in restarted.rows)
+    assert json.loads((tmp_path / "tiny.json").read_text())["trpo_config"]["max_kl"] == 0.02
+
+
+def test_a_longer_budget_extends_finished_runs_to_the_rows_of_a_longer_run(tmp_path):
+    short = run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 400, "none")], "tiny",
+                           tmp_path / "a", 1, window=2, progress=False)
+    longer = run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 800, "none")], "tiny",
+                            tmp_path / "a", 1, window=2, progress=False)
+    fresh = run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 800, "none")], "tiny",
+                           tmp_path / "b", 1, window=2, progress=False)
+    drop = (lambda rows: [{k: v for k, v in r.items() if k != "wall_time"} for r in rows])
+    assert drop(longer.rows[:2]) == drop(short.rows) and drop(longer.rows) == drop(fresh.rows)
+
+
+def test_settings_differences_name_nested_settings():
+    saved = {"seed": 0, "trpo_config": {"max_kl": 0.01, "fvp_subsample": 1.0}}
+    wanted = {"seed": 0, "trpo_config": {"max_kl": 0.01, "fvp_subsample": 0.1}}
+    assert settings_differences(saved, wanted) == ["trpo_config.fvp_subsample: 1.0 -> 0.1"]
+    assert settings_differences(saved, saved) == []
+
+
+def test_the_whole_batch_fisher_is_the_default_everywhere_and_10_percent_the_control():
+    assert default_trpo_config("state") == default_trpo_config("rgbd") == TRPOConfig()
+    assert TRPOConfig().fvp_subsample == 1.0 and SUBSAMPLED_FISHER_CONFIG.fvp_subsample == 0.1
+
+
+def test_the_summary_of_a_single_seed_prints_no_nan_band():
+    nan = [math.nan]
+    curves = {"VD": Curve("VD", "vd", [200.0], [2.0], nan, nan, 1),
+              "L2": Curve("L2", "l2", [200.0], [1.0], [0.5], [1.5], 3)}
+    summary = {"final": {label: {"mean": c.mean[-1], "low": c.low[-1], "high": c.high[-1], "seeds": c.seeds}
+                         for label, c in curves.items()}}
+    text = format_summary(ExperimentResult("fig4", "runs/fig4", [], curves, None, summary))
+    assert "nan" not in text
+    assert "final 2.00 (1 seed: no band from a single sample)" in text
+    assert "final 1.00 (95% band 0.50 to 1.50, 3 seeds)" in text
+
+
+def test_wall_time_estimate_on_hand_made_runs():
+    from vdtutorial.experiments.estimate import distinct_runs, makespan
+
+    assert makespan([3.0, 3.0, 3.0, 1.0], 2) == 6.0    # runs in order on the first free core: 3+3 | 3+1
+    assert makespan([1.0, 2.0, 3.0], 5) == 3.0          # more cores than runs: the longest run
+    assert makespan([], 4) == 0.0
+    # Fig. 4's VD, L2, none; Fig. 5 adds VD and L2 on 2000 and 4000 samples; Fig. 6 on Sigma 0.05 and 0.25
+    assert len(distinct_runs(["fig4", "fig5", "fig6"], seeds=(0,))) == 3 + 4 + 4

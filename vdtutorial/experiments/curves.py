@@ -1,0 +1,108 @@
+"""Curves over seeds: trailing smoothing, Student-t bands, and the "steps to reach a level" summary."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from vdtutorial.experiments.runs import METHOD_LABELS
+from vdtutorial.settings import budget
+
+#: Trailing moving-average width, in TRPO iterations (200 env steps each).
+SMOOTH_WINDOW = budget(25, 3)
+#: Confidence level of the bands over seeds.
+CONFIDENCE = 0.95
+
+
+def moving_average(values, window: int) -> np.ndarray:
+    """Trailing moving average along the last axis: point i averages ``values[..., max(0, i-window+1):i+1]``."""
+    values = np.asarray(values, dtype=np.float64)
+    sums = np.cumsum(values, axis=-1)
+    shifted = np.zeros_like(sums)
+    if window < sums.shape[-1]:
+        shifted[..., window:] = sums[..., :-window]
+    counts = np.minimum(np.arange(1, values.shape[-1] + 1), window)
+    return (sums - shifted) / counts
+
+
+def mean_band(samples, confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean over axis 0 and its Student-t confidence interval, mean +- t_{(1+c)/2, n-1} sd / sqrt(n).
+    With a single sample the interval is undefined: both bounds are NaN."""
+    samples = np.asarray(samples, dtype=np.float64)
+    n, mean = samples.shape[0], samples.mean(axis=0)
+    if n < 2:
+        nan = np.full_like(mean, np.nan)
+        return mean, nan, nan.copy()
+    half = stats.t.ppf((1 + confidence) / 2, n - 1) * samples.std(axis=0, ddof=1) / math.sqrt(n)
+    return mean, mean - half, mean + half
+
+
+def steps_to_reach(steps, curve, level: float) -> float | None:
+    """First ``steps[i]`` at which ``curve[i] >= level``, or None if the curve never gets there."""
+    hits = np.flatnonzero(np.asarray(curve) >= level)
+    return float(np.asarray(steps)[hits[0]]) if len(hits) else None
+
+
+@dataclass
+class Curve:
+    """One labelled curve over seeds: smoothed mean and band against env steps. For the expert, whose
+    line is flat, ``steps`` is empty and ``mean``, ``low``, ``high`` hold one number each."""
+
+    label: str
+    method: str
+    steps: np.ndarray
+    mean: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    seeds: int
+
+
+def curves_from_rows(rows: list[dict], metric: str, window: int = SMOOTH_WINDOW) -> dict[str, Curve]:
+    """Group combined rows by label, smooth each seed's ``metric`` over iterations, and reduce over seeds
+    (:func:`mean_band`). Expert rows (one per measured episode) become a flat line: the mean over all
+    episodes of all seeds and its interval. Labels keep their order of first appearance."""
+    groups: dict[str, dict] = {}
+    for row in rows:
+        group = groups.setdefault(row["label"], {"method": row["method"], "seeds": {}})
+        group["seeds"].setdefault(row["seed"], []).append(row)
+    curves = {}
+    for label, group in groups.items():
+        runs = list(group["seeds"].values())
+        if group["method"] == "expert":
+            values = np.array([r[metric] for run in runs for r in run], dtype=np.float64)
+            mean, low, high = mean_band(values[:, None])
+            curves[label] = Curve(label, "expert", np.array([]), mean, low, high, len(runs))
+            continue
+        runs = [sorted(run, key=lambda r: r["iteration"]) for run in runs]
+        steps = np.array([r["env_steps"] for r in runs[0]], dtype=np.float64)
+        if any(len(run) != len(steps) for run in runs):
+            raise ValueError(f"the seeds of {label!r} have different numbers of iterations")
+        smoothed = moving_average([[r[metric] for r in run] for run in runs], window)
+        curves[label] = Curve(label, group["method"], steps, *mean_band(smoothed), len(runs))
+    return curves
+
+
+
+def final_point(curve: Curve) -> dict:
+    """Last point of a smoothed curve (the expert's level for the expert)."""
+    return {"mean": float(curve.mean[-1]), "low": float(curve.low[-1]), "high": float(curve.high[-1]),
+            "seeds": curve.seeds}
+
+
+def vd_reaches_l2_final(curves: dict[str, Curve]) -> dict:
+    """The paper's headline comparison (Section V-A): the env steps at which VD's smoothed mean curve first
+    reaches the final level of L2's (paper: ~1.25e5 of 3e5, "less than one quarter as many samples");
+    ``steps`` is None when it never does."""
+    vd, l2 = curves[METHOD_LABELS["vd"]], curves[METHOD_LABELS["l2"]]
+    level, budget_steps = float(l2.mean[-1]), float(l2.steps[-1])
+    steps = steps_to_reach(vd.steps, vd.mean, level)
+    if steps is None:
+        text = f"VD's smoothed mean never reaches L2's final level ({level:.2f}) (paper: it does at ~1.25e5 of 3e5)"
+    else:
+        text = (f"VD's smoothed mean first reaches L2's final level ({level:.2f}) at {steps:.3g} env steps, "
+                f"{steps / budget_steps:.0%} of the budget (paper: ~1.25e5 of 3e5, < 25%)")
+    return {"l2_final_level": level, "steps": steps,
+            "fraction_of_budget": None if steps is None else steps / budget_steps, "text": text}
+

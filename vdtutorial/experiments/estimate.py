@@ -1,0 +1,66 @@
+"""What a grid costs on N cores: an estimate of wall time from measured env steps per second.
+
+A run is one task on one core (one torch thread, see :mod:`~vdtutorial.experiments.backends`), so a
+grid's wall time on ``cores`` cores is the time at which the last run ends when the runs, in the grid's
+order, each start on the first core that is free (Ray and the local pool both hand out tasks that
+way). A run lasts ``total_steps / steps_per_s`` seconds, plus ``pretrain_s`` when its pre-trained
+checkpoint is not shipped and must be made first. The expert's reference runs take seconds and are left
+out. The rate is a parameter, to be measured (``python -m vdtutorial bench finetune`` gives the rate of
+one process on one core); it is the rate of one run *per core*, so on a machine whose cores slow each
+other down (shared memory bandwidth) use the rate measured with all cores busy.
+"""
+from __future__ import annotations
+
+import heapq
+
+from vdtutorial.demos import demo_path
+from vdtutorial.experiments.figures import FIGURES, figure_specs
+from vdtutorial.experiments.grid import RunSpec
+from vdtutorial.pretrain import checkpoint_path
+
+
+def makespan(seconds: list[float], cores: int) -> float:
+    """When the last of the runs (``seconds`` each, in this order) ends, each run starting on the first
+    free one of ``cores`` cores."""
+    free = [0.0] * max(1, min(cores, len(seconds)))
+    for duration in seconds:
+        heapq.heappush(free, heapq.heappop(free) + duration)
+    return max(free) if seconds else 0.0
+
+
+def distinct_runs(names, seeds=(0, 1, 2), total_steps: int = 300_000, obs_mode: str = "rgbd") -> list[RunSpec]:
+    """The runs of the figures ``names`` without the expert's, each once: figures that share a state folder
+    (``--state-dir``) share their common runs (e.g. Fig. 5's and Fig. 6's 8000-sample, Sigma = 0.5 runs
+    are Fig. 4's)."""
+    specs = {}
+    for name in names:
+        for spec in figure_specs(name, seeds, total_steps, obs_mode):
+            if spec.method != "expert":
+                specs.setdefault(spec.name, spec)
+    return list(specs.values())
+
+
+def needs_pretraining(spec: RunSpec) -> bool:
+    """Whether the run must pre-train first: a VD or L2 run without a shipped checkpoint in ``data/``."""
+    if spec.method not in ("vd", "l2"):
+        return False
+    meta = {"task": spec.task, "samples": spec.samples, "noise": spec.noise, "seed": 0}
+    return not checkpoint_path(meta, spec.method, spec.obs_mode, spec.seed).exists() or not demo_path(
+        spec.task, spec.samples, spec.noise, 0).exists()
+
+
+def wall_time_table(steps_per_s: float, pretrain_s: float, cores=(2, 8, 16, 32, 64), seeds=(0, 1, 2),
+                    total_steps: int = 300_000, obs_mode: str = "rgbd") -> str:
+    """A Markdown table of estimated wall time (hours) by number of cores for the image Fig. 4 alone and
+    for the whole image section (Figs. 4-7, one shared state folder)."""
+    groups = {"Fig. 4": ["fig4"], "Figs. 4-7": list(FIGURES)}
+    runs = {group: distinct_runs(names, seeds, total_steps, obs_mode) for group, names in groups.items()}
+    seconds = {group: [total_steps / steps_per_s + (pretrain_s if needs_pretraining(spec) else 0.0) for spec in specs]
+               for group, specs in runs.items()}
+    header = " | ".join(f"{group}: {len(specs)} runs ({sum(map(needs_pretraining, specs))} pre-train first)"
+                        for group, specs in runs.items())
+    lines = [f"| cores | {header} |", "|---|" + "---|" * len(groups)]
+    for n in cores:
+        hours = " | ".join(f"{makespan(seconds[group], n) / 3600:.1f} h" for group in groups)
+        lines.append(f"| {n} | {hours} |")
+    return "\n".join(lines)

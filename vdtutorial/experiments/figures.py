@@ -1,0 +1,82 @@
+"""Figs. 4-7 as functions: the runs of each figure handed to :func:`run_experiment`."""
+from __future__ import annotations
+
+from vdtutorial.experiments.curves import vd_reaches_l2_final
+from vdtutorial.experiments.grid import RunSpec
+from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
+from vdtutorial.experiments.runs import METHOD_LABELS, SEEDS, TOTAL_STEPS, default_trpo_config
+
+
+#: Each figure's runs: (title, methods, task, data sets (samples, Sigma) of the pre-trained methods, the
+#: label of a pre-trained curve from (method, samples, Sigma)).
+FIGURES = {
+    "fig4": ("Fig. 4: reaching, different pre-training", ("vd", "l2", "none", "expert"), "reach", ((8000, 0.5),),
+             lambda method, n, sigma: METHOD_LABELS[method]),
+    "fig5": ("Fig. 5: reaching, data set size", ("vd", "l2"), "reach", ((2000, 0.5), (4000, 0.5), (8000, 0.5)),
+             lambda method, n, sigma: f"{METHOD_LABELS[method]}, {n} demos"),
+    "fig6": ("Fig. 6: reaching, expert noise", ("vd", "l2"), "reach", ((8000, 0.05), (8000, 0.25), (8000, 0.5)),
+             lambda method, n, sigma: f"{METHOD_LABELS[method]}, Sigma={sigma:g}"),
+    "fig7": ("Fig. 7: grasping", ("vd", "l2", "none", "expert"), "grasp", ((8000, 0.5),),
+             lambda method, n, sigma: METHOD_LABELS[method]),
+}
+
+
+def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode: str = "state") -> list[RunSpec]:
+    """The runs of a figure: each pre-training method on each data set, the other methods once, every one
+    for every seed (defaults: ``SEEDS``, ``TOTAL_STEPS``)."""
+    _, methods, task, datasets, label = FIGURES[name]
+    seeds = tuple(SEEDS if seeds is None else seeds)
+    total_steps = TOTAL_STEPS if total_steps is None else total_steps
+    specs = []
+    for method in methods:
+        if method in ("vd", "l2"):
+            specs += [RunSpec(method, task, n, sigma, seed, obs_mode, total_steps, label(method, n, sigma))
+                      for n, sigma in datasets for seed in seeds]
+        else:
+            specs += [RunSpec(method, task, None, None, seed, obs_mode, total_steps, METHOD_LABELS[method])
+                      for seed in seeds]
+    return specs
+
+
+def _figure(name: str, seeds, total_steps, obs_mode, out, workers, **kwargs) -> ExperimentResult:
+    """The runs of figure ``name`` (:func:`figure_specs`) handed to :func:`run_experiment`."""
+    specs = figure_specs(name, seeds, total_steps, obs_mode)
+    trpo_config = kwargs.get("trpo_config")
+    fvp_subsample = None  # in the command only when it is not the default
+    if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config(obs_mode).fvp_subsample:
+        fvp_subsample = trpo_config.fvp_subsample
+    command = experiment_command(name, seeds=tuple(dict.fromkeys(spec.seed for spec in specs)),
+                                 steps=specs[0].total_steps, obs=obs_mode, workers=workers, out=out,
+                                 fvp_subsample=fvp_subsample)
+    return run_experiment(name, specs, FIGURES[name][0], out, workers, command=command, **kwargs)
+
+
+def fig4(seeds=None, total_steps: int | None = None, obs_mode: str = "state", out=None, workers: int = 2,
+         **kwargs) -> ExperimentResult:
+    """Fig. 4: VD vs L2 vs no pre-training vs the IK expert on reaching (8000 demonstrations, Sigma = 0.5),
+    plus the paper's headline number: the env steps at which VD's smoothed mean curve first reaches L2's
+    final level (paper: ~1.25e5 of 3e5), in ``result.summary["vd_reaches_l2_final"]`` (None: never).
+    ``kwargs`` go to :func:`run_experiment` (``demos_root``, ``checkpoints_root``, configs, ``window``, and
+    where and how the runs execute: ``backend``, ``address``, ``state_dir``, ``restart``, ``progress``)."""
+    return _figure("fig4", seeds, total_steps, obs_mode, out, workers,
+                   summarise=lambda curves: {"vd_reaches_l2_final": vd_reaches_l2_final(curves)}, **kwargs)
+
+
+def fig5(seeds=None, total_steps: int | None = None, obs_mode: str = "state", out=None, workers: int = 2,
+         **kwargs) -> ExperimentResult:
+    """Fig. 5: VD and L2 pre-trained on 2000, 4000 and 8000 demonstrations (Sigma = 0.5), reaching."""
+    return _figure("fig5", seeds, total_steps, obs_mode, out, workers, **kwargs)
+
+
+def fig6(seeds=None, total_steps: int | None = None, obs_mode: str = "state", out=None, workers: int = 2,
+         **kwargs) -> ExperimentResult:
+    """Fig. 6: VD and L2 pre-trained on 8000 demonstrations with Sigma = 0.05, 0.25 and 0.5, reaching."""
+    return _figure("fig6", seeds, total_steps, obs_mode, out, workers, **kwargs)
+
+
+def fig7(seeds=None, total_steps: int | None = None, obs_mode: str = "state", out=None, workers: int = 2,
+         **kwargs) -> ExperimentResult:
+    """Fig. 7: grasping, VD vs L2 vs no pre-training vs the IK expert, in cumulative reward per trajectory
+    (8000 demonstrations, Sigma = 0.5)."""
+    return _figure("fig7", seeds, total_steps, obs_mode, out, workers, **kwargs)
+

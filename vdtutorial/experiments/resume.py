@@ -1,0 +1,113 @@
+"""Resumable runs: the state of a run saved atomically every few iterations, and checked before reuse.
+
+A fine-tuning run is a pure function of its settings: TRPO derives each iteration's environment resets
+and action noise from (seed, iteration), so the state after iteration k -- policy, baseline, iteration
+index and log rows, which :meth:`TRPO.save <vdtutorial.trpo.TRPO.save>` writes -- continues the run
+exactly. The state file here is TRPO's checkpoint plus two things:
+
+* ``run_settings``: everything that determines the run's numbers (method, data set, seed, observation
+  mode, pre-training and TRPO configurations; see :func:`vdtutorial.experiments.runs.run_settings`).
+  A state is only ever resumed by a run with equal settings; otherwise :class:`ResumeError` says which
+  settings differ, so that one folder never silently mixes two configurations.
+* ``rng``: the global torch, numpy and Python random states, restored on resume. TRPO itself draws from
+  seeded generators of its own; saving the global states keeps a resumed run exact even if some part of
+  the run (a future baseline or critic, say) draws from them.
+
+Writes go to a temporary file first and are moved into place with ``os.replace``, so a run killed at any
+moment (SIGKILL included) leaves either the previous state or the new one, never half a file.
+"""
+from __future__ import annotations
+
+import os
+import random
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vdtutorial.trpo import TRPO
+
+
+class ResumeError(ValueError):
+    """A saved run cannot continue the requested one: other settings, or more iterations than asked for."""
+
+
+def _atomic_save(state: dict, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def _rng_state() -> dict:
+    kind, keys, position, has_gauss, gauss = np.random.get_state()
+    return {"torch": torch.get_rng_state(), "python": random.getstate(),
+            "numpy": (kind, torch.from_numpy(keys.astype(np.int64)), position, has_gauss, gauss)}
+
+
+def _set_rng_state(state: dict) -> None:
+    torch.set_rng_state(state["torch"])
+    random.setstate(state["python"])
+    kind, keys, position, has_gauss, gauss = state["numpy"]
+    np.random.set_state((kind, keys.numpy().astype(np.uint32), position, has_gauss, gauss))
+
+
+def save_run_state(algo: TRPO, path: str | os.PathLike, settings: dict, seconds: float) -> None:
+    """Write ``algo``'s checkpoint (:meth:`TRPO.save`) with the run's settings, the global random states
+    and the run's compute time so far (``seconds``), atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    staging = path.with_name(path.name + ".trpo")
+    algo.save(staging)
+    state = torch.load(staging, weights_only=True)
+    state.update(run_settings=settings, rng=_rng_state(), seconds=seconds)
+    _atomic_save(state, path)
+    staging.unlink()
+
+
+def save_finished_rows(path: str | os.PathLike, settings: dict, rows: list[dict], seconds: float) -> None:
+    """The state of a run without TRPO (the expert's reference): its settings and all its rows."""
+    _atomic_save({"run_settings": settings, "rows": rows, "seconds": seconds}, Path(path))
+
+
+def read_run_state(path: str | os.PathLike) -> dict:
+    """A state file as written by :func:`save_run_state` or :func:`save_finished_rows`."""
+    try:
+        state = torch.load(path, weights_only=True)
+    except Exception as exc:  # truncated or not a state file: say which file, and what to do
+        raise ResumeError(f"{path} is not a readable run state ({exc}); delete it or rerun with --restart") from exc
+    if not isinstance(state, dict) or "run_settings" not in state:
+        raise ResumeError(f"{path} is not a run state written by vdtutorial.experiments; delete it or rerun "
+                          "with --restart")
+    return state
+
+
+def settings_differences(saved: dict, wanted: dict, prefix: str = "") -> list[str]:
+    """The settings that differ, as ``"name: saved -> wanted"`` (nested dicts by dotted name)."""
+    differences = []
+    for key in dict.fromkeys([*saved, *wanted]):
+        old, new = saved.get(key), wanted.get(key)
+        if isinstance(old, dict) and isinstance(new, dict):
+            differences += settings_differences(old, new, f"{prefix}{key}.")
+        elif old != new:
+            differences.append(f"{prefix}{key}: {old!r} -> {new!r}")
+    return differences
+
+
+def check_resumable(path: str | os.PathLike, state: dict, settings: dict, iterations: int) -> None:
+    """Raise :class:`ResumeError` unless the saved ``state`` continues a run with ``settings`` that
+    should end after ``iterations`` rows (fewer saved rows: it resumes; as many: it is finished)."""
+    differences = settings_differences(state["run_settings"], settings)
+    if differences:
+        raise ResumeError(f"{path} holds a run with other settings ({'; '.join(differences)}): rerun with "
+                          "--restart to discard the saved runs of this experiment, or choose another --out")
+    if len(state["rows"]) > iterations:
+        raise ResumeError(f"{path} holds {len(state['rows'])} iterations, more than the {iterations} asked for: "
+                          "rerun with --restart, or ask for at least as many steps")
+
+
+def restore_run_state(algo: TRPO, path: str | os.PathLike, state: dict) -> None:
+    """Continue ``algo`` from the state file ``path`` (already read into ``state``): TRPO's checkpoint and
+    the global random states."""
+    algo.load(path)
+    _set_rng_state(state["rng"])

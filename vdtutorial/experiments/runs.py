@@ -1,0 +1,239 @@
+"""One run of the paper's experiments: a pre-trained (or fresh) policy fine-tuned by TRPO, or the IK
+expert measured as a reference line. See the package docstring for what a run and a seed are."""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium.wrappers import RecordEpisodeStatistics
+
+from vdtutorial.demos import Demos, demo_path
+from vdtutorial.envs import ENV_IDS, HORIZON
+from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
+from vdtutorial.experiments.resume import check_resumable, read_run_state, restore_run_state, save_run_state
+from vdtutorial.experiments.rows import write_csv
+from vdtutorial.policy import GaussianPolicy, make_policy
+from vdtutorial.pretrain import (CheckpointError, PretrainConfig, checkpoint_path, default_config, load_checkpoint,
+                                 pretrain, pretrain_command, save_checkpoint)
+from vdtutorial.settings import DATA_DIR, RUNS_DIR, budget
+from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
+
+RL_METHODS = ("vd", "l2", "none")
+METHODS = RL_METHODS + ("expert",)
+METHOD_LABELS = {"vd": "VD", "l2": "L2", "none": "no pre-training", "expert": "IK expert"}
+#: Sub-environments of the vector env: 8 x 25 steps = one 200-step iteration (see the module docstring).
+NUM_ENVS = EPISODE_STEPS // HORIZON
+#: Row column plotted for each task: successes per 200-step episode (reach), cumulative reward (grasp).
+METRIC = {"reach": "successes", "grasp": "mean_return"}
+#: 200-step episodes measured per seed for the expert's reference line.
+EXPERT_EPISODES = budget(5, 1)
+#: The paper's RL budget, 3e5 env steps, and the quick one.
+TOTAL_STEPS = budget(300_000, 2_000)
+SEEDS = budget((0, 1, 2), (0, 1))
+#: The control of Fisher-vector products on 10% of each batch (``--fvp-subsample 0.1``): the value of
+#: rllab's first optimiser, later changed to the whole batch (``TRPOConfig.fvp_subsample``). Not a default.
+SUBSAMPLED_FISHER_CONFIG = TRPOConfig(fvp_subsample=0.1)
+#: The name under which ``bench.py`` still imports the control (it was the image default until the whole
+#: batch became the default everywhere); to be dropped when ``bench.py`` uses the new name.
+IMAGE_TRPO_CONFIG = SUBSAMPLED_FISHER_CONFIG
+#: TRPO iterations between two saved states of a resumable run (2000 env steps at 200 per iteration:
+#: seconds in state mode, about 40 s for an image policy with the whole-batch Fisher).
+CHECKPOINT_EVERY = 10
+
+
+def default_trpo_config(obs_mode: str) -> TRPOConfig:
+    """TRPO settings of the experiments: ``TRPOConfig()`` in every observation mode, i.e. Fisher-vector
+    products on the whole batch, as rllab (which the paper used) has computed them since 2016.
+    :data:`SUBSAMPLED_FISHER_CONFIG` is the labelled 10% control."""
+    return TRPOConfig()
+
+
+def load_demos(task: str, demos: Demos | str | Path | None = None, root: Path | None = None) -> Demos:
+    """``demos`` as a data set: itself, loaded from a path, or (None) the task's shipped 8000-sample,
+    Sigma = 0.5 set under ``root`` (default ``data/``). The task must match."""
+    if isinstance(demos, Demos):
+        if demos.meta.get("task") != task:
+            raise ValueError(f"demonstrations of task {demos.meta.get('task')!r} given for task {task!r}")
+        return demos
+    return Demos.load(demos if demos is not None else demo_path(task, 8000, 0.5, 0, root=root), task=task)
+
+
+def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int = 0,
+                      config: PretrainConfig | None = None, checkpoints_root: Path | None = None,
+                      progress: bool = False) -> GaussianPolicy:
+    """The policy pre-trained with ``reg`` ("vd" or "l2") on ``demos`` with ``config`` and ``seed``.
+
+    A checkpoint (``pretrain.checkpoint_path``) is reused when it was made from the same data set (task,
+    samples, Sigma, demonstration seed) with the same pre-training configuration and seed. The shipped
+    one in ``data/checkpoints`` is looked at first, read only (not in quick mode, whose budgets never
+    match it); then the one under ``checkpoints_root`` (default ``runs/``, ``runs/quick/`` in quick mode).
+    If neither matches, the policy is pre-trained now and saved under ``checkpoints_root`` (replacing a
+    stale file there). So the experiments never write into ``data/`` unless ``checkpoints_root`` names it.
+
+    The policy is always returned as read back from a checkpoint, so a fresh and a reused pre-training
+    hand TRPO exactly the same object (parameters, and every ``requires_grad`` at its default:
+    pre-training freezes sigma, the RL phase trains it). It is not pruned yet."""
+    cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
+    meta = demos.meta
+    root = Path(checkpoints_root) if checkpoints_root is not None else budget(RUNS_DIR, RUNS_DIR / "quick")
+    path = checkpoint_path(meta, reg, obs_mode, seed, root=root)
+    shipped = checkpoint_path(meta, reg, obs_mode, seed)
+    candidates = [shipped] if budget(True, False) and shipped != path else []
+    expected = {**{k: meta[k] for k in ("task", "samples", "noise", "seed")}, **asdict(cfg)}
+    for candidate in [*candidates, path]:
+        if not candidate.exists():
+            continue
+        try:
+            policy = load_checkpoint(candidate, **expected)
+            if policy.pretrain_info.get("seed") == seed:
+                return policy
+            reason = f"checkpoint {candidate} was pre-trained with seed {policy.pretrain_info.get('seed')}, not {seed}"
+        except CheckpointError as exc:
+            reason = str(exc)
+        action = "pre-training again and replacing it" if candidate == path else f"not using it (looking in {root})"
+        warnings.warn(f"{reason}: {action}", stacklevel=2)
+    policy, _ = pretrain(demos, cfg, seed=seed, progress=progress)
+    source = demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
+    save_checkpoint(policy, path, extra={"command": pretrain_command(reg, source, seed, obs_mode)})
+    return load_checkpoint(path)
+
+
+def run_settings(method: str, task: str, demos_meta: dict | None, obs_mode: str, seed: int, num_envs: int,
+                 pretrain_config: PretrainConfig, trpo_config: TRPOConfig) -> dict:
+    """Everything that determines a fine-tuning run's numbers, as plain data: what a saved run state must
+    match to be resumed (:mod:`vdtutorial.experiments.resume`). The budget is not in it: a run is the same
+    run whatever its length, so a finished run can be extended and a shorter request finds it too long."""
+    settings = {"method": method, "task": task, "obs_mode": obs_mode, "seed": int(seed), "num_envs": int(num_envs),
+                "image_size": int(pretrain_config.image_size), "trpo_config": asdict(trpo_config)}
+    if method != "none":
+        settings["demos"] = {"samples": int(demos_meta["samples"]), "noise": float(demos_meta["noise"]),
+                             "seed": int(demos_meta["seed"])}
+        settings["pretrain_config"] = asdict(replace(pretrain_config, reg=method, obs_mode=obs_mode))
+    return settings
+
+
+def expert_settings(task: str, seed: int, episodes: int, num_envs: int = NUM_ENVS) -> dict:
+    """The settings of an expert-reference run (see :func:`run_settings`)."""
+    return {"method": "expert", "task": task, "seed": int(seed), "episodes": int(episodes), "num_envs": int(num_envs)}
+
+
+def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path | None = None,
+                   obs_mode: str = "state", seed: int = 0, total_steps: int | None = None,
+                   csv_path: str | Path | None = None, *, pretrain_config: PretrainConfig | None = None,
+                   trpo_config: TRPOConfig | None = None, num_envs: int = NUM_ENVS,
+                   checkpoints_root: Path | None = None, progress: bool = False, state_path: str | Path | None = None,
+                   checkpoint_every: int = CHECKPOINT_EVERY):
+    """:func:`finetune` as a generator: it yields after every ``checkpoint_every`` iterations (with no
+    ``state_path``: once, at the end) a progress report ``{"iteration": done so far, "iterations": total,
+    "env_steps": steps of this chunk}``, and returns ``(policy, rows)`` (``yield from`` gets them).
+
+    state_path: the run's resumable state. If the file exists, the run continues from it -- after
+        checking that it was saved with the same settings (:func:`run_settings`; otherwise
+        :class:`~vdtutorial.experiments.resume.ResumeError`) -- and every chunk saves it again. The rows
+        are then those of an uninterrupted run (wall times aside).
+    """
+    if method not in RL_METHODS:
+        raise ValueError(f"method must be one of {RL_METHODS} (the expert is measured by expert_reference), "
+                         f"got {method!r}")
+    total_steps = TOTAL_STEPS if total_steps is None else total_steps
+    cfg = pretrain_config or default_config(method if method != "none" else "l2", obs_mode)
+    trpo_config = trpo_config or default_trpo_config(obs_mode)
+    data = None if method == "none" else load_demos(task, demos)
+    settings = run_settings(method, task, data and data.meta, obs_mode, seed, num_envs, cfg, trpo_config)
+    iterations = math.ceil(total_steps / trpo_config.steps_per_iter)
+    saved = None
+    if state_path is not None and Path(state_path).exists():
+        saved = read_run_state(state_path)
+        check_resumable(state_path, saved, settings, iterations)
+    start = time.perf_counter()
+    env = make_vec_env(ENV_IDS[task], num_envs, obs_mode=obs_mode, image_size=cfg.image_size)
+    try:
+        if method == "none":
+            torch.manual_seed(seed)
+            policy = make_policy(env.single_observation_space, env.single_action_space.shape[0], variational=False)
+        else:
+            policy = pretrained_policy(method, data, obs_mode, seed, cfg, checkpoints_root, progress)
+            if method == "vd":
+                policy.prune_()
+        algo = TRPO(policy, env, trpo_config, seed=seed)
+        if saved is not None:
+            restore_run_state(algo, state_path, saved)
+        if csv_path is not None:  # TRPO appends: start the file from the rows so far (a stale file would mix runs)
+            Path(csv_path).unlink(missing_ok=True)
+            if algo.rows:
+                write_csv(Path(csv_path), algo.rows)
+        chunk = checkpoint_every if state_path is not None else iterations
+        while algo.iteration_index < iterations:
+            first = algo.iteration_index
+            algo.run(min(iterations, first + chunk) * trpo_config.steps_per_iter, csv_path=csv_path,
+                     progress=progress and state_path is None)
+            if state_path is not None:
+                seconds = (saved or {}).get("seconds", 0.0) + time.perf_counter() - start
+                save_run_state(algo, state_path, settings, seconds)
+            yield {"iteration": algo.iteration_index, "iterations": iterations,
+                   "env_steps": (algo.iteration_index - first) * trpo_config.steps_per_iter}
+    finally:
+        env.close()
+    return policy, algo.rows
+
+
+def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None = None, obs_mode: str = "state",
+             seed: int = 0, total_steps: int | None = None, csv_path: str | Path | None = None, *,
+             pretrain_config: PretrainConfig | None = None, trpo_config: TRPOConfig | None = None,
+             num_envs: int = NUM_ENVS, checkpoints_root: Path | None = None, progress: bool = False,
+             state_path: str | Path | None = None,
+             checkpoint_every: int = CHECKPOINT_EVERY) -> tuple[GaussianPolicy, list[dict]]:
+    """One run of the RL stage: the policy of ``method`` ("vd", "l2" or "none") trained by TRPO for
+    ``total_steps`` env steps (default 3e5) on ``num_envs`` copies of the task (default 8 x 25 = 200 steps
+    per iteration). Returns the trained policy and TRPO's log rows; ``csv_path`` (replaced if it exists)
+    receives the rows as they come.
+
+    demos: the data set of the pre-training (a :class:`Demos` or a path; default the shipped 8000-sample,
+        Sigma = 0.5 set); ignored by "none".
+    pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
+        ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.
+    trpo_config: default :func:`default_trpo_config` of ``obs_mode``.
+    checkpoints_root: where pre-trained checkpoints are looked up and saved (see :func:`pretrained_policy`).
+    state_path, checkpoint_every: make the run resumable (see :func:`finetune_steps`).
+    """
+    steps = finetune_steps(method, task, demos, obs_mode, seed, total_steps, csv_path,
+                           pretrain_config=pretrain_config, trpo_config=trpo_config, num_envs=num_envs,
+                           checkpoints_root=checkpoints_root, progress=progress, state_path=state_path,
+                           checkpoint_every=checkpoint_every)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as finished:
+            return finished.value
+
+
+def expert_reference(task: str = "reach", seed: int = 0, episodes: int | None = None,
+                     num_envs: int = NUM_ENVS) -> list[dict]:
+    """The IK expert's score per 200-step episode, measured as TRPO's iterations count: each episode is
+    ``num_envs`` runs of ``200 / num_envs`` steps from a fresh reset (the seeds of episode k derive
+    from (seed, k)); trajectories still running at the end are not counted. One row per episode with
+    ``successes``, ``failures``, ``episodes`` (trajectories that ended) and ``mean_return`` (their mean
+    undiscounted return)."""
+    episodes = EXPERT_EPISODES if episodes is None else episodes
+    env = RecordEpisodeStatistics(gym.make(ENV_IDS[task], obs_mode="state"), buffer_length=EPISODE_STEPS)
+    controller = ExpertController(env)
+    rows = []
+    for k in range(episodes):
+        env.return_queue.clear()
+        row = {"episode": k, "successes": 0, "failures": 0, "episodes": 0}
+        for reset_seed in np.random.SeedSequence([seed, k]).generate_state(num_envs):
+            counts = successes_per_episode(env, controller, steps=EPISODE_STEPS // num_envs, seed=int(reset_seed))
+            row["successes"] += counts["successes"]
+            row["failures"] += counts["failures"]
+            row["episodes"] += counts["trajectories"]
+        row["mean_return"] = float(np.mean(env.return_queue)) if env.return_queue else math.nan
+        rows.append(row)
+    env.close()
+    return rows
+
