@@ -70,6 +70,7 @@ Where files go
 
 from vdtutorial.experiments.curves import (CONFIDENCE, SMOOTH_WINDOW, Curve, curves_from_rows, mean_band,
                                            moving_average, steps_to_reach, vd_reaches_l2_final)
+from vdtutorial.experiments.effects import CLAIMS, claim_effects, claim_table, write_claims
 from vdtutorial.experiments.figures import fig4, fig5, fig6, fig7
 from vdtutorial.experiments.backends import run_jobs
 from vdtutorial.experiments.grid import RunSpec, run_grid

@@ -16,6 +16,7 @@ from matplotlib.figure import Figure
 
 import vdtutorial
 from vdtutorial.experiments.curves import CONFIDENCE, SMOOTH_WINDOW, Curve, curves_from_rows, final_point
+from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.grid import Job, RunSpec, run_grid
 from vdtutorial.experiments.plots import plot_curves
 from vdtutorial.experiments.rows import write_csv
@@ -94,6 +95,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     figure = plot_curves(curves, metric, title, window)
     figure.savefig(out / f"{name}.png", dpi=120)
     summary = {"final": {label: final_point(curve) for label, curve in curves.items()},
+               "claims": claim_effects(name, rows, metric, window),
                **(summarise(curves) if summarise else {})}
     record = {
         "experiment": name, "command": command, "argv": sys.argv, "quick": QUICK, "title": title,
