@@ -78,8 +78,8 @@ FISHER_PRODUCTS = ("auto", "gauss_newton", "double_backward")
 @dataclass
 class TRPOConfig:
     """TRPO hyperparameters. ``steps_per_iter`` is the paper's; the paper reports no others, so
-    ``max_kl`` and ``cg_iters`` are rllab's defaults (``fvp_subsample``'s is not: see there) and the
-    rest are common choices.
+    ``max_kl``, ``cg_iters`` and ``fvp_subsample`` are rllab's defaults and the rest are common
+    choices.
 
     steps_per_iter: environment steps per iteration, summed over the sub-environments of the
         vector environment (must be a multiple of their number). The paper uses 200 with a
@@ -96,14 +96,15 @@ class TRPOConfig:
     fvp_subsample: the fraction of the batch on which the Fisher-vector products are computed (at
         least one sample); a random subset, drawn per iteration from the iteration's seed. The
         gradient g, the step size and the line search's KL check still use the whole batch. CG
-        needs ``cg_iters + 1`` products, each costing about two backward passes through the policy,
-        so for image policies they dominate the update: Schulman et al. (2015) computed them on
-        10% of the data, and rllab's optimiser (which the paper used) defaults to 0.1. The Fisher
-        only sets the metric of the step, but a small subset sees little of it: with 20 of 200
-        samples the full step overshoots the KL bound, the line search cuts it back, and the
-        policies here learned more slowly per step (README, chapter 07). 1.0 (the whole batch) is
-        therefore the default; :data:`vdtutorial.experiments.IMAGE_TRPO_CONFIG` uses 0.1 for
-        speed.
+        needs ``cg_iters + 1`` products, and for image policies they dominate the update: Schulman
+        et al. (2015) computed them on 10% of the data. rllab, whose TRPO the paper used, did so
+        only in its first release (April 2016): its ``ConjugateGradientOptimizer`` has defaulted to
+        ``subsample_factor=1.`` since September 2016, and its TRPO passes no optimiser arguments, so
+        the paper (2018) most likely used the whole batch. The Fisher only sets the metric of the
+        step, but a small subset sees little of it: with 20 of 200 samples the full step overshoots
+        the KL bound, the line search cuts it back, and the policies here learned more slowly per
+        step (README, chapter 07). 1.0 (the whole batch) is the default; smaller values are a
+        speed option and a control.
     cg_damping: added to the Fisher matrix (F + damping * I) so that CG works on a well-conditioned
         positive-definite matrix even when F is singular, e.g. along the directions of pruned
         weights or with fewer samples than parameters.
