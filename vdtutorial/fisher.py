@@ -19,14 +19,14 @@ theta_old.
 Why both passes are written out here instead of left to autograd. Measured on the rgbd policy (both
 networks, 114k parameters, batch 200, one thread, CPU time on the shared machine): the double backward
 costs 0.94 s per product; this form 0.17 s, plus 0.52 s once per update (its forward pass and the
-unfolded image). The double backward (and the
-"double-vjp" trick that gets J v from two backward passes) goes through the convolutions'
-double-backward kernels, which also compute terms nobody needs (for the first convolution, a
-transposed convolution back onto the image); forward-mode AD (``torch.func.jvp``) recomputes the whole
-forward pass, input normalisation included, for every v (1.36 s per product with an autograd backward);
-``torch.func.linearize`` avoids that but spends seconds tracing the networks at every update. And the
-weight gradient of the first convolution, the largest layer, is ~4x cheaper as one batched matrix
-product with the image patches, unfolded once per update, than with ``convolution_backward``.
+unfolded image). The double backward (and the "double-vjp" trick that gets J v from two backward
+passes) goes through the convolutions' double-backward kernels, which also compute terms nobody
+needs (for the first convolution, a transposed convolution back onto the image); forward-mode AD
+(``torch.func.jvp``) recomputes the whole forward pass, input normalisation included, for every v
+(1.36 s per product with an autograd backward); ``torch.func.linearize`` avoids that but spends
+seconds tracing the networks at every update. And the weight gradient of the first convolution, the
+largest layer, is ~4x cheaper as one batched matrix product with the image patches, unfolded once
+per update, than with ``convolution_backward``.
 
 Pruning (chapter 04) enters both passes the way it enters the forward pass, as the weight's 0/1 mask:
 the product along a pruned weight, and along a parameter that is frozen or that the outputs do not
