@@ -63,7 +63,7 @@ def supports(policy: nn.Module) -> bool:
                 return False
             if isinstance(module, SVDOLayer) and module.training and not module.pruned:
                 return False
-            if isinstance(module, nn.Conv2d) and module.padding_mode != "zeros":
+            if isinstance(module, nn.Conv2d) and (module.padding_mode != "zeros" or isinstance(module.padding, str)):
                 return False
     return True
 
