@@ -24,14 +24,17 @@ def small_policy(kind: str, variational: bool = True):
     space, sizes = (STATE_SPACE, dict(scene_hidden=(5, 4), joint_hidden=(5,))) if kind == "state" else \
         (IMAGE_SPACE, SMALL_IMAGE_NET)
     policy = make_policy(space, 2, variational=variational, init_std=0.4, **sizes)
-    if variational:
-        with torch.no_grad():
-            for layer in svdo_layers(policy):  # mark a random third of the weights as mostly noise
-                noisy = torch.rand(layer.weight.shape) < 1 / 3
-                layer.log_sigma2[noisy] = 5.0
-                layer.weight.mul_(2.0)  # spread the outputs so that sigma varies across states
-        policy.prune_()
-    return policy, space
+    return (prune_a_third(policy) if variational else policy), space
+
+
+def prune_a_third(policy):
+    """Mark a random third of the weights as mostly noise (log alpha > 3) and prune them."""
+    with torch.no_grad():
+        for layer in svdo_layers(policy):
+            noisy = torch.rand(layer.weight.shape) < 1 / 3
+            layer.log_sigma2[noisy] = 5.0
+            layer.weight.mul_(2.0)  # spread the outputs so that sigma varies across states
+    return policy.prune_()
 
 
 def sample_obs(space, n: int, seed: int):
@@ -116,6 +119,22 @@ def test_product_is_zero_along_pruned_weights_and_skips_frozen_parameters():
         assert torch.all(along[~layer.mask] == 0) and torch.any(along[layer.mask] != 0)
         pruned += int((~layer.mask).sum())
     assert pruned > 100
+
+
+def test_trpo_with_the_product_keeps_pruned_weights_zero_and_frozen_parameters_fixed():
+    torch.manual_seed(0)
+    env = make_vec_env("Pendulum-v1", 2)
+    policy = prune_a_third(make_policy(env.single_observation_space, 1, variational=True, kind="mlp",
+                                       scene_hidden=(16, 16)))
+    layers = svdo_layers(policy)
+    before = [(layer.weight.detach().clone(), layer.log_sigma2.detach().clone()) for layer in layers]
+    algo = TRPO(policy, env, TRPOConfig(steps_per_iter=64), seed=0, fisher="gauss_newton")
+    rows = [algo.iteration() for _ in range(3)]
+    env.close()
+    assert any(r["line_search"] != "rejected" for r in rows)
+    for layer, (weight, log_sigma2) in zip(layers, before):
+        assert torch.all(layer.weight[~layer.mask] == 0) and torch.equal(layer.log_sigma2, log_sigma2)
+    assert any(not torch.equal(layer.weight, weight) for layer, (weight, _) in zip(layers, before))
 
 
 def test_supports_only_deterministic_gaussian_policies():
