@@ -176,17 +176,29 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
     return rows
 
 
+#: (label, TRPO fisher argument, fvp_subsample) of the fine-tuning benchmark's rows, per observation mode.
+FINETUNE_CASES = (
+    ("double backward", "double_backward", 1.0),  # the generic product, chapter 06's teaching version
+    ("Gauss-Newton", "gauss_newton", 1.0),        # the same matrix, vdtutorial.fisher's cheaper form
+    ("Gauss-Newton", "gauss_newton", 0.1),        # the 10% subsample, a control
+)
+
+
 def bench_finetune(iterations: int | None = None) -> list[dict]:
     """TRPO fine-tuning of the pruned VD reach policy (8000 demonstrations, Sigma = 0.5, seed 0), state
     and rgbd 128 x 128, in one process with one torch thread: seconds per 200-step iteration spent
-    collecting (rendering + policy) and updating, env steps per second end to end, and the mean KL and
-    accepted step fraction of the updates -- with the Fisher-vector products on the whole batch and on
-    the fraction the experiments use for rgbd (``experiments.IMAGE_TRPO_CONFIG``). One warm-up
-    iteration, then ``iterations`` timed ones (default 10; quick mode 2)."""
+    collecting (rendering + policy) and updating, env steps per second end to end (wall clock, and per
+    second of this process's CPU time, which depends less on other load on the machine), and the mean
+    KL and accepted step fraction of the updates. One row per :data:`FINETUNE_CASES` entry: the exact
+    Fisher-vector products on the whole batch by double backward and in Gauss-Newton form, then the
+    Gauss-Newton form on a 10% subsample. The cases of one observation mode take turns iteration by
+    iteration (each with its own policy and the same seeds), so that a change in the machine's load
+    affects them alike; the speed-up of the Gauss-Newton form on the whole batch is printed after
+    them. One warm-up iteration each, then ``iterations`` timed ones (default 10; quick mode 2)."""
     import torch
 
     from vdtutorial.demos import Demos, demo_path
-    from vdtutorial.experiments import IMAGE_TRPO_CONFIG, NUM_ENVS
+    from vdtutorial.experiments import NUM_ENVS
     from vdtutorial.policy import make_policy
     from vdtutorial.pretrain import checkpoint_path, load_checkpoint
     from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
@@ -196,39 +208,51 @@ def bench_finetune(iterations: int | None = None) -> list[dict]:
     torch.set_num_threads(1)
     meta = Demos.load(demo_path("reach", 8000, 0.5, 0)).meta
     rows = []
-    print(f"{'obs':6} {'fvp_subsample':>13} {'collect s':>10} {'update s':>9} {'steps/s':>8} {'mean KL':>8} "
-          f"{'step fraction':>13}")
+    print(f"{'obs':6} {'Fisher product':16} {'fvp_subsample':>13} {'collect s':>10} {'update s':>9} {'steps/s':>8} "
+          f"{'steps/cpu s':>11} {'mean KL':>8} {'step fraction':>13}")
     for obs_mode in ("state", "rgbd"):
         env = make_vec_env(ENV_IDS["reach"], NUM_ENVS, obs_mode=obs_mode, image_size=128)
         ckpt = checkpoint_path(meta, "vd", obs_mode, 0)
         source = f"shipped {ckpt.name}" if ckpt.exists() else "untrained VD net (no checkpoint)"
-        for config in (TRPOConfig(), IMAGE_TRPO_CONFIG):
+        runs = []
+        for label, fisher, fvp_subsample in FINETUNE_CASES:
             torch.manual_seed(0)
             policy = (load_checkpoint(ckpt) if ckpt.exists()
                       else make_policy(env.single_observation_space, 6, variational=True))
             policy.prune_()
-            algo = TRPO(policy, env, config, seed=0)
-            collect = update = 0.0
-            stats = []
-            for i in range(iterations + 1):
-                start = time.perf_counter()
+            algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fisher=fisher)
+            runs.append({"algo": algo, "collect": 0.0, "update": 0.0, "cpu": 0.0, "stats": []})
+        for i in range(iterations + 1):
+            for run in runs:  # every case collects from the shared env, reset with its own seeds
+                algo = run["algo"]
+                cpu, start = time.process_time(), time.perf_counter()
                 batch = algo.collect()
                 middle = time.perf_counter()
                 step = algo.update(batch)
                 end = time.perf_counter()
                 algo.iteration_index += 1
                 if i > 0:  # the first iteration warms up
-                    collect, update = collect + middle - start, update + end - middle
-                    stats.append(step)
-            steps_per_s = iterations * config.steps_per_iter / (collect + update)
+                    run["collect"] += middle - start
+                    run["update"] += end - middle
+                    run["cpu"] += time.process_time() - cpu
+                    run["stats"].append(step)
+        for (label, fisher, fvp_subsample), run in zip(FINETUNE_CASES, runs):
+            steps = iterations * run["algo"].config.steps_per_iter
+            stats = run["stats"]
             fractions = [0.0 if s["line_search"] == "rejected" else s["line_search"] for s in stats]
-            row = {"obs_mode": obs_mode, "fvp_subsample": config.fvp_subsample, "policy": source,
-                   "collect_s": collect / iterations, "update_s": update / iterations, "steps_per_s": steps_per_s,
+            row = {"obs_mode": obs_mode, "fisher": fisher, "fvp_subsample": fvp_subsample, "policy": source,
+                   "collect_s": run["collect"] / iterations, "update_s": run["update"] / iterations,
+                   "steps_per_s": steps / (run["collect"] + run["update"]), "steps_per_cpu_s": steps / run["cpu"],
                    "mean_kl": float(np.mean([s["mean_kl"] for s in stats])), "step_fraction": float(np.mean(fractions))}
             rows.append(row)
-            print(f"{obs_mode:6} {config.fvp_subsample:>13g} {row['collect_s']:>10.3f} {row['update_s']:>9.3f} "
-                  f"{steps_per_s:>8.0f} {row['mean_kl']:>8.4f} {row['step_fraction']:>13.3f}", flush=True)
+            print(f"{obs_mode:6} {label:16} {fvp_subsample:>13g} {row['collect_s']:>10.3f} {row['update_s']:>9.3f} "
+                  f"{row['steps_per_s']:>8.1f} {row['steps_per_cpu_s']:>11.1f} {row['mean_kl']:>8.4f} "
+                  f"{row['step_fraction']:>13.3f}", flush=True)
         env.close()
-        print(f"       policy: {source}, pruned; {iterations} iterations of {config.steps_per_iter} steps after one warm-up")
+        old, new = rows[-len(FINETUNE_CASES):][:2]
+        print(f"       whole batch, Gauss-Newton / double backward: {new['steps_per_s'] / old['steps_per_s']:.2f}x env "
+              f"steps/s ({new['steps_per_cpu_s'] / old['steps_per_cpu_s']:.2f}x per CPU second), update "
+              f"{old['update_s'] / new['update_s']:.2f}x faster")
+        print(f"       policy: {source}, pruned; {iterations} iterations of 200 steps after one warm-up, per case")
     torch.set_num_threads(threads)
     return rows

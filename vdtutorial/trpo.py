@@ -15,7 +15,9 @@ One iteration, as pseudocode::
     3. gradient  g = grad of the surrogate L(theta) = mean[ pi_theta(a|s) / pi_old(a|s) * A ]
     4. direction s ~= F^-1 g by conjugate gradient, where F v is a Fisher-vector product: the
                  Hessian of the mean KL(pi_old || pi_theta) times v, plus damping * v; the mean
-                 KL of this step may be taken over a random subset of the batch (``fvp_subsample``)
+                 KL of this step may be taken over a random subset of the batch (``fvp_subsample``);
+                 for the paper's Gaussian policy F v is computed in its cheaper Gauss-Newton form
+                 J^T M J v (:mod:`vdtutorial.fisher`), for any other policy by a double backward
     5. step      beta = sqrt(2 delta / s^T F s), so the full step beta * s has a quadratic-model
                  KL of exactly delta
     6. search    try theta_old + beta s, then halve the step; accept the first one whose mean
@@ -59,11 +61,15 @@ from torch import nn
 from torch.distributions import Normal, kl_divergence
 from tqdm.auto import tqdm
 
+from vdtutorial.fisher import GaussNewtonFisher
+from vdtutorial.fisher import supports as supports_gauss_newton
 from vdtutorial.policy import obs_to_tensor
 from vdtutorial.settings import budget
 
 Obs = np.ndarray | dict[str, np.ndarray]
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
+#: The ways :class:`TRPO` can compute Fisher-vector products (its ``fisher`` argument).
+FISHER_PRODUCTS = ("auto", "gauss_newton", "double_backward")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -72,8 +78,8 @@ TensorObs = torch.Tensor | dict[str, torch.Tensor]
 @dataclass
 class TRPOConfig:
     """TRPO hyperparameters. ``steps_per_iter`` is the paper's; the paper reports no others, so
-    ``max_kl`` and ``cg_iters`` are rllab's defaults (``fvp_subsample``'s is not: see there) and the
-    rest are common choices.
+    ``max_kl``, ``cg_iters`` and ``fvp_subsample`` are rllab's defaults and the rest are common
+    choices.
 
     steps_per_iter: environment steps per iteration, summed over the sub-environments of the
         vector environment (must be a multiple of their number). The paper uses 200 with a
@@ -90,14 +96,15 @@ class TRPOConfig:
     fvp_subsample: the fraction of the batch on which the Fisher-vector products are computed (at
         least one sample); a random subset, drawn per iteration from the iteration's seed. The
         gradient g, the step size and the line search's KL check still use the whole batch. CG
-        needs ``cg_iters + 1`` products, each costing about two backward passes through the policy,
-        so for image policies they dominate the update: Schulman et al. (2015) computed them on
-        10% of the data, and rllab's optimiser (which the paper used) defaults to 0.1. The Fisher
-        only sets the metric of the step, but a small subset sees little of it: with 20 of 200
-        samples the full step overshoots the KL bound, the line search cuts it back, and the
-        policies here learned more slowly per step (README, chapter 07). 1.0 (the whole batch) is
-        therefore the default; :data:`vdtutorial.experiments.IMAGE_TRPO_CONFIG` uses 0.1 for
-        speed.
+        needs ``cg_iters + 1`` products, and for image policies they dominate the update: Schulman
+        et al. (2015) computed them on 10% of the data. rllab, whose TRPO the paper used, did so
+        only in its first release (April 2016): its ``ConjugateGradientOptimizer`` has defaulted to
+        ``subsample_factor=1.`` since September 2016, and its TRPO passes no optimiser arguments, so
+        the paper (2018) most likely used the whole batch. The Fisher only sets the metric of the
+        step, but a small subset sees little of it: with 20 of 200 samples the full step overshoots
+        the KL bound, the line search cuts it back, and the policies here learned more slowly per
+        step (README, chapter 07). 1.0 (the whole batch) is the default; smaller values are a
+        speed option and a control.
     cg_damping: added to the Fisher matrix (F + damping * I) so that CG works on a well-conditioned
         positive-definite matrix even when F is singular, e.g. along the directions of pruned
         weights or with fewer samples than parameters.
@@ -168,7 +175,9 @@ def fisher_vector_product(kl_grad: torch.Tensor, params: list[nn.Parameter], v: 
     F is the Hessian of the mean KL(pi_old || pi_theta) at theta = theta_old, which equals the
     Fisher information matrix of the policy. ``kl_grad`` is the gradient of the mean KL, computed
     once with ``create_graph=True``; differentiating ``kl_grad . v`` once more gives F v (keeping
-    the graph of ``kl_grad``, which conjugate gradient differentiates again for the next v).
+    the graph of ``kl_grad``, which conjugate gradient differentiates again for the next v). This
+    needs nothing but the policy protocol; for the paper's Gaussian policy :mod:`vdtutorial.fisher`
+    computes the same product several times faster.
     """
     return flat_grad(kl_grad @ v, params, retain_graph=True) + damping * v
 
@@ -351,6 +360,12 @@ class TRPO:
     baseline_features: maps a batch of observations (array or dict of arrays, batch first) to a
         float array (batch, k) of low-dimensional features for the linear baseline; by default
         :func:`default_baseline_features`.
+    fisher: how the Fisher-vector products of step 4 are computed; both ways are exact and agree to
+        float rounding, so this changes the cost, not the algorithm. ``"gauss_newton"``:
+        :class:`vdtutorial.fisher.GaussNewtonFisher`, only for a
+        :class:`vdtutorial.policy.GaussianPolicy` (:func:`vdtutorial.fisher.supports`);
+        ``"double_backward"``: :func:`fisher_vector_product`, for any policy; ``"auto"`` (default):
+        the first when the policy supports it, else the second.
 
     With small policies, ``torch.set_num_threads(1)`` is much faster on a busy 2-core machine:
     extra threads only contend for the cores.
@@ -358,7 +373,14 @@ class TRPO:
 
     def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
                  config: TRPOConfig | None = None, seed: int = 0,
-                 baseline_features: Callable[[Obs], np.ndarray] | None = None):
+                 baseline_features: Callable[[Obs], np.ndarray] | None = None,
+                 fisher: str = "auto"):
+        if fisher not in FISHER_PRODUCTS:
+            raise ValueError(f"fisher must be one of {FISHER_PRODUCTS}, got {fisher!r}")
+        if fisher == "gauss_newton" and not supports_gauss_newton(policy):
+            raise ValueError("fisher='gauss_newton' needs a GaussianPolicy of Linear/Conv2d/ReLU/Tanh/Flatten "
+                             "layers (sparse-VD layers pruned or in eval mode); use 'auto' or 'double_backward'")
+        self.fisher = fisher
         self.policy = policy
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
         self.config = config or TRPOConfig()
@@ -438,6 +460,24 @@ class TRPO:
                      successes=successes, fvp_index=fvp_index)
 
     # -- 3-7. the update --------------------------------------------------------------------------
+    def _fisher_product(self, obs: TensorObs, old: Normal,
+                        dist: Normal | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
+        """v -> (F + damping * I) v, F the Hessian of the mean KL(old || pi_theta) over ``obs`` at the
+        current parameters (step 4). ``old`` is the policy's distribution on ``obs`` now; ``dist``,
+        when given, is the same with its autograd graph (the double backward reuses it).
+
+        Both forms are exact and agree to float rounding. The Gauss-Newton form
+        (:class:`vdtutorial.fisher.GaussNewtonFisher`) is several times cheaper for the image policy but
+        needs to know the policy's networks; the double backward (:func:`fisher_vector_product`, the
+        teaching version of chapter 06) needs only the policy protocol. ``self.fisher`` chooses."""
+        damping = self.config.cg_damping
+        if self.fisher == "gauss_newton" or (self.fisher == "auto" and supports_gauss_newton(self.policy)):
+            fisher = GaussNewtonFisher(self.policy, obs, old, self.params)
+            return lambda v: fisher(v) + damping * v
+        dist = dist if dist is not None else self.policy.distribution(obs)
+        kl_grad = flat_grad(kl_divergence(old, dist).sum(-1).mean(), self.params, create_graph=True)
+        return lambda v: fisher_vector_product(kl_grad, self.params, v, damping)
+
     def update(self, batch: Batch) -> dict:
         """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the
         step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
@@ -459,18 +499,13 @@ class TRPO:
         surrogate = surrogate_of(dist)
         if batch.fvp_index is None:
             g = flat_grad(surrogate, self.params, retain_graph=True)
-            mean_kl = kl_divergence(old, dist).sum(-1).mean()
+            Fvp = self._fisher_product(batch.obs, old, dist)
         else:
             g = flat_grad(surrogate, self.params)
             index = batch.fvp_index
             sub_obs = ({k: x[index] for k, x in batch.obs.items()} if isinstance(batch.obs, dict)
                        else batch.obs[index])
-            sub_old = Normal(old.mean[index], old.stddev[index])
-            mean_kl = kl_divergence(sub_old, self.policy.distribution(sub_obs)).sum(-1).mean()
-        kl_grad = flat_grad(mean_kl, self.params, create_graph=True)
-
-        def Fvp(v: torch.Tensor) -> torch.Tensor:
-            return fisher_vector_product(kl_grad, self.params, v, cfg.cg_damping)
+            Fvp = self._fisher_product(sub_obs, Normal(old.mean[index], old.stddev[index]))
 
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
         sFs = (direction @ Fvp(direction)).item()
