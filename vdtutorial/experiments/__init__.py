@@ -79,7 +79,7 @@ from vdtutorial.experiments.reproduce import reproduce_quick
 from vdtutorial.experiments.resume import ResumeError
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, format_summary, run_experiment
 from vdtutorial.experiments.rows import read_rows, write_csv
-from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, IMAGE_TRPO_CONFIG, METHOD_LABELS, METHODS,
+from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, METHOD_LABELS, METHODS,
                                          METRIC, NUM_ENVS, RL_METHODS, RUNS_DIR, SEEDS, SUBSAMPLED_FISHER_CONFIG,
                                          TOTAL_STEPS, default_trpo_config, expert_reference, finetune, finetune_steps,
                                          load_demos, pretrained_policy)

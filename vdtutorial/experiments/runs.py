@@ -39,9 +39,6 @@ SEEDS = budget((0, 1, 2), (0, 1))
 #: The control of Fisher-vector products on 10% of each batch (``--fvp-subsample 0.1``): the value of
 #: rllab's first optimiser, later changed to the whole batch (``TRPOConfig.fvp_subsample``). Not a default.
 SUBSAMPLED_FISHER_CONFIG = TRPOConfig(fvp_subsample=0.1)
-#: The name under which ``bench.py`` still imports the control (it was the image default until the whole
-#: batch became the default everywhere); to be dropped when ``bench.py`` uses the new name.
-IMAGE_TRPO_CONFIG = SUBSAMPLED_FISHER_CONFIG
 #: TRPO iterations between two saved states of a resumable run (2000 env steps at 200 per iteration:
 #: seconds in state mode, about 40 s for an image policy with the whole-batch Fisher).
 CHECKPOINT_EVERY = 10
