@@ -63,7 +63,6 @@ from torch.distributions import Normal, kl_divergence
 from tqdm.auto import tqdm
 
 from vdtutorial.policy import obs_to_tensor
-from vdtutorial.settings import budget
 
 Obs = np.ndarray | dict[str, np.ndarray]
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
@@ -666,95 +665,3 @@ def _append_csv(path: str | os.PathLike, row: dict) -> None:
         if new_file:
             writer.writeheader()
         writer.writerow(row)
-
-# ----------------------------------------------------------------------------------------------
-# Validation on a standard task: gymnasium's Pendulum-v1, against sb3-contrib's TRPO
-# ----------------------------------------------------------------------------------------------
-class _MLPGaussianPolicy(nn.Module):
-    """Minimal Gaussian MLP policy for the benchmark: tanh hidden layers, state-independent std."""
-
-    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...] = (64, 64)):
-        super().__init__()
-        layers, width = [], obs_dim
-        for h in hidden:
-            layers += [nn.Linear(width, h), nn.Tanh()]
-            width = h
-        self.mean = nn.Sequential(*layers, nn.Linear(width, action_dim))
-        self.log_std = nn.Parameter(torch.zeros(action_dim))
-
-    def distribution(self, obs: torch.Tensor) -> Normal:
-        mean = self.mean(obs)
-        return Normal(mean, self.log_std.exp().expand_as(mean))
-
-
-# Pendulum settings, shared by both implementations: our defaults except the batch. Pendulum
-# episodes last 200 steps (the paper's tasks: 25), so a batch of 1600 steps on 8 sub-environments
-# holds exactly one whole episode per sub-environment. sb3-contrib's critic keeps its own defaults
-# (10 Adam epochs at lr 1e-3), with minibatches of 160 so that they divide the batch.
-PENDULUM_CONFIG = TRPOConfig(steps_per_iter=1600)
-PENDULUM_NUM_ENVS = 8
-
-
-def _ours_pendulum(seed: int, total_steps: int) -> tuple[float, float]:
-    torch.manual_seed(seed)
-    env = make_vec_env("Pendulum-v1", PENDULUM_NUM_ENVS)
-    policy = _MLPGaussianPolicy(env.single_observation_space.shape[0], env.single_action_space.shape[0])
-    start = time.perf_counter()
-    algo = TRPO(policy, env, PENDULUM_CONFIG, seed=seed)
-    rows = algo.run(total_steps, progress=False)
-    seconds = time.perf_counter() - start
-    algo.close()
-    # every episode ends with the last step of an iteration, at global step env_steps
-    late = [r for r in rows if r["env_steps"] > 0.9 * total_steps]
-    final = sum(r["mean_return"] * r["episodes"] for r in late) / sum(r["episodes"] for r in late)
-    return final, seconds
-
-
-def _sb3_pendulum(seed: int, total_steps: int) -> tuple[float, float]:
-    from sb3_contrib import TRPO as SB3TRPO
-    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
-
-    cfg, n = PENDULUM_CONFIG, PENDULUM_NUM_ENVS
-    env = sb3_make_vec_env("Pendulum-v1", n_envs=n, seed=seed)
-    model = SB3TRPO("MlpPolicy", env, n_steps=cfg.steps_per_iter // n, batch_size=160, gamma=cfg.gamma,
-                    gae_lambda=cfg.gae_lambda, target_kl=cfg.max_kl, cg_max_steps=cfg.cg_iters,
-                    cg_damping=cfg.cg_damping, line_search_max_iter=cfg.backtrack_iters,
-                    line_search_shrinking_factor=cfg.backtrack_coeff, seed=seed, device="cpu", verbose=0)
-    start = time.perf_counter()
-    model.learn(total_steps)
-    seconds = time.perf_counter() - start
-    # The sub-environments step in lock-step and every episode lasts 200 steps, so the k-th episode
-    # (k = 1, 2, ...) of each sub-environment ends at global step 200 * n * k.
-    per_env = env.env_method("get_episode_rewards")
-    env.close()
-    ends = np.concatenate([200 * n * np.arange(1, len(r) + 1) for r in per_env])
-    returns = np.concatenate([np.asarray(r, dtype=float) for r in per_env])
-    return float(np.mean(returns[ends > 0.9 * total_steps])), seconds
-
-
-def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int | None = None,
-                        with_sb3: bool = True) -> dict[str, dict[str, list[float]]]:
-    """Train our TRPO (and, if installed, sb3-contrib's) on Pendulum-v1 with the same budget and
-    hyperparameters, one run per seed. Returns ``{"ours": {"final_return": [...], "seconds":
-    [...]}, "sb3_contrib": {...}}``, where final_return is the mean return of the episodes that
-    ended in the last 10% of the steps (higher is better; a random policy gets about -1200), and
-    prints a summary. Defaults: 3 seeds x 1e5 steps (quick mode: 1 seed x 4800 steps)."""
-    seeds = seeds if seeds is not None else budget((0, 1, 2), (0,))
-    total_steps = total_steps if total_steps is not None else budget(100_000, 4_800)
-    runners = {"ours": _ours_pendulum}
-    if with_sb3:
-        try:
-            import sb3_contrib  # noqa: F401
-            runners["sb3_contrib"] = _sb3_pendulum
-        except ImportError:
-            print("sb3-contrib is not installed: benchmarking our TRPO only")
-    results, threads = {}, torch.get_num_threads()
-    torch.set_num_threads(1)  # both on one core: fair, and leaves the other core free
-    for name, runner in runners.items():
-        runs = [runner(seed, total_steps) for seed in seeds]
-        results[name] = {"final_return": [r for r, _ in runs], "seconds": [s for _, s in runs]}
-        final, seconds = np.array(results[name]["final_return"]), np.array(results[name]["seconds"])
-        print(f"{name:12s} final return {final.mean():8.1f} +- {final.std():6.1f}   "
-              f"wall time {seconds.mean():6.1f} s/seed   (seeds {list(seeds)}, {total_steps} steps)")
-    torch.set_num_threads(threads)
-    return results
