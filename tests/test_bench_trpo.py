@@ -14,11 +14,11 @@ OURS = [v.name for v in PENDULUM_VARIANTS if v.config is not None]
 def check_table(results, names, seeds):
     assert list(results) == names
     for runs in results.values():
-        assert set(runs) == {"final_return", "eval_return", "seconds"}
+        assert set(runs) == {"final_return", "eval_return", "seconds", "cpu_seconds"}
         assert all(len(values) == len(seeds) for values in runs.values())
         # Pendulum's reward per step lies in [-16.3, 0]; 200 steps per episode
         assert all(-3300 < r <= 0 for r in runs["final_return"] + runs["eval_return"])
-        assert all(s > 0 for s in runs["seconds"])
+        assert all(s > 0 for s in runs["seconds"] + runs["cpu_seconds"])
 
 
 def test_pendulum_table_without_sb3(capsys):
