@@ -10,9 +10,10 @@ from gymnasium import spaces
 from torch import nn
 from torch.distributions import Normal, kl_divergence
 
+from vdtutorial.bench import _MLPGaussianPolicy
 from vdtutorial.policy import obs_to_tensor
-from vdtutorial.trpo import (TRPO, TRPOConfig, _iteration_seeds, _MLPGaussianPolicy, conjugate_gradient,
-                             fisher_vector_product, flat_grad, gae, line_search, make_vec_env)
+from vdtutorial.trpo import (TRPO, TRPOConfig, _iteration_seeds, conjugate_gradient, fisher_vector_product, flat_grad,
+                             gae, line_search, make_vec_env)
 
 
 # ---------------------------------------------------------------------------------------------

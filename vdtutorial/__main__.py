@@ -174,9 +174,7 @@ def _cmd_bench(args) -> None:
     from vdtutorial import bench
 
     if args.what == "trpo":
-        from vdtutorial.trpo import bench_trpo_pendulum
-
-        bench_trpo_pendulum()
+        bench.bench_trpo_pendulum(seeds=args.seeds, total_steps=args.steps)
     else:
         {"env": bench.bench_env, "policy": bench.bench_policy, "finetune": bench.bench_finetune}[args.what]()
 
@@ -305,6 +303,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("what", choices=("env", "policy", "finetune", "trpo"),
                    help="env: steps/s; policy: network and pre-training cost; finetune: TRPO fine-tuning steps/s "
                         "end to end; trpo: our TRPO against sb3-contrib's on Pendulum-v1 (needs the bench extra)")
+    p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="trpo only: seeds (default: 11 12 13)")
+    p.add_argument("--steps", type=positive_int, default=None, help="trpo only: env steps per run (default: 100000)")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1")

@@ -9,9 +9,11 @@ One iteration, as pseudocode::
     1. collect   run pi_old for `steps_per_iter` steps in the vector environment (one policy
                  forward per vector step); episodes that end are reset in the same step; the
                  trajectories still running when the batch is full are cut off there
-    2. advantage V(s, t) = linear baseline fitted on the previous batch;
+    2. advantage V(s, t) = the baseline fitted on the previous batch (rllab's linear one, or
+                 optionally a value network);
                  A = GAE(gamma, lambda) of the rewards against V, bootstrapped with V where a
-                 trajectory was cut off; then normalise A to mean 0, std 1
+                 trajectory was cut off by the batch end (and, optionally, where an episode hit its
+                 time limit); then normalise A to mean 0, std 1
     3. gradient  g = grad of the surrogate L(theta) = mean[ pi_theta(a|s) / pi_old(a|s) * A ]
     4. direction s ~= F^-1 g by conjugate gradient, where F v is a Fisher-vector product: the
                  Hessian of the mean KL(pi_old || pi_theta) times v, plus damping * v; the mean
@@ -22,7 +24,8 @@ One iteration, as pseudocode::
                  KL of exactly delta
     6. search    try theta_old + beta s, then halve the step; accept the first one whose mean
                  KL is <= delta AND whose surrogate improved; if none, keep theta_old
-    7. baseline  refit the linear baseline on this batch's discounted returns
+    7. baseline  refit the baseline on this batch: the linear one on the discounted returns, the
+                 value network on the lambda-returns A + V (before normalising A)
 
 What is optimised is exactly ``[p for p in policy.parameters() if p.requires_grad]``. Frozen
 parameters (variational dropout's log sigma^2 in the RL stage) therefore never move, and a weight
@@ -64,7 +67,6 @@ from tqdm.auto import tqdm
 from vdtutorial.fisher import GaussNewtonFisher
 from vdtutorial.fisher import supports as supports_gauss_newton
 from vdtutorial.policy import obs_to_tensor
-from vdtutorial.settings import budget
 
 Obs = np.ndarray | dict[str, np.ndarray]
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
@@ -75,6 +77,10 @@ FISHER_PRODUCTS = ("auto", "gauss_newton", "double_backward")
 # ----------------------------------------------------------------------------------------------
 # Hyperparameters
 # ----------------------------------------------------------------------------------------------
+#: The baselines TRPOConfig.baseline can name: rllab's linear one and a value network.
+BASELINES = ("linear", "mlp")
+
+
 @dataclass
 class TRPOConfig:
     """TRPO hyperparameters. ``steps_per_iter`` is the paper's; the paper reports no others, so
@@ -113,6 +119,20 @@ class TRPOConfig:
     backtrack_coeff: the factor by which the line search shrinks the step each time.
     baseline_reg: ridge coefficient of the linear baseline's least-squares fit (rllab's value);
         it is multiplied by 10 (up to 5 times) if the solve is not finite.
+    baseline: ``"linear"`` (the default, and the paper's: rllab's :class:`LinearFeatureBaseline`)
+        or ``"mlp"``, a value network (:class:`MLPBaseline`) fitted by a few epochs of Adam per
+        iteration, as sb3-contrib and Spinning Up do. The network needs no hand-made features, but
+        brings its own hyperparameters (the four ``critic_*`` below, unused by the linear one).
+    critic_hidden: widths of the value network's tanh hidden layers.
+    critic_lr: Adam's learning rate for the value network.
+    critic_epochs: passes over the batch per iteration (sb3-contrib's ``n_critic_updates``).
+    critic_batch_size: minibatch size of those passes.
+    bootstrap_time_limits: at an episode end caused by a time limit (``truncated`` and not
+        ``terminated``), count the value of the final observation, gamma * V(s_final), as if the
+        episode went on, instead of 0. False is rllab's (and so the paper's) treatment: rllab's
+        sampler stops a path at ``max_path_length`` and appends a value of 0 after every path,
+        however it ended, so the horizon is part of the task. True is what sb3 does: the time limit
+        then only cuts an endless task into episodes, and V needs no notion of the time left.
     """
 
     steps_per_iter: int = 200
@@ -125,10 +145,22 @@ class TRPOConfig:
     backtrack_coeff: float = 0.5
     baseline_reg: float = 1e-5
     fvp_subsample: float = 1.0
+    baseline: str = "linear"
+    critic_hidden: tuple[int, ...] = (64, 64)
+    critic_lr: float = 1e-3
+    critic_epochs: int = 10
+    critic_batch_size: int = 128
+    bootstrap_time_limits: bool = False
 
     def __post_init__(self):
         if not 0.0 < self.fvp_subsample <= 1.0:
             raise ValueError(f"fvp_subsample must be in (0, 1], got {self.fvp_subsample}")
+        if self.baseline not in BASELINES:
+            raise ValueError(f"baseline must be one of {BASELINES}, got {self.baseline!r}")
+        if self.critic_epochs < 1 or self.critic_batch_size < 1:
+            raise ValueError(f"critic_epochs and critic_batch_size must be positive, got "
+                             f"{self.critic_epochs} and {self.critic_batch_size}")
+        self.critic_hidden = tuple(self.critic_hidden)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -301,6 +333,57 @@ class LinearFeatureBaseline:
         self.weights = None if state["weights"] is None else state["weights"].numpy().copy()
 
 
+class MLPBaseline:
+    """State-value network V(s) = MLP(features(s)), fitted by minibatch Adam on each batch.
+
+    The alternative to :class:`LinearFeatureBaseline` that sb3-contrib and Spinning Up use: a tanh
+    MLP regressed (mean squared error) on the batch's value targets for ``epochs`` shuffled passes,
+    with one Adam optimiser kept over the whole run. It sees the features only, not the time step:
+    it is meant to go with ``bootstrap_time_limits``, under which the value of a state does not
+    depend on the time left. Its initial weights and the order of its minibatches come from
+    ``seed`` (and the number of fits so far), so a run that saves and reloads it (``state_dict``:
+    the weights, Adam's moments and the fit count) continues exactly.
+    """
+
+    def __init__(self, num_features: int, hidden: tuple[int, ...] = (64, 64), lr: float = 1e-3,
+                 epochs: int = 10, batch_size: int = 128, seed: int = 0):
+        with torch.random.fork_rng(devices=[]):  # the global generator (policy init, ...) is untouched
+            torch.manual_seed(seed)
+            layers, width = [], num_features
+            for h in hidden:
+                layers += [nn.Linear(width, h), nn.Tanh()]
+                width = h
+            self.net = nn.Sequential(*layers, nn.Linear(width, 1))
+        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=lr)
+        self.epochs, self.batch_size, self.seed = epochs, batch_size, seed
+        self.fits = 0
+
+    def predict(self, features: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.net(torch.as_tensor(features, dtype=torch.float32)).squeeze(-1).double().numpy()
+
+    def fit(self, features: np.ndarray, timesteps: np.ndarray, returns: np.ndarray) -> None:
+        x = torch.as_tensor(features, dtype=torch.float32)
+        y = torch.as_tensor(returns, dtype=torch.float32)
+        order_seed = np.random.SeedSequence([self.seed, self.fits], spawn_key=(1,)).generate_state(1)[0]
+        generator = torch.Generator().manual_seed(int(order_seed))
+        for _ in range(self.epochs):
+            for index in torch.randperm(len(x), generator=generator).split(self.batch_size):
+                loss = nn.functional.mse_loss(self.net(x[index]).squeeze(-1), y[index])
+                self.optimizer.zero_grad()
+                loss.backward()
+                self.optimizer.step()
+        self.fits += 1
+
+    def state_dict(self) -> dict:
+        return {"net": self.net.state_dict(), "optimizer": self.optimizer.state_dict(), "fits": self.fits}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.net.load_state_dict(state["net"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.fits = state["fits"]
+
+
 # ----------------------------------------------------------------------------------------------
 # Environment and data plumbing
 # ----------------------------------------------------------------------------------------------
@@ -324,6 +407,13 @@ def _stack(steps: list[Obs]) -> Obs:
     return stacked.reshape(-1, *stacked.shape[2:])
 
 
+def _batch_of(observations: list[Obs]) -> Obs:
+    """Single observations (arrays or dicts of arrays) -> one batch, batch first."""
+    if isinstance(observations[0], dict):
+        return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
+    return np.stack(observations)
+
+
 def _iteration_seeds(seed: int, iteration: int, num_envs: int) -> tuple[list[int], int]:
     """Environment reset seeds and the action-noise seed of one iteration."""
     state = np.random.SeedSequence([seed, iteration]).generate_state(num_envs + 1)
@@ -339,7 +429,7 @@ class Batch:
     advantages: torch.Tensor      # (n,) normalised GAE advantages
     features: np.ndarray          # (n, k) baseline features of the observations
     timesteps: np.ndarray         # (n,) step index within the episode
-    returns: np.ndarray           # (n,) discounted returns, the baseline's regression targets
+    returns: np.ndarray           # (n,) the baseline's regression targets (see TRPOConfig.baseline)
     episode_returns: list[float]  # undiscounted returns of the episodes that ended in the batch
     successes: int                # how many of those ended with info["is_success"] True
     fvp_index: torch.Tensor | None = None  # (m,) the samples of the Fisher-vector products; None = all
@@ -358,8 +448,8 @@ class TRPO:
     config: hyperparameters, :class:`TRPOConfig`.
     seed: the run's seed; with the parameters it determines every iteration.
     baseline_features: maps a batch of observations (array or dict of arrays, batch first) to a
-        float array (batch, k) of low-dimensional features for the linear baseline; by default
-        :func:`default_baseline_features`.
+        float array (batch, k) of low-dimensional features for the baseline (linear or network);
+        by default :func:`default_baseline_features`.
     fisher: how the Fisher-vector products of step 4 are computed; both ways are exact and agree to
         float rounding, so this changes the cost, not the algorithm. ``"gauss_newton"``:
         :class:`vdtutorial.fisher.GaussNewtonFisher`, only for a
@@ -386,7 +476,13 @@ class TRPO:
         self.config = config or TRPOConfig()
         self.seed = seed
         self.baseline_features = baseline_features or default_baseline_features
-        self.baseline = LinearFeatureBaseline(self.config.baseline_reg)
+        cfg = self.config
+        if cfg.baseline == "linear":
+            self.baseline = LinearFeatureBaseline(cfg.baseline_reg)
+        else:  # the network's input width, from a sample of the (batched) observation space
+            num_features = self.baseline_features(self.env.observation_space.sample()).shape[1]
+            self.baseline = MLPBaseline(num_features, cfg.critic_hidden, cfg.critic_lr, cfg.critic_epochs,
+                                        cfg.critic_batch_size, seed=seed)
         self.params = [p for p in policy.parameters() if p.requires_grad]
         self.iteration_index = 0
         self.rows: list[dict] = []
@@ -416,6 +512,7 @@ class TRPO:
         observations, actions, timesteps = [], [], []
         rewards, dones = np.zeros((steps_per_env, n)), np.zeros((steps_per_env, n))
         episode_returns, successes = [], 0
+        time_limit_ends = []  # (step, env, final observation, its time step) where a time limit struck
 
         for k in range(steps_per_env):
             with torch.no_grad():  # one policy forward for all sub-environments
@@ -437,18 +534,31 @@ class TRPO:
                     successes += sum(bool(final["is_success"][i]) for i in reported)
                 episode_returns.extend(running_return[done].tolist())
                 running_return[done] = 0.0
+                if cfg.bootstrap_time_limits:
+                    time_limit_ends += [(k, i, info["final_obs"][i], t[i] + 1)
+                                        for i in np.flatnonzero(truncated & ~terminated)]
             t = np.where(done, 0, t + 1)
             obs = next_obs  # after an episode end this is already the next episode's first obs
 
-        # A time-limit end counts as the end of the (finite-horizon) task: value 0 after it, as in
-        # rllab; trajectories cut off by the batch end are bootstrapped with the baseline.
+        # By default a time-limit end counts as the end of the (finite-horizon) task: value 0 after
+        # it, as in rllab. With bootstrap_time_limits, gamma * V(final observation) is added to the
+        # reward of that last step (the episode still ends there: GAE stops at it). Trajectories cut
+        # off by the batch end are always bootstrapped with the baseline.
         flat_obs = _stack(observations)
         features = self.baseline_features(flat_obs)
         flat_t = np.concatenate(timesteps)
         values = self.baseline.predict(features, flat_t).reshape(steps_per_env, n)
         last_values = self.baseline.predict(self.baseline_features(obs), t)
-        advantages = gae(rewards, values, last_values, dones, cfg.gamma, cfg.gae_lambda).reshape(-1)
-        returns = (gae(rewards, values, last_values, dones, cfg.gamma, 1.0) + values).reshape(-1)
+        if time_limit_ends:
+            steps, envs, final_obs, final_t = zip(*time_limit_ends)
+            final_values = self.baseline.predict(self.baseline_features(_batch_of(final_obs)), np.array(final_t))
+            rewards[steps, envs] += cfg.gamma * final_values
+        advantages = gae(rewards, values, last_values, dones, cfg.gamma, cfg.gae_lambda)
+        if cfg.baseline == "linear":  # rllab: regress on the discounted returns
+            returns = gae(rewards, values, last_values, dones, cfg.gamma, 1.0) + values
+        else:  # sb3-contrib: regress on the lambda-returns, less noisy targets for a network
+            returns = advantages + values
+        advantages, returns = advantages.reshape(-1), returns.reshape(-1)
         advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
         fvp_index = None
         if cfg.fvp_subsample < 1.0:  # drawn after the actions, so the rollouts do not depend on it
@@ -568,7 +678,10 @@ class TRPO:
     def load(self, path: str | os.PathLike) -> None:
         """Restore a checkpoint written by :meth:`save` by a run with the same seed and config."""
         state = torch.load(path, weights_only=True)
-        if state["seed"] != self.seed or state["config"] != asdict(self.config):
+        # fields added to TRPOConfig after a checkpoint was written take their defaults, which keep
+        # the behaviour of the code that wrote it
+        saved_config = {**asdict(TRPOConfig()), **state["config"]}
+        if state["seed"] != self.seed or saved_config != asdict(self.config):
             raise ValueError("checkpoint was written with a different seed or config; resuming it would "
                              "not continue the same run")
         self.policy.load_state_dict(state["policy"])
@@ -587,96 +700,3 @@ def _append_csv(path: str | os.PathLike, row: dict) -> None:
         if new_file:
             writer.writeheader()
         writer.writerow(row)
-
-
-# ----------------------------------------------------------------------------------------------
-# Validation on a standard task: gymnasium's Pendulum-v1, against sb3-contrib's TRPO
-# ----------------------------------------------------------------------------------------------
-class _MLPGaussianPolicy(nn.Module):
-    """Minimal Gaussian MLP policy for the benchmark: tanh hidden layers, state-independent std."""
-
-    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...] = (64, 64)):
-        super().__init__()
-        layers, width = [], obs_dim
-        for h in hidden:
-            layers += [nn.Linear(width, h), nn.Tanh()]
-            width = h
-        self.mean = nn.Sequential(*layers, nn.Linear(width, action_dim))
-        self.log_std = nn.Parameter(torch.zeros(action_dim))
-
-    def distribution(self, obs: torch.Tensor) -> Normal:
-        mean = self.mean(obs)
-        return Normal(mean, self.log_std.exp().expand_as(mean))
-
-
-# Pendulum settings, shared by both implementations: our defaults except the batch. Pendulum
-# episodes last 200 steps (the paper's tasks: 25), so a batch of 1600 steps on 8 sub-environments
-# holds exactly one whole episode per sub-environment. sb3-contrib's critic keeps its own defaults
-# (10 Adam epochs at lr 1e-3), with minibatches of 160 so that they divide the batch.
-PENDULUM_CONFIG = TRPOConfig(steps_per_iter=1600)
-PENDULUM_NUM_ENVS = 8
-
-
-def _ours_pendulum(seed: int, total_steps: int) -> tuple[float, float]:
-    torch.manual_seed(seed)
-    env = make_vec_env("Pendulum-v1", PENDULUM_NUM_ENVS)
-    policy = _MLPGaussianPolicy(env.single_observation_space.shape[0], env.single_action_space.shape[0])
-    start = time.perf_counter()
-    algo = TRPO(policy, env, PENDULUM_CONFIG, seed=seed)
-    rows = algo.run(total_steps, progress=False)
-    seconds = time.perf_counter() - start
-    algo.close()
-    # every episode ends with the last step of an iteration, at global step env_steps
-    late = [r for r in rows if r["env_steps"] > 0.9 * total_steps]
-    final = sum(r["mean_return"] * r["episodes"] for r in late) / sum(r["episodes"] for r in late)
-    return final, seconds
-
-
-def _sb3_pendulum(seed: int, total_steps: int) -> tuple[float, float]:
-    from sb3_contrib import TRPO as SB3TRPO
-    from stable_baselines3.common.env_util import make_vec_env as sb3_make_vec_env
-
-    cfg, n = PENDULUM_CONFIG, PENDULUM_NUM_ENVS
-    env = sb3_make_vec_env("Pendulum-v1", n_envs=n, seed=seed)
-    model = SB3TRPO("MlpPolicy", env, n_steps=cfg.steps_per_iter // n, batch_size=160, gamma=cfg.gamma,
-                    gae_lambda=cfg.gae_lambda, target_kl=cfg.max_kl, cg_max_steps=cfg.cg_iters,
-                    cg_damping=cfg.cg_damping, line_search_max_iter=cfg.backtrack_iters,
-                    line_search_shrinking_factor=cfg.backtrack_coeff, seed=seed, device="cpu", verbose=0)
-    start = time.perf_counter()
-    model.learn(total_steps)
-    seconds = time.perf_counter() - start
-    # The sub-environments step in lock-step and every episode lasts 200 steps, so the k-th episode
-    # (k = 1, 2, ...) of each sub-environment ends at global step 200 * n * k.
-    per_env = env.env_method("get_episode_rewards")
-    env.close()
-    ends = np.concatenate([200 * n * np.arange(1, len(r) + 1) for r in per_env])
-    returns = np.concatenate([np.asarray(r, dtype=float) for r in per_env])
-    return float(np.mean(returns[ends > 0.9 * total_steps])), seconds
-
-
-def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int | None = None,
-                        with_sb3: bool = True) -> dict[str, dict[str, list[float]]]:
-    """Train our TRPO (and, if installed, sb3-contrib's) on Pendulum-v1 with the same budget and
-    hyperparameters, one run per seed. Returns ``{"ours": {"final_return": [...], "seconds":
-    [...]}, "sb3_contrib": {...}}``, where final_return is the mean return of the episodes that
-    ended in the last 10% of the steps (higher is better; a random policy gets about -1200), and
-    prints a summary. Defaults: 3 seeds x 1e5 steps (quick mode: 1 seed x 4800 steps)."""
-    seeds = seeds if seeds is not None else budget((0, 1, 2), (0,))
-    total_steps = total_steps if total_steps is not None else budget(100_000, 4_800)
-    runners = {"ours": _ours_pendulum}
-    if with_sb3:
-        try:
-            import sb3_contrib  # noqa: F401
-            runners["sb3_contrib"] = _sb3_pendulum
-        except ImportError:
-            print("sb3-contrib is not installed: benchmarking our TRPO only")
-    results, threads = {}, torch.get_num_threads()
-    torch.set_num_threads(1)  # both on one core: fair, and leaves the other core free
-    for name, runner in runners.items():
-        runs = [runner(seed, total_steps) for seed in seeds]
-        results[name] = {"final_return": [r for r, _ in runs], "seconds": [s for _, s in runs]}
-        final, seconds = np.array(results[name]["final_return"]), np.array(results[name]["seconds"])
-        print(f"{name:12s} final return {final.mean():8.1f} +- {final.std():6.1f}   "
-              f"wall time {seconds.mean():6.1f} s/seed   (seeds {list(seeds)}, {total_steps} steps)")
-    torch.set_num_threads(threads)
-    return results
