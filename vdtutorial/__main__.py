@@ -5,6 +5,7 @@ import argparse
 import dataclasses
 import sys
 
+from vdtutorial import classroom
 from vdtutorial.settings import QUICK
 
 
@@ -190,6 +191,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", default=None, help="output folder (default: runs/reproduce_quick)")
     p.set_defaults(func=_cmd_reproduce)
+    classroom.add_parser(sub)
     return parser
 
 
