@@ -26,8 +26,11 @@ import re
 import shutil
 import sys
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
+
+from vdtutorial.settings import QUICK_ENV
 
 #: The teacher's edition: the repository's notebooks (like ``data/``, found from a clone).
 NOTEBOOKS_DIR = Path(__file__).resolve().parent.parent / "notebooks"
@@ -196,7 +199,7 @@ def grade(paths, out="grades", source: Path = NOTEBOOKS_DIR, timeout: int = CELL
     raises or runs longer than ``timeout`` seconds scores 0 where it is a test and does not stop the others.
     ``quick`` runs the kernels in quick mode (small budgets: the exercises do not depend on them).
     """
-    out = Path(out)
+    out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
     api = _generate(out, source, sorted({s.chapter for s in subs}), timeout)
     for sub in subs:
@@ -204,7 +207,8 @@ def grade(paths, out="grades", source: Path = NOTEBOOKS_DIR, timeout: int = CELL
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(sub.path, dest)
     scores = []
-    with _environment(VDTUTORIAL_QUICK="1" if quick else "0", MPLBACKEND="Agg"):
+    with _environment(**{QUICK_ENV: "1" if quick else "0", "MPLBACKEND": "Agg"}), warnings.catch_warnings():
+        warnings.filterwarnings("ignore", module="sqlalchemy.*")   # nbgrader's session warnings, not ours
         for student in sorted({s.student for s in subs}):
             result = api.autograde(ASSIGNMENT, student)
             if not result["success"]:
