@@ -23,7 +23,8 @@ WRONG = {
     "04_sparse_variational_dropout": ("ch04_kl_approx", "- 0.5 * F.softplus(-log_alpha)", "+ 0.5 * F.softplus(-log_alpha)"),
     "05_pretraining": ("ch05_elbo_loss", "+ beta * model_kl(policy.mu) / n_train", "- beta * model_kl(policy.mu) / n_train"),
     "06_trpo": ("ch06_gae", "alive = 1.0 - dones[t]", "alive = 1.0"),
-    "07_finetuning": ("ch07_moving_average", "max(0, k - window + 1)", "max(0, k - window)"),
+    "07_finetuning": ("ch07_moving_average", "values[max(0, k - window + 1):k + 1].mean()",
+                      "values[max(0, k - window):k + 1].mean()"),
     "08_grasping": ("ch08_grasp_success", "abs(float(approach[2]))", "float(approach[2])"),
 }
 
@@ -135,3 +136,17 @@ def test_grade_refuses_bad_input_with_one_line(tmp_path, capsys):
 def test_release_refuses_to_overwrite(released, capsys):
     code, last = run_cli(["classroom", "release", str(released)], capsys)
     assert code == 2 and "already holds" in last
+
+
+def test_a_looping_cell_is_interrupted_and_the_rest_still_runs(tmp_path):
+    """nbgrader's per-cell timeout: a submission that loops forever is cut off in that cell only."""
+    nb = nbformat.read(classroom.chapters()["00_start_here"], as_version=4)
+    nb.cells.insert(3, nbformat.v4.new_code_cell("while True:\n    pass"))
+    (tmp_path / "mallory").mkdir()
+    nbformat.write(nb, tmp_path / "mallory" / "00_start_here.ipynb")
+    assert classroom.grade([tmp_path / "mallory"], tmp_path / "course", timeout=60) == []   # chapter 00 has no exercises
+    ran = cells(tmp_path / "course" / "autograded" / "mallory" / classroom.ASSIGNMENT / "00_start_here.ipynb")
+    code = [c for c in ran if c.cell_type == "code"]
+    looping = next(c for c in code if c.source.startswith("while True"))
+    assert any(o.output_type == "error" for o in looping.outputs)
+    assert code[-1].outputs, "the cells after the loop still ran"
