@@ -90,7 +90,8 @@ def _generate(course: Path, source: Path, names: list[str], timeout: int = CELL_
     for name in names:
         shutil.copy(found[name], src / f"{name}.ipynb")
     api = _api(course, timeout)
-    result = api.generate_assignment(ASSIGNMENT)
+    with _environment(PATH=_path_with_our_scripts()):
+        result = api.generate_assignment(ASSIGNMENT)
     if not result["success"]:
         raise ClassroomError(f"nbgrader could not generate the assignment:\n{result.get('error') or result['log']}")
     return api
@@ -164,6 +165,12 @@ def collect(paths, source: Path = NOTEBOOKS_DIR) -> list[Submission]:
     return subs
 
 
+def _path_with_our_scripts() -> str:
+    """PATH with this Python's scripts folder first: nbgrader opens its gradebook by running the ``alembic``
+    command, which is found only if the environment was activated (not when ``.venv/bin/python`` is called)."""
+    return os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
+
+
 @contextlib.contextmanager
 def _environment(**values):
     """Set environment variables for the kernels nbgrader starts (they inherit ours), then restore."""
@@ -207,18 +214,21 @@ def grade(paths, out="grades", source: Path = NOTEBOOKS_DIR, timeout: int = CELL
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(sub.path, dest)
     scores = []
-    with _environment(**{QUICK_ENV: "1" if quick else "0", "MPLBACKEND": "Agg"}), warnings.catch_warnings():
+    kernel_env = {QUICK_ENV: "1" if quick else "0", "MPLBACKEND": "Agg", "PATH": _path_with_our_scripts()}
+    with _environment(**kernel_env), warnings.catch_warnings():
         warnings.filterwarnings("ignore", module="sqlalchemy.*")   # nbgrader's session warnings, not ours
         for student in sorted({s.student for s in subs}):
             result = api.autograde(ASSIGNMENT, student)
             if not result["success"]:
                 print(f"warning: nbgrader could not grade {student}: {(result.get('error') or '').strip()[-300:]}",
                       file=sys.stderr)
-    with api.gradebook as gb:
+    from nbgrader.api import MissingEntry
+
+    with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
         for sub in subs:
             try:
                 nb = gb.find_submission_notebook(sub.chapter, ASSIGNMENT, sub.student)
-            except Exception:  # nbgrader's MissingEntry: autograding this notebook failed
+            except MissingEntry:  # autograding this notebook failed as a whole: no points
                 grades = [(g, 0.0, _max_points(gb, sub.chapter, g)) for g in _test_cells(gb, sub.chapter)]
             else:
                 grades = [(g.name, float(g.score), float(g.max_score)) for g in nb.grades]
