@@ -339,3 +339,26 @@ def test_frames_animation_to_jshtml():
     page = animation.to_jshtml()
     assert page.count("data:image/png;base64") == len(frames)
     assert len(page) < 100_000
+
+
+def test_camera_frames_the_arm_and_the_table(scene):
+    """The default camera sees every corner of the arm and the table, and they fill most of the view (meshcat's
+    own camera sits 3 m away and the scene filled 10-15 % of the frame). The viewer looks at the origin."""
+    cid, bodies = scene
+    rec = viz.Recorder()
+    viz.mirror_bodies(rec, cid, bodies)
+    position = next(c for c in recorded_commands(rec.html())
+                    if c["type"] == "set_property" and c["path"] == "/Cameras/default/rotated/<object>")
+    x, y_up, minus_y = position["value"]
+    camera = np.array([x, -minus_y, y_up])
+    corners = []
+    for body in (bodies["arm"], bodies["table"]):
+        for link in range(-1, p.getNumJoints(body, physicsClientId=cid)):
+            low, high = p.getAABB(body, link, physicsClientId=cid)
+            corners += [np.where(np.array(bits, dtype=bool), high, low) for bits in np.ndindex(2, 2, 2)]
+    axis = -camera / np.linalg.norm(camera)
+    angles = [np.degrees(np.arccos(np.dot(axis, (c - camera) / np.linalg.norm(c - camera)))) for c in corners]
+    half_fov = viz.CAMERA_FOV_DEG / 2
+    assert max(angles) <= half_fov, "every corner of the arm and the table is in view"
+    assert max(angles) > 0.75 * half_fov, "and the scene is not a small patch in the middle"
+    assert camera[2] > 0.3 and np.linalg.norm(camera) < 3.0

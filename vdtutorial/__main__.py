@@ -342,6 +342,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
     p.add_argument("--out", default=None, help="output folder (default: runs/reproduce_quick)")
     p.set_defaults(func=_cmd_reproduce)
+    from vdtutorial import classroom
+
+    classroom.add_parser(sub)
     return parser
 
 

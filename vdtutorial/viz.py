@@ -57,6 +57,7 @@ with warnings.catch_warnings():
 __all__ = [
     "Recorder",
     "mirror_bodies",
+    "frame_view",
     "update_poses",
     "add_ghost",
     "record_rollout",
@@ -66,6 +67,10 @@ __all__ = [
 
 #: Side length (m) of the square drawn for a ``GEOM_PLANE``, which pybullet reports without a size.
 PLANE_SIZE = 4.0
+#: Vertical field of view (degrees) of meshcat's default perspective camera.
+CAMERA_FOV_DEG = 75.0
+#: Direction from the scene's centre to the camera (x, y, z; z up): in front of the arm, to its right, above.
+VIEW_DIRECTION = (1.0, -1.1, 0.8)
 #: Ghost colour: light blue, mostly transparent so the real arm stays readable behind the ghosts.
 GHOST_RGBA = (0.25, 0.6, 1.0, 0.3)
 
@@ -371,6 +376,42 @@ def mirror_bodies(vis, client_id: int, bodies: Mapping[str, int]) -> None:
     for name, body in bodies.items():
         _mirror_body(vis[name], client_id, body)
     update_poses(vis, client_id, bodies)
+    frame_view(vis, client_id, bodies)
+
+
+def frame_view(vis, client_id: int, bodies: Mapping[str, int], margin: float = 1.1,
+               direction: Sequence[float] = VIEW_DIRECTION) -> np.ndarray:
+    """Move meshcat's default camera so that the bodies fill the view; returns the camera position.
+
+    meshcat's camera starts 3 m from the origin, where a 1 m table with an arm fills a small part of the
+    frame. The viewer's orbit controls always look at the world origin (here the arm's base), so the
+    camera is placed on the ray from the centre of the bodies' bounding box along ``direction`` (in
+    front of the arm, to its right, above), at the smallest distance from which every corner of the
+    box lies within the vertical field of view divided by ``margin``. Bodies larger than 3 m (a ground
+    plane) are left out of the box. The position is a property of the camera node
+    ``/Cameras/default/rotated/<object>``, whose frame is three.js's (y up): (x, y, z) -> (x, z, -y).
+    """
+    vis = _visualizer(vis)
+    corners = []
+    for body in bodies.values():
+        for link in range(-1, p.getNumJoints(body, physicsClientId=client_id)):
+            low, high = np.array(p.getAABB(body, link, physicsClientId=client_id))
+            if np.all(high - low < 3.0):
+                corners += [np.where(np.array(bits, dtype=bool), high, low) for bits in np.ndindex(2, 2, 2)]
+    corners = np.array(corners)
+    centre = (corners.min(0) + corners.max(0)) / 2
+    unit = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+    limit = np.radians(CAMERA_FOV_DEG / 2) / margin
+    camera = centre
+    for distance in np.arange(0.5, 10.0, 0.02):
+        camera = centre + distance * unit
+        axis = -camera / np.linalg.norm(camera)
+        rays = corners - camera
+        angles = np.arccos(np.clip(rays @ axis / np.linalg.norm(rays, axis=1), -1.0, 1.0))
+        if angles.max() <= limit:
+            break
+    vis["/Cameras/default/rotated/<object>"].set_property("position", [camera[0], camera[2], -camera[1]])
+    return camera
 
 
 def add_ghost(vis, client_id: int, body: int, name: str, rgba: Sequence[float] = GHOST_RGBA) -> None:

@@ -1,0 +1,152 @@
+"""The classroom edition (issue 10): exercises, the student edition and autograding, all through nbgrader.
+
+The chapter tests execute notebooks (each chapter three times: unsolved, teacher's, one wrong answer), so
+they are parametrised per chapter and spread over the xdist workers; the release is made once per worker.
+"""
+import json
+import re
+
+import nbformat
+import pytest
+
+from vdtutorial import classroom
+from vdtutorial.__main__ import main
+
+CHAPTERS = [name for name in classroom.chapters() if name != "00_start_here"]
+SOLUTION = re.compile(r"### BEGIN SOLUTION\n(.*?)### END SOLUTION", re.S)
+HIDDEN = re.compile(r"### BEGIN HIDDEN TESTS\n(.*?)### END HIDDEN TESTS", re.S)
+# One deliberately wrong answer per chapter: (exercise, text of the teacher's solution, the wrong version).
+WRONG = {
+    "01_environment": ("ch01_reward_eq11", "- distance + C_SUCCESS", "+ distance + C_SUCCESS"),
+    "02_ik_expert": ("ch02_step_towards", "diff * min(1.0, MAX_DELTA / largest)", "diff * MAX_DELTA / largest"),
+    "03_demonstrations": ("ch03_noisy_rollout", "labels.append(label)", "labels.append(-label)"),
+    "04_sparse_variational_dropout": ("ch04_kl_approx", "- 0.5 * F.softplus(-log_alpha)", "+ 0.5 * F.softplus(-log_alpha)"),
+    "05_pretraining": ("ch05_elbo_loss", "+ beta * model_kl(policy.mu) / n_train", "- beta * model_kl(policy.mu) / n_train"),
+    "06_trpo": ("ch06_gae", "alive = 1.0 - dones[t]", "alive = 1.0"),
+    "07_finetuning": ("ch07_moving_average", "values[max(0, k - window + 1):k + 1].mean()",
+                      "values[max(0, k - window):k + 1].mean()"),
+    "08_grasping": ("ch08_grasp_success", "abs(float(approach[2]))", "float(approach[2])"),
+}
+
+
+def cells(path):
+    return nbformat.read(path, as_version=4).cells
+
+
+def nbgrader(cell):
+    return cell.metadata.get("nbgrader", {})
+
+
+def test_every_chapter_has_graded_exercises_with_visible_and_hidden_tests():
+    total = 0
+    for name in CHAPTERS:
+        tests = [c for c in cells(classroom.chapters()[name]) if nbgrader(c).get("grade")]
+        answers = [c for c in cells(classroom.chapters()[name]) if nbgrader(c).get("solution")]
+        assert len(tests) >= 2 and len(answers) == len(tests), name
+        for cell in tests:
+            visible = HIDDEN.sub("", cell.source)
+            assert "assert" in visible and HIDDEN.search(cell.source), nbgrader(cell)["grade_id"]
+            assert nbgrader(cell)["points"] > 0 and nbgrader(cell)["locked"]
+        for cell in answers:
+            assert SOLUTION.search(cell.source), nbgrader(cell)["grade_id"]
+        total += len(tests)
+    assert total >= 20
+
+
+@pytest.fixture(scope="session")
+def released(tmp_path_factory):
+    out = tmp_path_factory.mktemp("student")
+    classroom.release(out)
+    return out
+
+
+def test_release_has_no_solution_and_no_hidden_test(released):
+    for name, path in classroom.chapters().items():
+        teacher = "\n".join(c.source for c in cells(path))
+        student = cells(released / f"{name}.ipynb")
+        text = "\n".join(c.source for c in student)
+        public = SOLUTION.sub("", HIDDEN.sub("", teacher))   # lines also written elsewhere are no secret
+        secret = [line.strip() for block in SOLUTION.findall(teacher) + HIDDEN.findall(teacher)
+                  for line in block.splitlines() if len(line.strip()) > 12 and line.strip() not in public]
+        assert len(secret) >= 3 * len(SOLUTION.findall(teacher)), name
+        leaked = [line for line in secret if line in text]
+        assert not leaked, (name, leaked[:3])
+        assert "BEGIN SOLUTION" not in text and "HIDDEN TESTS" not in text
+        assert text.count("raise NotImplementedError()") == len(SOLUTION.findall(teacher))
+        assert all(not c.get("outputs") for c in student if c.cell_type == "code")
+
+
+@pytest.mark.parametrize("chapter", CHAPTERS)
+def test_grading_a_chapter(chapter, released, tmp_path):
+    """Unsolved: runs to the end, only exercise cells fail, 0 points. Teacher: full points. One wrong
+    answer: exactly that exercise's points are lost."""
+    exercise, right, wrong = WRONG[chapter]
+    source = classroom.chapters()[chapter]
+    teacher_text = source.read_text()
+    assert teacher_text.count(json.dumps(right)[1:-1]) == 1, "the mutation must hit the solution exactly once"
+    for student, text in (("unsolved", (released / f"{chapter}.ipynb").read_text()), ("teacher", teacher_text),
+                          ("wrong", teacher_text.replace(json.dumps(right)[1:-1], json.dumps(wrong)[1:-1]))):
+        (tmp_path / "in" / student).mkdir(parents=True)
+        (tmp_path / "in" / student / f"{chapter}.ipynb").write_text(text)
+    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course")
+
+    points = {(s.student, s.exercise): (s.score, s.max_score) for s in scores}
+    tests = {s.exercise for s in scores}
+    assert len(tests) >= 2
+    assert all(points["unsolved", t][0] == 0 for t in tests)
+    assert all(points["teacher", t][0] == points["teacher", t][1] > 0 for t in tests), points
+    lost = {t for t in tests if points["wrong", t][0] < points["wrong", t][1]}
+    assert lost == {f"{exercise}_tests"}, lost
+    assert points["wrong", f"{exercise}_tests"][0] == 0
+
+    ran = cells(tmp_path / "course" / "autograded" / "unsolved" / classroom.ASSIGNMENT / f"{chapter}.ipynb")
+    failed = {c.id for c in ran if c.cell_type == "code" and any(o.output_type == "error" for o in c.outputs)}
+    exercise_cells = {c.id for c in ran if nbgrader(c).get("grade") or nbgrader(c).get("solution")}
+    assert failed and failed <= exercise_cells, failed - exercise_cells
+    assert (tmp_path / "course" / "gradebook.db").is_file() and (tmp_path / "course" / "grades.csv").is_file()
+
+
+def run_cli(argv, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    return exit_info.value.code, err[-1]
+
+
+def test_grade_refuses_bad_input_with_one_line(tmp_path, capsys):
+    (tmp_path / "notes.txt").write_text("hello")
+    (tmp_path / "bob").mkdir()
+    (tmp_path / "bob" / "01_environment.ipynb").write_text("not json")
+    (tmp_path / "bob" / "99_nothing.ipynb").write_text(classroom.chapters()["00_start_here"].read_text())
+    (tmp_path / "eve").mkdir()
+    (tmp_path / "eve" / "01_environment.ipynb").write_text(classroom.chapters()["00_start_here"].read_text())
+    cases = {
+        str(tmp_path / "notes.txt"): "is not a notebook",
+        str(tmp_path / "missing.ipynb"): "no such file",
+        str(tmp_path / "bob" / "01_environment.ipynb"): "is not a Jupyter notebook",
+        str(tmp_path / "bob" / "99_nothing.ipynb"): "there is no chapter '99_nothing'",
+        str(tmp_path / "eve" / "01_environment.ipynb"): "not from this edition",
+    }
+    for path, message in cases.items():
+        code, last = run_cli(["classroom", "grade", path, "--out", str(tmp_path / "course")], capsys)
+        assert code == 2 and last.startswith("error: ") and message in last, (path, last)
+    assert not (tmp_path / "course" / "gradebook.db").exists(), "nothing is graded when the input is bad"
+
+
+def test_release_refuses_to_overwrite(released, capsys):
+    code, last = run_cli(["classroom", "release", str(released)], capsys)
+    assert code == 2 and "already holds" in last
+
+
+def test_a_looping_cell_is_interrupted_and_the_rest_still_runs(tmp_path):
+    """nbgrader's per-cell timeout: a submission that loops forever is cut off in that cell only."""
+    nb = nbformat.read(classroom.chapters()["00_start_here"], as_version=4)
+    nb.cells.insert(3, nbformat.v4.new_code_cell("while True:\n    pass"))
+    (tmp_path / "mallory").mkdir()
+    nbformat.write(nb, tmp_path / "mallory" / "00_start_here.ipynb")
+    assert classroom.grade([tmp_path / "mallory"], tmp_path / "course", timeout=60) == []   # chapter 00 has no exercises
+    ran = cells(tmp_path / "course" / "autograded" / "mallory" / classroom.ASSIGNMENT / "00_start_here.ipynb")
+    code = [c for c in ran if c.cell_type == "code"]
+    looping = next(c for c in code if c.source.startswith("while True"))
+    assert any(o.output_type == "error" for o in looping.outputs)
+    assert code[-1].outputs, "the cells after the loop still ran"

@@ -1,0 +1,316 @@
+"""The classroom edition: release the student notebooks and autograde submissions with nbgrader.
+
+The chapters in ``notebooks/`` are the teacher's edition: every exercise is an nbgrader "autograded
+answer" cell whose solution sits between ``### BEGIN SOLUTION`` / ``### END SOLUTION``, followed by an
+"autograded tests" cell with points, visible asserts and hidden tests between ``### BEGIN HIDDEN
+TESTS`` / ``### END HIDDEN TESTS``. This module does not strip or grade anything itself: it lays out an
+nbgrader course directory and calls nbgrader's own steps,
+
+* :func:`release` -- ``generate_assignment``: solutions become ``# YOUR CODE HERE`` stubs, hidden tests
+  and outputs are removed, cells are locked and checksummed;
+* :func:`grade` -- ``generate_assignment`` (which records the exercises and their points in the SQLite
+  gradebook) then ``autograde`` per student: each submission runs on a fresh kernel with nbgrader's
+  per-cell timeout, errors in a cell are recorded in that cell, and the points come from the gradebook.
+
+Autograding runs the students' code with the grader's rights: grade in an isolated environment (a
+container or a throwaway account), as nbgrader's documentation advises (:data:`SAFETY_NOTE`).
+Command line: ``python -m vdtutorial classroom release OUT`` and ``... classroom grade SUBMISSIONS...``.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import os
+import re
+import shutil
+import sys
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from vdtutorial.settings import QUICK_ENV
+
+#: The teacher's edition: the repository's notebooks (like ``data/``, found from a clone).
+NOTEBOOKS_DIR = Path(__file__).resolve().parent.parent / "notebooks"
+#: The nbgrader assignment that holds every chapter.
+ASSIGNMENT = "vdtutorial"
+#: Seconds a single cell may run during autograding before nbgrader interrupts it. Quick-mode cells take
+#: seconds; the longest (a live TRPO run) about a minute on a busy 2-core machine.
+CELL_TIMEOUT = 300
+SAFETY_NOTE = ("Autograding runs the students' code with your rights: grade in an isolated environment "
+               "(a container or a throwaway account), as nbgrader's documentation advises.")
+
+
+class ClassroomError(Exception):
+    """A problem the user can fix (bad path, unknown chapter, a notebook of another edition)."""
+
+
+def chapters(source: Path = NOTEBOOKS_DIR) -> dict[str, Path]:
+    """The chapter notebooks of ``source`` by name (``"03_demonstrations"`` -> its path)."""
+    if not source.is_dir():
+        raise ClassroomError(f"no notebooks folder at {source}: run from a clone of the repository "
+                             "or pass --source with the teacher's notebooks")
+    found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]_*.ipynb"))}
+    if not found:
+        raise ClassroomError(f"{source} holds no chapter notebooks (NN_name.ipynb)")
+    return found
+
+
+def grade_ids(path: Path) -> list[str]:
+    """The ``grade_id`` of every nbgrader cell of a notebook, in order."""
+    import nbformat
+
+    try:
+        nb = nbformat.read(path, as_version=4)
+    except Exception as exc:  # nbformat raises several types for files that are not notebooks
+        raise ClassroomError(f"{path} is not a Jupyter notebook ({type(exc).__name__})") from None
+    return [c.metadata["nbgrader"]["grade_id"] for c in nb.cells if "grade_id" in c.metadata.get("nbgrader", {})]
+
+
+def _api(course: Path, timeout: int):
+    """An nbgrader API object for the course directory ``course`` (gradebook ``course/gradebook.db``)."""
+    from nbgrader.apps import NbGraderAPI
+    from traitlets.config import Config
+
+    config = Config()
+    config.CourseDirectory.root = str(course)
+    config.CourseDirectory.course_id = ASSIGNMENT
+    config.CourseDirectory.db_url = f"sqlite:///{course / 'gradebook.db'}"
+    config.Execute.timeout = timeout
+    return NbGraderAPI(config=config)
+
+
+def _generate(course: Path, source: Path, names: list[str], timeout: int = CELL_TIMEOUT):
+    """Copy the teacher's chapters ``names`` into ``course/source`` and run nbgrader's generate_assignment."""
+    found = chapters(source)
+    src = course / "source" / ASSIGNMENT
+    src.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        shutil.copy(found[name], src / f"{name}.ipynb")
+    api = _api(course, timeout)
+    with _environment(PATH=_path_with_our_scripts()):
+        result = api.generate_assignment(ASSIGNMENT)
+    if not result["success"]:
+        raise ClassroomError(f"nbgrader could not generate the assignment:\n{result.get('error') or result['log']}")
+    return api
+
+
+def release(out, source: Path = NOTEBOOKS_DIR, force: bool = False) -> list[Path]:
+    """Write the student edition of every chapter into the folder ``out``; returns the notebook paths.
+
+    nbgrader's generate_assignment does the work (solutions -> stubs, hidden tests and outputs removed).
+    """
+    out = Path(out)
+    names = list(chapters(source))
+    clash = [n for n in names if (out / f"{n}.ipynb").exists()]
+    if clash and not force:
+        raise ClassroomError(f"{out} already holds {clash[0]}.ipynb (and {len(clash) - 1} more): "
+                             "choose an empty folder or pass --force")
+    with tempfile.TemporaryDirectory(prefix="vdtutorial_release_") as tmp:
+        _generate(Path(tmp), source, names)
+        out.mkdir(parents=True, exist_ok=True)
+        written = []
+        for name in names:
+            shutil.copy(Path(tmp) / "release" / ASSIGNMENT / f"{name}.ipynb", out / f"{name}.ipynb")
+            written.append(out / f"{name}.ipynb")
+    return written
+
+
+@dataclass(frozen=True)
+class Submission:
+    """One submitted chapter notebook: ``student`` is the name of the folder the file sits in."""
+
+    student: str
+    chapter: str
+    path: Path
+
+
+def collect(paths, source: Path = NOTEBOOKS_DIR) -> list[Submission]:
+    """Check the submitted files and say whose and which chapter each is.
+
+    A path is a notebook ``STUDENT/NN_chapter.ipynb`` or a folder ``STUDENT/`` of such notebooks. Each must
+    be a notebook, be named after a chapter, and carry exactly the exercises of that chapter (a notebook of
+    another edition, or one whose exercise cells were deleted, is refused before anything runs).
+    """
+    found = chapters(source)
+    files = []
+    for raw in paths:
+        path = Path(raw)
+        if path.is_dir():
+            files += sorted(path.glob("*.ipynb"))
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise ClassroomError(f"{path}: no such file or folder")
+    if not files:
+        raise ClassroomError("no notebooks to grade")
+    subs, seen = [], set()
+    for path in files:
+        if path.suffix != ".ipynb":
+            raise ClassroomError(f"{path} is not a notebook (.ipynb)")
+        if path.stem not in found:
+            raise ClassroomError(f"{path}: there is no chapter {path.stem!r} (chapters: {', '.join(found)})")
+        student = re.sub(r"[^A-Za-z0-9_.-]", "_", path.resolve().parent.name)
+        expected, got = grade_ids(found[path.stem]), grade_ids(path)
+        if set(got) != set(expected):
+            missing = sorted(set(expected) - set(got)) or sorted(set(got) - set(expected))
+            raise ClassroomError(f"{path} is not from this edition of {path.stem} (exercise cells differ: "
+                                 f"{', '.join(missing[:3])}): submit the notebook released by `classroom release`")
+        if (student, path.stem) in seen:
+            raise ClassroomError(f"two submissions of {path.stem} for student {student!r}")
+        seen.add((student, path.stem))
+        subs.append(Submission(student, path.stem, path))
+    return subs
+
+
+def _path_with_our_scripts() -> str:
+    """PATH with this Python's scripts folder first: nbgrader opens its gradebook by running the ``alembic``
+    command, which is found only if the environment was activated (not when ``.venv/bin/python`` is called)."""
+    return os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])
+
+
+@contextlib.contextmanager
+def _environment(**values):
+    """Set environment variables for the kernels nbgrader starts (they inherit ours), then restore."""
+    saved = {k: os.environ.get(k) for k in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+@dataclass(frozen=True)
+class Score:
+    """Points of one exercise (one autograded-tests cell) of one student's chapter."""
+
+    student: str
+    chapter: str
+    exercise: str
+    score: float
+    max_score: float
+
+
+def grade(paths, out="grades", source: Path = NOTEBOOKS_DIR, timeout: int = CELL_TIMEOUT,
+          quick: bool = True) -> list[Score]:
+    """Autograde submissions with nbgrader; returns one :class:`Score` per exercise and student.
+
+    ``out`` becomes an nbgrader course directory (``source/``, ``submitted/``, ``autograded/``, the SQLite
+    gradebook ``gradebook.db``) plus ``grades.csv``. Each submission runs on a fresh kernel; a cell that
+    raises or runs longer than ``timeout`` seconds scores 0 where it is a test and does not stop the others.
+    ``quick`` runs the kernels in quick mode (small budgets: the exercises do not depend on them).
+    """
+    out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
+    subs = collect(paths, source)
+    api = _generate(out, source, sorted({s.chapter for s in subs}), timeout)
+    for sub in subs:
+        dest = out / "submitted" / sub.student / ASSIGNMENT / f"{sub.chapter}.ipynb"
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(sub.path, dest)
+    scores = []
+    kernel_env = {QUICK_ENV: "1" if quick else "0", "MPLBACKEND": "Agg", "PATH": _path_with_our_scripts()}
+    with _environment(**kernel_env), warnings.catch_warnings():
+        warnings.filterwarnings("ignore", module="sqlalchemy.*")   # nbgrader's session warnings, not ours
+        for student in sorted({s.student for s in subs}):
+            result = api.autograde(ASSIGNMENT, student)
+            if not result["success"]:
+                print(f"warning: nbgrader could not grade {student}: {(result.get('error') or '').strip()[-300:]}",
+                      file=sys.stderr)
+    from nbgrader.api import MissingEntry
+
+    with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
+        for sub in subs:
+            try:
+                nb = gb.find_submission_notebook(sub.chapter, ASSIGNMENT, sub.student)
+            except MissingEntry:  # autograding this notebook failed as a whole: no points
+                grades = [(g, 0.0, _max_points(gb, sub.chapter, g)) for g in _test_cells(gb, sub.chapter)]
+            else:
+                grades = [(g.name, float(g.score), float(g.max_score)) for g in nb.grades]
+            scores += [Score(sub.student, sub.chapter, name, s, m) for name, s, m in sorted(grades)]
+    write_csv(scores, out / "grades.csv")
+    return scores
+
+
+def _test_cells(gb, chapter: str) -> list[str]:
+    return [c.name for c in gb.find_notebook(chapter, ASSIGNMENT).grade_cells]
+
+
+def _max_points(gb, chapter: str, cell: str) -> float:
+    return float(gb.find_grade_cell(cell, chapter, ASSIGNMENT).max_score)
+
+
+def write_csv(scores: list[Score], path: Path) -> Path:
+    """One row per student and exercise: student, chapter, exercise, score, max_score."""
+    with open(path, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["student", "chapter", "exercise", "score", "max_score"])
+        for s in scores:
+            writer.writerow([s.student, s.chapter, s.exercise, s.score, s.max_score])
+    return path
+
+
+def table(scores: list[Score]) -> str:
+    """Points per exercise (rows) and student (columns), with each student's total."""
+    students = sorted({s.student for s in scores})
+    rows = sorted({(s.chapter, s.exercise, s.max_score) for s in scores})
+    got = {(s.student, s.chapter, s.exercise): s.score for s in scores}
+    width = max([len(e) for _, e, _ in rows] + [8])
+    lines = [f"{'exercise':<{width}} {'max':>5} " + " ".join(f"{st[:12]:>12}" for st in students)]
+    for chapter, exercise, top in rows:
+        cells = [got.get((st, chapter, exercise)) for st in students]
+        lines.append(f"{exercise:<{width}} {top:5g} " + " ".join(f"{'-' if c is None else f'{c:g}':>12}" for c in cells))
+    totals = [sum(s.score for s in scores if s.student == st) for st in students]
+    possible = [sum(s.max_score for s in scores if s.student == st) for st in students]
+    lines.append(f"{'total':<{width}} {'':>5} " + " ".join(f"{f'{t:g}/{p:g}':>12}" for t, p in zip(totals, possible)))
+    return "\n".join(lines)
+
+
+def _cmd_release(args) -> None:
+    written = release(args.out, Path(args.source), force=args.force)
+    print(f"wrote the student edition of {len(written)} chapters to {Path(args.out)}/ (nbgrader generate_assignment)")
+
+
+def _cmd_grade(args) -> None:
+    print(SAFETY_NOTE, file=sys.stderr)
+    scores = grade(args.submissions, args.out, Path(args.source), args.timeout, quick=not args.full)
+    print(table(scores))
+    print(f"\ngradebook {Path(args.out) / 'gradebook.db'}, table {Path(args.out) / 'grades.csv'}")
+
+
+def _run(func):
+    """Run a classroom command; a :class:`ClassroomError` becomes one line on stderr and exit code 2."""
+    def wrapped(args):
+        try:
+            func(args)
+        except ClassroomError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+    return wrapped
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """The ``classroom`` command of ``python -m vdtutorial``: ``release OUT`` and ``grade SUBMISSIONS...``."""
+    p = subparsers.add_parser("classroom", help="student edition and autograding with nbgrader")
+    sub = p.add_subparsers(dest="action", required=True, metavar="ACTION", help="release or grade")
+    r = sub.add_parser("release", help="write the student edition of every chapter (nbgrader generate_assignment)")
+    r.add_argument("out", help="folder for the student notebooks")
+    r.add_argument("--force", action="store_true", help="overwrite notebooks already in OUT")
+    r.add_argument("--source", default=str(NOTEBOOKS_DIR), help="the teacher's notebooks (default: %(default)s)")
+    r.set_defaults(func=_run(_cmd_release))
+    g = sub.add_parser("grade", help="autograde submitted notebooks (nbgrader autograde + gradebook), print a table",
+                       description="Each SUBMISSION is STUDENT/NN_chapter.ipynb or a folder STUDENT/ of them. "
+                                   + SAFETY_NOTE)
+    g.add_argument("submissions", nargs="+", help="STUDENT/NN_chapter.ipynb files or STUDENT/ folders")
+    g.add_argument("--out", default="grades", help="nbgrader course folder with gradebook.db and grades.csv "
+                                                   "(default: %(default)s)")
+    g.add_argument("--timeout", type=int, default=CELL_TIMEOUT, help="seconds per cell (default: %(default)s)")
+    g.add_argument("--full", action="store_true", help="run the submissions with full budgets (default: quick mode)")
+    g.add_argument("--source", default=str(NOTEBOOKS_DIR), help="the teacher's notebooks (default: %(default)s)")
+    g.set_defaults(func=_run(_cmd_grade))
+    return p
