@@ -80,8 +80,9 @@ from vdtutorial.demos import DemoFileError, Demos, demo_command, demo_path, gene
 from vdtutorial.envs import ENV_IDS, HORIZON
 from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
 from vdtutorial.policy import GaussianPolicy, make_policy
-from vdtutorial.pretrain import (CheckpointError, PretrainConfig, checkpoint_path, default_config, load_checkpoint,
-                                 pretrain, pretrain_command, save_checkpoint)
+from vdtutorial.initial_sigma import InitialSigma
+from vdtutorial.pretrain import (DEFAULT_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path, default_config,
+                                 load_checkpoint, pretrain, pretrain_command, save_checkpoint, set_initial_sigma)
 from vdtutorial.settings import DATA_DIR, QUICK, budget
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 from vdtutorial.vd import sparsity_report
@@ -150,8 +151,17 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
 
     The policy is always returned as read back from the checkpoint, so a fresh and a reused
     pre-training hand TRPO exactly the same object (parameters, and every ``requires_grad`` at its
-    default: pre-training freezes sigma, the RL phase trains it). It is not pruned yet."""
+    default: pre-training freezes sigma, the RL phase trains it). It is not pruned yet.
+    The checkpoint holds mu with the default initial sigma; another ``config.initial_sigma`` is applied
+    on top of it (mu does not depend on it), an L2 policy's "spread" following the VD checkpoint's mu."""
     cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
+    if cfg.initial_sigma != DEFAULT_INITIAL_SIGMA:
+        base = replace(cfg, initial_sigma=DEFAULT_INITIAL_SIGMA)
+        policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress)
+        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, base, checkpoints_root, progress).mu
+                      if reg == "l2" and cfg.initial_sigma == "spread" else None)
+        policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, spread_net=spread_net)
+        return policy
     meta = demos.meta
     if checkpoints_root is None:  # quick mode never replaces the shipped full-scale checkpoints in data/
         checkpoints_root = budget(None, RUNS_DIR / "quick")
@@ -198,7 +208,8 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
     try:
         if method == "none":
             torch.manual_seed(seed)
-            policy = make_policy(env.single_observation_space, env.single_action_space.shape[0], variational=False)
+            policy = make_policy(env.single_observation_space, env.single_action_space.shape[0], variational=False,
+                                 init_std=InitialSigma.parse(cfg.initial_sigma).value)  # no demos: fixed sigma
         else:
             policy = pretrained_policy(method, load_demos(task, demos), obs_mode, seed, cfg, checkpoints_root,
                                        progress)
