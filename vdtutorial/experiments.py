@@ -195,7 +195,8 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
     demos: the data set of the pre-training (a :class:`Demos` or a path; default the shipped 8000-sample,
         Sigma = 0.5 set); ignored by "none".
     pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
-        ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.
+        ``obs_mode``); its ``image_size`` is also the camera's in the RL environment, its ``initial_sigma``
+        the sigma RL starts from (for "none", which has no demonstrations: always its fixed value).
     trpo_config: default :func:`default_trpo_config` of ``obs_mode``.
     checkpoints_root: where pre-trained checkpoints are looked up and saved (see :func:`pretrained_policy`).
     """
