@@ -21,7 +21,11 @@ The options (:class:`InitialSigma`, ``kind``)
         the data term of eq. 3, log N(a | mu(s), sigma_psi(s)), maximised over psi only. This is the
         pre-training of Section IV completed for the second moment: sigma then measures how far the
         expert's labels lie from the cloned mean, state by state. It is fitted on the training split of
-        pre-training (the held-out episodes stay held out) and applies to VD and L2 alike.
+        pre-training (the held-out episodes stay held out) and applies to VD and L2 alike. It can
+        overfit a small set: on the shipped 8000 samples (seed 0) it raised the held-out log-likelihood
+        of the expert's actions from 1.08 to 5.33 (VD) and 1.15 to 4.89 (L2), but on 600 samples cloned
+        for 5 epochs the held-out NLL rose from 0.82 to 17 (sigma shrinks on training states whose
+        labels mu happens to fit). Early stopping on the held-out episodes would guard against it.
     ``"spread"`` (c) -- beyond the paper, its Section VI proposal: sigma_psi(s) fitted to the VD mean
         network's predictive spread, the standard deviation of mu(s) over weights sampled from q(W)
         (eq. 4's multiplicative Gaussian noise, with the weights that RL prunes, log alpha > 3, removed,

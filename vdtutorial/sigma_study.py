@@ -157,6 +157,7 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
             value = InitialSigma.parse(option).value
             if option in none_options and starts.setdefault(value, option) == option:
                 jobs.append(_Run("none", option, seed, steps, scratch / f"none_{option}_seed{seed}.csv"))
+    reused = sum(job.csv_path.exists() and len(read_rows(job.csv_path)) >= job.steps // EPISODE_STEPS for job in jobs)
     start = time.perf_counter()
     rows = [row for result in parallel_map(_run, jobs, workers) for row in result]
     pre_rl = parallel_map(_mean_action_job, [(m, s) for s in seeds for m in ("vd", "l2")], workers)
@@ -174,6 +175,10 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
                           "--workers", str(workers)])
     record = {"command": command, "rule": "data/results/sigma_study/RULE.md", "options": list(options),
               "seeds": list(seeds), "steps": steps, "window": window, "wall_time_s": wall,
+              "runs_read_from_earlier_calls": reused, "runs": len(jobs),
+              "reuse_note": "runs read from the per-run CSVs (runs/sigma_study/) of earlier, interrupted calls with more "
+                            "seeds or steps: TRPO's first k iterations do not depend on the budget; wall_time_s covers "
+                            "this call only",
               "pretrain_config": asdict(default_config("vd")), "first_iterations": FIRST, "last_iterations": LAST,
               "none_note": "no pre-training starts from the fixed sigma of its option (0.3 for demos and spread); "
                            "its runs are shared by the options with the same starting sigma",
