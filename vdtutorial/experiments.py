@@ -81,7 +81,7 @@ from vdtutorial.envs import ENV_IDS, HORIZON
 from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
 from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.initial_sigma import InitialSigma
-from vdtutorial.pretrain import (DEFAULT_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path, default_config,
+from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path, default_config,
                                  load_checkpoint, pretrain, pretrain_command, save_checkpoint, set_initial_sigma)
 from vdtutorial.settings import DATA_DIR, QUICK, budget
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
@@ -155,8 +155,8 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     The checkpoint holds mu with the default initial sigma; another ``config.initial_sigma`` is applied
     on top of it (mu does not depend on it), an L2 policy's "spread" following the VD checkpoint's mu."""
     cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
-    if cfg.initial_sigma != DEFAULT_INITIAL_SIGMA:
-        base = replace(cfg, initial_sigma=DEFAULT_INITIAL_SIGMA)
+    if cfg.initial_sigma != PAPER_INITIAL_SIGMA:
+        base = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
         policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress)
         spread_net = (pretrained_policy("vd", demos, obs_mode, seed, base, checkpoints_root, progress).mu
                       if reg == "l2" and cfg.initial_sigma == "spread" else None)

@@ -50,8 +50,10 @@ from vdtutorial.settings import DATA_DIR, budget
 from vdtutorial.vd import model_kl, sparsity_report
 
 REGULARISERS = ("vd", "l2")
-#: ``PretrainConfig.initial_sigma`` by default: the paper's fixed sigma, 0.3 (option (a)).
-DEFAULT_INITIAL_SIGMA = InitialSigma().spelling
+#: The paper's fixed initial sigma, 0.3 (option (a)): the default of ``PretrainConfig.initial_sigma`` and the sigma
+#: of the checkpoints that experiments cache (mu is the same under every option, which they apply on top)
+#: and of checkpoints made before the option existed. Changing the default keeps this constant.
+PAPER_INITIAL_SIGMA = InitialSigma().spelling
 
 
 @dataclass
@@ -79,7 +81,7 @@ class PretrainConfig:
     l2: float = 1e-4
     val_fraction: float = 0.1
     image_size: int = 128
-    initial_sigma: str = DEFAULT_INITIAL_SIGMA
+    initial_sigma: str = PAPER_INITIAL_SIGMA
 
     def __post_init__(self):
         self.initial_sigma = InitialSigma.parse(self.initial_sigma).spelling
@@ -234,17 +236,17 @@ def evaluate_imitation(policy: GaussianPolicy, obs, actions: torch.Tensor, idx: 
 
 # -- checkpoints -----------------------------------------------------------------------------------------
 
-def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sigma: str = DEFAULT_INITIAL_SIGMA) -> str:
-    sigma = "" if initial_sigma == DEFAULT_INITIAL_SIGMA else f" --sigma {initial_sigma}"
+def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sigma: str = PAPER_INITIAL_SIGMA) -> str:
+    sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f" --sigma {initial_sigma}"
     return f"python -m vdtutorial pretrain --reg {reg} --demos {demos_path} --seed {seed} --obs {obs_mode}{sigma}"
 
 
 def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
-                    initial_sigma: str = DEFAULT_INITIAL_SIGMA) -> Path:
+                    initial_sigma: str = PAPER_INITIAL_SIGMA) -> Path:
     """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma`` is added
     to the name (``..._seed0_initsigma-demos.pt``), so that it never replaces the default checkpoint."""
     m = demos_meta
-    sigma = "" if initial_sigma == DEFAULT_INITIAL_SIGMA else f"_initsigma-{initial_sigma}"
+    sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f"_initsigma-{initial_sigma}"
     return (Path(root or DATA_DIR) / "checkpoints"
             / f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}_{reg}_{obs_mode}_seed{seed}{sigma}.pt")
 
@@ -280,7 +282,7 @@ def load_checkpoint(path, **expected) -> GaussianPolicy:
     except Exception as exc:  # torch raises several types for a damaged or foreign file
         raise CheckpointError(f"checkpoint {path} is corrupt or not a vdtutorial checkpoint ({exc}). {fix}") from exc
     # checkpoints made before ``initial_sigma`` existed started RL from the fixed default
-    where = {"initial_sigma": DEFAULT_INITIAL_SIGMA, **meta.get("demos", {}), **meta.get("config", {}), **config}
+    where = {"initial_sigma": PAPER_INITIAL_SIGMA, **meta.get("demos", {}), **meta.get("config", {}), **config}
     for key, want in expected.items():
         if where.get(key) != want:
             raise CheckpointError(f"checkpoint {path} has {key}={where.get(key)!r}, expected {want!r}. "
