@@ -115,17 +115,24 @@ def _cmd_pretrain(args) -> None:
     import torch
 
     from vdtutorial.demos import Demos
-    from vdtutorial.pretrain import checkpoint_path, default_config, pretrain, pretrain_command, save_checkpoint
+    from vdtutorial.pretrain import (checkpoint_path, default_config, load_checkpoint, pretrain, pretrain_command,
+                                     save_checkpoint)
     from vdtutorial.vd import sparsity_report
 
     torch.set_num_threads(1)
     demos = Demos.load(args.demos)
-    out = output_path(args.out, checkpoint_path(demos.meta, args.reg, args.obs, args.seed, root=RUNS_DIR), args.force)
     config = default_config(args.reg, args.obs)
     if args.epochs:
         config = dataclasses.replace(config, epochs=args.epochs)
-    policy, history = pretrain(demos, config, seed=args.seed, progress=_progress(args))
-    command = pretrain_command(args.reg, args.demos, args.seed, args.obs) + (f" --epochs {args.epochs}" if args.epochs else "")
+    config = dataclasses.replace(config, initial_sigma=args.sigma)
+    out = output_path(args.out, checkpoint_path(demos.meta, args.reg, args.obs, args.seed, root=RUNS_DIR,
+                                                initial_sigma=config.initial_sigma), args.force)
+    spread_net = None
+    if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
+        spread_net = load_checkpoint(checkpoint_path(demos.meta, "vd", args.obs, args.seed), variational=True).mu
+    policy, history = pretrain(demos, config, seed=args.seed, progress=_progress(args), spread_net=spread_net)
+    command = (pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
+               + (f" --epochs {args.epochs}" if args.epochs else ""))
     save_checkpoint(policy, out, {"command": command})
     print(f"held-out imitation MSE {history[-1]['val_mse']:.4f}")
     if args.reg == "vd":
@@ -280,6 +287,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--obs", choices=("state", "rgbd"), default="state",
                    help="policy input: joint angles + cup position, or the paper's RGBD image + joints (default state)")
     p.add_argument("--epochs", type=positive_int, default=None, help=_epochs_help())
+    p.add_argument("--sigma", default="0.3",
+                   help="sigma at the start of RL: a number (fixed, the paper's setting; default 0.3), 'demos' "
+                        "(maximum likelihood on the demonstrations, mu frozen) or 'spread' (fitted to the VD "
+                        "network's predictive spread; L2 follows the VD checkpoint of the same seed)")
     p.add_argument("--out", default=None, help="checkpoint file (default: runs/checkpoints/TASK_nN_sigmaS_REG_OBS_seedK.pt)")
     _add_force(p)
     _add_progress(p)

@@ -25,6 +25,10 @@ Both use Adam, minibatches of ``batch_size``, a held-out split by whole episodes
 trajectory are strongly correlated; splitting by sample would leak), and log per epoch the training
 loss, the held-out mean squared error of the (deterministic, pruned) mean action and, for VD, the
 fraction of weights of ``mu`` with log alpha > 3.
+
+When mu is cloned, the sigma network is set by ``initial_sigma``, the option that decides what sigma RL
+starts from (:mod:`vdtutorial.initial_sigma`): a fixed value (the paper's setting, the default 0.3), a
+maximum-likelihood fit to the demonstrations, or a fit to the VD network's predictive spread.
 """
 from __future__ import annotations
 
@@ -41,11 +45,16 @@ from tqdm.auto import tqdm
 import vdtutorial
 from vdtutorial.demos import Demos, demo_path
 from vdtutorial.envs import ENV_IDS
+from vdtutorial.initial_sigma import InitialSigma, apply_initial_sigma
 from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor
 from vdtutorial.settings import DATA_DIR, budget
 from vdtutorial.vd import model_kl, sparsity_report
 
 REGULARISERS = ("vd", "l2")
+#: The paper's fixed initial sigma, 0.3 (option (a)): the default of ``PretrainConfig.initial_sigma`` and the sigma
+#: of the checkpoints that experiments cache (mu is the same under every option, which they apply on top)
+#: and of checkpoints made before the option existed. Changing the default keeps this constant.
+PAPER_INITIAL_SIGMA = InitialSigma().spelling
 
 
 @dataclass
@@ -65,6 +74,9 @@ class PretrainConfig:
         largest set's N for every set) keeps the prior's weight per sample the same across data sets of
         different sizes, so that Table I's rows differ only by their data; the paper does not say which
         it used (see ``experiments.table1``).
+    initial_sigma: sigma at the start of RL, set after mu is cloned (:mod:`vdtutorial.initial_sigma`):
+        a number (option (a), that fixed sigma), "demos" (b) or "spread" (c). Default: the paper's fixed
+        0.3. It does not change mu.
     """
 
     reg: str = "vd"
@@ -77,8 +89,10 @@ class PretrainConfig:
     val_fraction: float = 0.1
     image_size: int = 128
     kl_samples: int | None = None
+    initial_sigma: str = PAPER_INITIAL_SIGMA
 
     def __post_init__(self):
+        self.initial_sigma = InitialSigma.parse(self.initial_sigma).spelling
         if self.reg not in REGULARISERS:
             raise ValueError(f"reg must be one of {REGULARISERS}, got {self.reg!r}")
         if self.obs_mode not in ("state", "rgbd"):
@@ -142,11 +156,13 @@ def split_by_episode(demos: Demos, val_fraction: float, seed: int) -> tuple[np.n
 
 
 def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
-             observations=None) -> tuple[GaussianPolicy, list[dict]]:
+             observations=None, spread_net=None) -> tuple[GaussianPolicy, list[dict]]:
     """Behavioural cloning of ``demos`` with the chosen regulariser (default: :func:`default_config` for
-    state inputs). Returns the policy (in eval mode, sigma trainable again; a VD policy is not yet pruned:
-    call ``policy.prune_()`` to start RL) and one log row per epoch.
-    ``observations`` may pass inputs already made by :func:`demo_observations`."""
+    state inputs), then sigma set by ``config.initial_sigma`` (:func:`set_initial_sigma`). Returns the
+    policy (in eval mode, sigma trainable again; a VD policy is not yet pruned: call ``policy.prune_()``
+    to start RL) and one log row per epoch.
+    ``observations`` may pass inputs already made by :func:`demo_observations`; ``spread_net``: the VD mean
+    network whose spread an L2 policy follows under ``initial_sigma="spread"``."""
     cfg = config or PretrainConfig()
     torch.manual_seed(seed)
     task = demos.meta["task"]
@@ -188,8 +204,28 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
         bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
     policy.eval()
     policy.sigma.requires_grad_(True)  # frozen for behavioural cloning only: the RL phase trains sigma too
-    policy.pretrain_info = {"config": asdict(cfg), "seed": seed, "demos": dict(demos.meta), "history": history}
+    sigma_record = set_initial_sigma(policy, demos, cfg, seed, obs, spread_net)
+    policy.pretrain_info = {"config": asdict(cfg), "seed": seed, "demos": dict(demos.meta), "history": history,
+                            "initial_sigma": sigma_record}
     return policy, history
+
+
+def set_initial_sigma(policy: GaussianPolicy, demos: Demos, config: PretrainConfig, seed: int,
+                      observations=None, spread_net=None) -> dict:
+    """Set the sigma that RL starts from by ``config.initial_sigma`` (:mod:`vdtutorial.initial_sigma`),
+    fitting on the training split of pre-training with ``seed`` (options b and c). Also applies to a
+    policy read back from a checkpoint made with another option: mu is the same whatever the option.
+    Returns what was done (kind, and for a fit its losses and the resulting sigma)."""
+    spec = InitialSigma.parse(config.initial_sigma)
+    if spec.kind == "fixed":
+        return apply_initial_sigma(policy, spec)
+    if spec.kind == "spread" and spread_net is None and not policy.config["variational"]:
+        raise ValueError("initial_sigma='spread' follows the VD network's spread: an L2 policy needs the VD "
+                         "network pre-trained on the same demonstrations (spread_net)")
+    obs = observations if observations is not None else demo_observations(demos, config.obs_mode, config.image_size)
+    train_idx, _ = split_by_episode(demos, config.val_fraction, seed)
+    actions = torch.as_tensor(demos.actions[train_idx], dtype=torch.float32)
+    return apply_initial_sigma(policy, spec, _take(obs, train_idx), actions, spread_net, seed)
 
 
 @torch.no_grad()
@@ -212,14 +248,19 @@ def evaluate_imitation(policy: GaussianPolicy, obs, actions: torch.Tensor, idx: 
 
 # -- checkpoints -----------------------------------------------------------------------------------------
 
-def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str) -> str:
-    return f"python -m vdtutorial pretrain --reg {reg} --demos {demos_path} --seed {seed} --obs {obs_mode}"
+def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sigma: str = PAPER_INITIAL_SIGMA) -> str:
+    sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f" --sigma {initial_sigma}"
+    return f"python -m vdtutorial pretrain --reg {reg} --demos {demos_path} --seed {seed} --obs {obs_mode}{sigma}"
 
 
-def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None) -> Path:
-    """Conventional checkpoint name under ``data/checkpoints``."""
+def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
+                    initial_sigma: str = PAPER_INITIAL_SIGMA) -> Path:
+    """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma`` is added
+    to the name (``..._seed0_initsigma-demos.pt``), so that it never replaces the default checkpoint."""
     m = demos_meta
-    return Path(root or DATA_DIR) / "checkpoints" / f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}_{reg}_{obs_mode}_seed{seed}.pt"
+    sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f"_initsigma-{initial_sigma}"
+    return (Path(root or DATA_DIR) / "checkpoints"
+            / f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}_{reg}_{obs_mode}_seed{seed}{sigma}.pt")
 
 
 def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> Path:
@@ -266,7 +307,8 @@ def load_checkpoint(path, **expected) -> GaussianPolicy:
         config, state, meta = blob["config"], blob["state_dict"], blob.get("meta", {})
     except Exception as exc:  # torch raises several types for a damaged or foreign file
         raise CheckpointError(f"checkpoint {path} is corrupt or not a vdtutorial checkpoint ({exc}). {fix}") from exc
-    where = {**meta.get("demos", {}), **meta.get("config", {}), **config}
+    # checkpoints made before ``initial_sigma`` existed started RL from the fixed default
+    where = {"initial_sigma": PAPER_INITIAL_SIGMA, **meta.get("demos", {}), **meta.get("config", {}), **config}
     for key, want in expected.items():
         if where.get(key) != want:
             raise CheckpointError(f"checkpoint {path} has {key}={where.get(key)!r}, expected {want!r}. "

@@ -18,9 +18,11 @@ from vdtutorial.envs import ENV_IDS, HORIZON
 from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
 from vdtutorial.experiments.resume import check_resumable, read_run_state, restore_run_state, save_run_state
 from vdtutorial.experiments.rows import write_csv
+from vdtutorial.initial_sigma import InitialSigma
 from vdtutorial.policy import GaussianPolicy, make_policy
-from vdtutorial.pretrain import (CheckpointError, PretrainConfig, checkpoint_path, default_config, load_checkpoint,
-                                 pretrain, pretrain_command, save_checkpoint)
+from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path,
+                                 default_config, load_checkpoint, pretrain, pretrain_command, save_checkpoint,
+                                 set_initial_sigma)
 from vdtutorial.settings import DATA_DIR, RUNS_DIR, budget
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 
@@ -75,8 +77,17 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
 
     The policy is always returned as read back from a checkpoint, so a fresh and a reused pre-training
     hand TRPO exactly the same object (parameters, and every ``requires_grad`` at its default:
-    pre-training freezes sigma, the RL phase trains it). It is not pruned yet."""
+    pre-training freezes sigma, the RL phase trains it). It is not pruned yet.
+    The checkpoint holds mu with the default initial sigma; another ``config.initial_sigma`` is applied
+    on top of it (mu does not depend on it), an L2 policy's "spread" following the VD checkpoint's mu."""
     cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
+    if cfg.initial_sigma != PAPER_INITIAL_SIGMA:
+        base = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
+        policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress)
+        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, base, checkpoints_root, progress).mu
+                      if reg == "l2" and cfg.initial_sigma == "spread" else None)
+        policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, spread_net=spread_net)
+        return policy
     meta = demos.meta
     root = Path(checkpoints_root) if checkpoints_root is not None else budget(RUNS_DIR, RUNS_DIR / "quick")
     path = checkpoint_path(meta, reg, obs_mode, seed, root=root)
@@ -153,7 +164,8 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     try:
         if method == "none":
             torch.manual_seed(seed)
-            policy = make_policy(env.single_observation_space, env.single_action_space.shape[0], variational=False)
+            policy = make_policy(env.single_observation_space, env.single_action_space.shape[0], variational=False,
+                                 init_std=InitialSigma.parse(cfg.initial_sigma).value)  # no demos: fixed sigma
         else:
             policy = pretrained_policy(method, data, obs_mode, seed, cfg, checkpoints_root, progress)
             if method == "vd":

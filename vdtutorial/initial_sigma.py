@@ -1,0 +1,223 @@
+"""Sigma at the start of RL: how the standard deviation of pi(a|s) = N(mu(s), sigma(s)) is set when
+pre-training ends. An explicit option, applied the same way to every pre-training method (VD and L2).
+
+Why it matters
+    The paper (Section IV) trains only mu in pre-training: "only the parameters of mu_phi(s) are
+    trained in this stage, while those of sigma_psi(s) remain fixed". RL therefore starts from whatever
+    sigma the initialisation gives, here ``init_std`` = 0.3 rad for every state. The cloned means are
+    good (measured on reaching, 200-step episodes, mean action: VD 14.6, L2 20.8 successes) but sampled
+    with sigma = 0.3 they score about 2, so the first TRPO iterations -- which sample -- start almost
+    from scratch. The paper's Section VI names the gap: "the pre-training procedure trains only the mean
+    function mu_phi(s) of the policy, and leaves the SD function sigma_psi(s) untouched. Since mu_phi(s)
+    is a dropout model, it inherently contains information about its own uncertainty. There is potential
+    to use this uncertainty information to learn an appropriate SD function."
+
+The options (:class:`InitialSigma`, ``kind``)
+    ``"fixed"`` (a) -- the paper's setting. The sigma network keeps its initialisation and its output
+        bias is set so that sigma = ``value`` (up to the small random head weights, ``HEAD_INIT_SCALE``,
+        which make it vary by a few per cent between states). ``value`` = 0.3 = the policy's
+        ``init_std`` reproduces today's behaviour bit for bit.
+    ``"demos"`` (b) -- sigma_psi(s) fitted by maximum likelihood of the demonstrations with mu frozen:
+        the data term of eq. 3, log N(a | mu(s), sigma_psi(s)), maximised over psi only. This is the
+        pre-training of Section IV completed for the second moment: sigma then measures how far the
+        expert's labels lie from the cloned mean, state by state. It is fitted on the training split of
+        pre-training (the held-out episodes stay held out) and applies to VD and L2 alike. It can
+        overfit a small set: on the shipped 8000 samples (seed 0) it raised the held-out log-likelihood
+        of the expert's actions from 1.08 to 5.33 (VD) and 1.15 to 4.89 (L2), but on 600 samples cloned
+        for 5 epochs the held-out NLL rose from 0.82 to 17 (sigma shrinks on training states whose
+        labels mu happens to fit). Early stopping on the held-out episodes would guard against it.
+    ``"spread"`` (c) -- beyond the paper, its Section VI proposal: sigma_psi(s) fitted to the VD mean
+        network's predictive spread, the standard deviation of mu(s) over weights sampled from q(W)
+        (eq. 4's multiplicative Gaussian noise, with the weights that RL prunes, log alpha > 3, removed,
+        since RL starts from the pruned network). The policy then explores where the dropout model is
+        unsure. The fit minimises the squared error of log sigma_psi(s) against the log spread at the
+        demonstration states (training split).
+
+Methods without the ingredient an option needs
+    L2 under (c): an L2 network has no noise model, so its sigma is fitted to the spread of the VD
+        network pre-trained on the same demonstrations with the same seed (``spread_net``). Both methods
+        then start with the same exploration map and differ only in mu, which is what the comparison
+        of VD against L2 is about.
+    No pre-training ("none"): there are no demonstrations and no mean network to fit to, so under every
+        option it starts from a fixed sigma, ``value`` (0.3 by default, as in the paper).
+
+How a fit works (b and c)
+    mu is evaluated once in eval mode (deterministic, log alpha > 3 dropped: the network RL starts from)
+    and frozen. The sigma network, also in eval mode (deterministic for a VD policy too), is trained with
+    full-batch Adam for ``fit_steps`` steps at learning rate ``lr`` from its initialisation; only its
+    weights and biases move (a VD sigma network's log sigma^2 gets no gradient in eval mode and is frozen
+    in RL anyway). Full batch: the demonstration sets are small (<= 8000 state vectors), so this is exact
+    and deterministic.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from vdtutorial.vd import svdo_layers
+
+KINDS = ("fixed", "demos", "spread")
+#: The paper's (and today's) initial sigma, the policy's ``init_std``: the default of option (a).
+DEFAULT_VALUE = 0.3
+
+
+@dataclass(frozen=True)
+class InitialSigma:
+    """Which sigma RL starts from (see the module docstring).
+
+    kind: "fixed" (a), "demos" (b) or "spread" (c).
+    value: sigma of option (a), radians; also the start of "none" under every option.
+    fit_steps, lr: full-batch Adam steps and step size of the fits (b, c).
+    spread_samples: weight samples from q(W) per state to estimate the VD spread (c).
+    """
+
+    kind: str = "fixed"
+    value: float = DEFAULT_VALUE
+    fit_steps: int = 500
+    lr: float = 3e-3
+    spread_samples: int = 64
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"initial sigma kind must be one of {KINDS}, got {self.kind!r}")
+        if not self.value > 0 or self.fit_steps < 1 or self.spread_samples < 2:
+            raise ValueError("need value > 0, fit_steps >= 1 and spread_samples >= 2")
+
+    @classmethod
+    def parse(cls, text: str | float) -> "InitialSigma":
+        """From its command-line / config spelling: a number (option (a) with that value), "demos" or
+        "spread"."""
+        if isinstance(text, (int, float)):
+            return cls("fixed", float(text))
+        if text in ("demos", "spread"):
+            return cls(text)
+        try:
+            return cls("fixed", float(text))
+        except ValueError:
+            raise ValueError(f"initial sigma must be a number (a fixed sigma), 'demos' or 'spread', got {text!r}") from None
+
+    @property
+    def spelling(self) -> str:
+        """Inverse of :meth:`parse`: what a config or the command line stores."""
+        return f"{self.value:g}" if self.kind == "fixed" else self.kind
+
+
+def _softplus_inverse(y: float) -> float:
+    return math.log(math.expm1(y))
+
+
+@torch.no_grad()
+def set_fixed_sigma(policy, value: float) -> None:
+    """Option (a): set the sigma network's output bias so that sigma = ``value`` (the same formula as the
+    policy's constructor, so ``value`` = ``init_std`` changes nothing)."""
+    if not value > policy.min_std:
+        raise ValueError(f"a fixed sigma must exceed the policy's floor min_std = {policy.min_std}, got {value}")
+    policy.sigma.head[0].bias.fill_(_softplus_inverse(value - policy.min_std))
+
+
+def _sigma_of(policy, obs) -> torch.Tensor:
+    return policy.min_std + F.softplus(policy.sigma(obs))
+
+
+@torch.no_grad()
+def mean_action(policy, obs) -> torch.Tensor:
+    """mu(s) of the network RL starts from: eval mode (deterministic, log alpha > 3 dropped)."""
+    was_training = policy.training
+    policy.eval()
+    out = policy.mu(obs)
+    policy.train(was_training)
+    return out
+
+
+def gaussian_nll(mu: torch.Tensor, sigma: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    """Mean over samples of -log N(a | mu, diag(sigma^2)), summed over action dimensions (eq. 3's data
+    term with the sign flipped)."""
+    return -torch.distributions.Normal(mu, sigma).log_prob(actions).sum(-1).mean()
+
+
+def _fit_sigma(policy, obs, loss_of_sigma, spec: InitialSigma) -> list[float]:
+    """Full-batch Adam on the sigma network's parameters (eval mode) to minimise ``loss_of_sigma``."""
+    was_training = policy.training
+    policy.eval()
+    params = [p for p in policy.sigma.parameters() if p.requires_grad]
+    optimiser = torch.optim.Adam(params, lr=spec.lr)
+    losses = []
+    for _ in range(spec.fit_steps):
+        loss = loss_of_sigma(_sigma_of(policy, obs))
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        losses.append(loss.item())
+    policy.train(was_training)
+    return losses
+
+
+def fit_sigma_to_demos(policy, obs, actions: torch.Tensor, spec: InitialSigma = InitialSigma("demos")) -> list[float]:
+    """Option (b): maximum likelihood of the demonstrations ``(obs, actions)`` over sigma's parameters,
+    mu frozen. Returns the negative log-likelihood per step."""
+    mu = mean_action(policy, obs)
+    return _fit_sigma(policy, obs, lambda sigma: gaussian_nll(mu, sigma, actions), spec)
+
+
+@torch.no_grad()
+def vd_spread(mu_net: nn.Module, obs, samples: int = 64, seed: int = 0) -> torch.Tensor:
+    """Predictive standard deviation of a sparse-VD mean network at each state: the std of its output over
+    ``samples`` weight draws from q(W) (eq. 4, local reparameterisation: one independent draw per state
+    and pass). The weights that RL prunes (log alpha > 3) are removed, variance included, so the spread
+    is that of the network RL starts from. Raises for a network without VD layers."""
+    layers = svdo_layers(mu_net)
+    if not layers:
+        raise ValueError("the predictive spread needs a sparse-VD network (option 'spread' takes it from the VD "
+                         "model: pass spread_net for an L2 policy)")
+    net = copy.deepcopy(mu_net)
+    for layer in svdo_layers(net):
+        keep = layer.keep_mask()
+        layer.weight.mul_(keep)
+        layer.log_sigma2.masked_fill_(~keep, -80.0)  # exp(-80) ~ 0: a removed weight carries no noise
+        layer.pruned.fill_(False)
+    net.train()
+    generator_state = torch.random.get_rng_state()
+    torch.manual_seed(seed)
+    draws = torch.stack([net(obs) for _ in range(samples)])
+    torch.random.set_rng_state(generator_state)
+    return draws.std(dim=0)
+
+
+def fit_sigma_to_spread(policy, obs, spread: torch.Tensor, spec: InitialSigma = InitialSigma("spread")) -> list[float]:
+    """Option (c): least squares of log sigma_psi(s) against log ``spread`` (floored at the policy's
+    ``min_std`` plus 1e-4, which sigma cannot go below). Returns the loss per step."""
+    target = torch.log(spread.clamp_min(policy.min_std + 1e-4))
+    return _fit_sigma(policy, obs, lambda sigma: ((torch.log(sigma) - target) ** 2).mean(), spec)
+
+
+def apply_initial_sigma(policy, spec: InitialSigma, obs=None, actions: torch.Tensor | None = None,
+                        spread_net: nn.Module | None = None, seed: int = 0) -> dict:
+    """Set ``policy``'s sigma by option ``spec`` and return a short record of what was done.
+
+    obs, actions: the demonstrations to fit on (options b and c; ignored by a).
+    spread_net: the VD mean network whose spread option (c) follows (default: ``policy.mu``, which must
+        then be a VD network). seed: seeds the weight draws of the spread."""
+    if spec.kind == "fixed":
+        set_fixed_sigma(policy, spec.value)
+        return {"kind": "fixed", "value": spec.value}
+    if obs is None or actions is None:
+        raise ValueError(f"initial sigma {spec.kind!r} is fitted on demonstrations: pass obs and actions")
+    actions = torch.as_tensor(actions, dtype=torch.float32)
+    if spec.kind == "demos":
+        losses = fit_sigma_to_demos(policy, obs, actions, spec)
+    else:
+        spread = vd_spread(spread_net if spread_net is not None else policy.mu, obs, spec.spread_samples, seed)
+        losses = fit_sigma_to_spread(policy, obs, spread, spec)
+    with torch.no_grad():
+        was_training = policy.training
+        policy.eval()
+        sigma = _sigma_of(policy, obs)
+        nll = gaussian_nll(policy.mu(obs), sigma, actions).item()
+        policy.train(was_training)
+    return {"kind": spec.kind, "loss_first": losses[0], "loss_last": losses[-1], "demos_nll": nll,
+            "sigma_mean": sigma.mean().item(), "sigma_median": sigma.median().item()}
