@@ -13,7 +13,8 @@ from vdtutorial.trpo import TRPO, TRPOConfig, fisher_vector_product, flat_grad, 
 from vdtutorial.vd import svdo_layers
 
 STATE_SPACE = spaces.Box(-1.0, 1.0, (9,), np.float32)
-IMAGE_SPACE = spaces.Dict({"rgbd": spaces.Box(0.0, 3.0, (4, 36, 36), np.float32),
+IMAGE_SPACE = spaces.Dict({"rgb": spaces.Box(0, 255, (3, 36, 36), np.uint8),
+                           "depth": spaces.Box(0.0, 3.0, (36 * 36,), np.float32),
                            "joints": spaces.Box(-np.pi, np.pi, (6,), np.float32)})
 SMALL_IMAGE_NET = dict(conv_channels=(2, 3, 3), scene_hidden=(5,), joint_hidden=(5,))  # 36 -> 8 -> 3 -> 1 pixels
 
