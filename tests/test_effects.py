@@ -1,12 +1,16 @@
 """Effect sizes of the paper's claims: Welch intervals, the bootstrap of steps-to-reach, verdicts."""
+import json
 import math
+import re
 
 import numpy as np
 import pytest
 from scipy import stats
 
+from vdtutorial.experiments import read_rows
 from vdtutorial.experiments.effects import (CLAIMS, claim_effects, claim_table, steps_to_reach_interval, verdict,
                                             welch_interval)
+from vdtutorial.settings import DATA_DIR
 
 
 def test_welch_interval_matches_scipy():
@@ -60,3 +64,17 @@ def test_claim_effects_of_a_clear_and_an_unclear_comparison():
 
 def test_every_figure_has_claims():
     assert set(CLAIMS) == {"fig4", "fig5", "fig6", "fig7"} and all(CLAIMS.values())
+
+
+SHIPPED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd", "fig4_rgbd_fvp1", "fig4_state_fvp0.1")
+
+
+@pytest.mark.parametrize("folder", SHIPPED)
+def test_readme_claim_tables_are_generated_from_the_shipped_rows(folder):
+    record = json.loads((DATA_DIR / "results" / folder / f"{folder.split('_')[0]}.json").read_text())
+    rows = read_rows(DATA_DIR / "results" / folder / f"{record['experiment']}.csv")
+    window = int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
+    effects = claim_effects(record["experiment"], rows, record["metric"], window)
+    assert claim_table(effects) in (DATA_DIR.parent / "README.md").read_text()
+    stored = [(e["text"], e["verdict"]) for e in record["summary"]["claims"]]
+    assert stored == [(e["text"], e["verdict"]) for e in effects]  # NAME.json holds the same effects
