@@ -176,8 +176,14 @@ def _run_ray(fn, jobs, workers, address, listener) -> list:
     if started:
         env = {"env_vars": {"VDTUTORIAL_QUICK": "1" if QUICK else "0"}}
         if address is None:  # a private local Ray, even if another one runs on this machine
-            ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, runtime_env=env,
-                     logging_level=logging.WARNING, object_store_memory=200 * 2 ** 20)
+            try:
+                ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, runtime_env=env,
+                         logging_level=logging.WARNING, object_store_memory=200 * 2 ** 20)
+            except Exception as exc:  # Ray raises a bare Exception when its node does not come up
+                raise RuntimeError(
+                    f"Ray could not start on this machine ({exc}). On a heavily loaded machine Ray's raylet gives "
+                    "up when its agent process takes more than 15 s to start (ray-project/ray issue 65983): "
+                    "retry when the machine is less busy, or use the local backend") from exc
         else:
             ray.init(address=address, runtime_env=env, logging_level=logging.WARNING)
     try:
