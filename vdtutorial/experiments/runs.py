@@ -123,6 +123,8 @@ def run_settings(method: str, task: str, demos_meta: dict | None, obs_mode: str,
         settings["demos"] = {"samples": int(demos_meta["samples"]), "noise": float(demos_meta["noise"]),
                              "seed": int(demos_meta["seed"])}
         settings["pretrain_config"] = asdict(replace(pretrain_config, reg=method, obs_mode=obs_mode))
+    else:  # no demonstrations: only the fixed sigma the run starts from comes from the pre-training config
+        settings["init_std"] = InitialSigma.parse(pretrain_config.initial_sigma).value
     return settings
 
 
