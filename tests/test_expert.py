@@ -9,7 +9,7 @@ from vdtutorial.envs import ENV_IDS
 from vdtutorial.envs.base import MAX_DELTA
 from vdtutorial.envs.reach import SUCCESS_TOLERANCE, reach_goal
 from vdtutorial.evaluation import expert_success_rate
-from vdtutorial.expert import DISTINCT, IKExpert, nearest_equivalent, nearest_goal, step_towards
+from vdtutorial.expert import CONTINUOUS, DISTINCT, IKExpert, nearest_equivalent, nearest_goal, step_towards
 
 
 @pytest.fixture
@@ -48,6 +48,36 @@ def test_continuous_joints_are_compared_modulo_two_pi():
     eq = nearest_equivalent(g, j, lo, hi)
     np.testing.assert_allclose(eq[[0, 3, 5]], j[[0, 3, 5]] - 0.1)  # continuous joints 1, 4, 6 wrap
     np.testing.assert_allclose(eq[[1, 2, 4]], g[[1, 2, 4]])  # limited joints do not
+
+
+def test_nearest_equivalent_shifts_up_from_below_the_lower_limit():
+    """Issue 9's case: the nearest shift of g = 6.06 towards j = -5.5 leaves the limits (-6.51), so the
+    answer is the next one up, -0.22 (distance 5.28), not g itself (distance 11.56)."""
+    lo, hi = np.full(6, -2 * math.pi), np.full(6, 2 * math.pi)
+    eq = nearest_equivalent(np.full(6, 6.06), np.full(6, -5.5), lo, hi)
+    np.testing.assert_allclose(eq[[0, 3, 5]], 6.06 - 2 * math.pi)
+    np.testing.assert_allclose(np.abs(eq - (-5.5))[[0, 3, 5]], 5.5 + 6.06 - 2 * math.pi)
+    np.testing.assert_array_equal(eq[[1, 2, 4]], 6.06)
+
+
+def test_nearest_equivalent_matches_brute_force_over_shifts_within_limits():
+    """Random goals and states within the Jaco's limits: the chosen copy of each continuous joint is in
+    the limits and as near to j as the best of all in-limit copies g + 2 pi k, |k| <= 3."""
+    from vdtutorial.envs.scene import JacoScene
+
+    scene = JacoScene(16)
+    lo, hi = scene.lower, scene.upper
+    scene.close()
+    rng = np.random.default_rng(0)
+    k = np.arange(-3, 4)[:, None]
+    for _ in range(2000):
+        g, j = rng.uniform(lo, hi), rng.uniform(lo, hi)
+        eq = nearest_equivalent(g, j, lo, hi)
+        assert np.all((eq >= lo) & (eq <= hi))
+        copies = g + 2 * math.pi * k
+        best = np.where((copies >= lo) & (copies <= hi), np.abs(copies - j), np.inf).min(axis=0)
+        np.testing.assert_allclose(np.abs(eq - j)[CONTINUOUS], best[CONTINUOUS], atol=1e-12)
+        np.testing.assert_array_equal(eq[~CONTINUOUS], g[~CONTINUOUS])
 
 
 def test_eq10_moves_largest_joint_by_pi_over_5_and_never_overshoots():

@@ -151,14 +151,18 @@ def grasp_targets(cup_position, standoff: float = GRASP_STANDOFF, azimuths_deg=(
 
 
 def nearest_equivalent(g, j, lower, upper) -> np.ndarray:
-    """``g`` with each continuous joint shifted by a multiple of 2 pi to be nearest to ``j`` within limits."""
+    """``g`` with each continuous joint shifted by the multiple of 2 pi that brings it nearest to ``j``
+    while staying within the limits; ``g`` unchanged where no shifted copy is within them.
+
+    The distance |g + 2 pi k - j| is convex in k, so the best k within the limits is the unconstrained
+    one, round((j - g) / 2 pi), clipped to the range of k that keeps g + 2 pi k within the limits.
+    """
     g = np.array(g, dtype=np.float64)
-    shift = np.round((j - g) / (2 * math.pi)) * 2 * math.pi
-    cand = g + np.where(CONTINUOUS, shift, 0.0)
-    for k in (-2 * math.pi, 2 * math.pi):  # the nearest shift may leave the limits: try its neighbours
-        bad = (cand < lower) | (cand > upper)
-        cand = np.where(CONTINUOUS & bad, cand + k, cand)
-    return np.where((cand >= lower) & (cand <= upper), cand, g)
+    j, lower, upper = (np.asarray(x, dtype=np.float64) for x in (j, lower, upper))
+    turn = 2 * math.pi
+    k_min, k_max = np.ceil((lower - g) / turn), np.floor((upper - g) / turn)
+    k = np.clip(np.round((j - g) / turn), k_min, k_max)
+    return np.where(CONTINUOUS & (k_min <= k_max), g + k * turn, g)
 
 
 def nearest_goal(G: np.ndarray, j: np.ndarray, lower, upper) -> np.ndarray:
