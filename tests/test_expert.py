@@ -91,6 +91,31 @@ def test_eq10_moves_largest_joint_by_pi_over_5_and_never_overshoots():
     np.testing.assert_array_equal(step_towards(j, j), np.zeros(6))
 
 
+def test_grasp_expert_action_depends_on_the_state_alone():
+    """Eq. 8 labels a state with pi_exp(s): the grasp expert's action in a state must not depend on the
+    states visited before, in particular not on a remembered final-approach goal."""
+    env = gym.make(ENV_IDS["grasp"], obs_mode="state")
+    env.reset(seed=1)
+    expert = IKExpert(env)
+    expert.reset()
+    rng = np.random.default_rng(0)
+    states, actions = [], []
+    for _ in range(25):
+        j = env.unwrapped.joints
+        states.append(j)
+        actions.append(expert.action())
+        _, _, terminated, truncated, _ = env.step(actions[-1] + rng.normal(0.0, 0.01, size=6))
+        if terminated or truncated:
+            break
+    assert any(expert.final_goal(j) is not None for j in states)  # the final approach was visited
+    fresh = IKExpert(env)
+    fresh.reset()
+    for j, a in reversed(list(zip(states, actions))):  # another expert, another history: the same labels
+        np.testing.assert_array_equal(fresh.action(j), a)
+        np.testing.assert_array_equal(expert.action(j), a)
+    env.close()
+
+
 def test_expert_action_is_fast(reach):
     import time
 
