@@ -9,10 +9,11 @@ from vdtutorial.settings import QUICK
 
 
 def _cmd_demos(args) -> None:
-    from vdtutorial.demos import demo_path, generate_demos
+    from vdtutorial.demos import SHIPPED_NOISE, demo_path, generate_demos
 
-    demos = generate_demos(args.task, args.samples, args.noise, args.seed, progress=not args.no_progress)
-    out = demos.save(args.out or demo_path(args.task, args.samples, args.noise, args.seed))
+    noise = SHIPPED_NOISE[args.task] if args.noise is None else args.noise
+    demos = generate_demos(args.task, args.samples, noise, args.seed, progress=not args.no_progress)
+    out = demos.save(args.out or demo_path(args.task, args.samples, noise, args.seed))
     print(f"{len(demos)} samples from {demos.meta['episodes']} noisy expert episodes "
           f"(noisy success rate {demos.meta['noisy_success_rate']:.2f})")
     print(f"wrote {out}")
@@ -137,7 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demos", help="generate expert demonstrations (eqs. 5-8)")
     p.add_argument("--task", choices=("reach", "grasp"), default="reach")
     p.add_argument("--samples", type=int, default=8000, help="state-action pairs in the data set")
-    p.add_argument("--noise", type=float, default=0.5, help="Sigma: std of the action noise, radians")
+    p.add_argument("--noise", type=float, default=None,
+                   help="Sigma: std of the action noise, radians (default: the shipped sets', 0.5 reach, 0.03 grasp)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="output file (default: data/demos/TASK_nN_sigmaS_seedK.npz)")
     p.add_argument("--no-progress", action="store_true")

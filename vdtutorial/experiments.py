@@ -76,7 +76,7 @@ from matplotlib.figure import Figure
 from scipy import stats
 
 import vdtutorial
-from vdtutorial.demos import DemoFileError, Demos, demo_command, demo_path, generate_demos
+from vdtutorial.demos import SHIPPED_NOISE, DemoFileError, Demos, demo_command, demo_path, generate_demos
 from vdtutorial.envs import ENV_IDS, HORIZON
 from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
 from vdtutorial.policy import GaussianPolicy, make_policy
@@ -117,7 +117,7 @@ TABLE1 = (
     ("2000 demonstrations; Sigma = 0.5", "reach", 2000, 0.5, 0.359),
     ("8000 demonstrations; Sigma = 0.25", "reach", 8000, 0.25, 0.685),
     ("8000 demonstrations; Sigma = 0.05", "reach", 8000, 0.05, 0.766),
-    ("Grasping", "grasp", 8000, 0.5, 0.693),
+    ("Grasping", "grasp", 8000, SHIPPED_NOISE["grasp"], 0.693),
 )
 
 
@@ -130,13 +130,13 @@ def default_trpo_config(obs_mode: str) -> TRPOConfig:
 
 
 def load_demos(task: str, demos: Demos | str | Path | None = None, root: Path | None = None) -> Demos:
-    """``demos`` as a data set: itself, loaded from a path, or (None) the task's shipped 8000-sample,
-    Sigma = 0.5 set under ``root`` (default ``data/``). The task must match."""
+    """``demos`` as a data set: itself, loaded from a path, or (None) the task's shipped 8000-sample set
+    (Sigma ``SHIPPED_NOISE[task]``) under ``root`` (default ``data/``). The task must match."""
     if isinstance(demos, Demos):
         if demos.meta.get("task") != task:
             raise ValueError(f"demonstrations of task {demos.meta.get('task')!r} given for task {task!r}")
         return demos
-    return Demos.load(demos if demos is not None else demo_path(task, 8000, 0.5, 0, root=root), task=task)
+    return Demos.load(demos if demos is not None else demo_path(task, 8000, SHIPPED_NOISE[task], 0, root=root), task=task)
 
 
 def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int = 0,
@@ -182,8 +182,8 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
     per iteration). Returns the trained policy and TRPO's log rows; ``csv_path`` (replaced if it exists)
     receives the rows as they come.
 
-    demos: the data set of the pre-training (a :class:`Demos` or a path; default the shipped 8000-sample,
-        Sigma = 0.5 set); ignored by "none".
+    demos: the data set of the pre-training (a :class:`Demos` or a path; default the task's shipped
+        8000-sample set); ignored by "none".
     pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
         ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.
     trpo_config: default :func:`default_trpo_config` of ``obs_mode``.
@@ -610,9 +610,9 @@ def fig6(seeds=None, total_steps: int | None = None, obs_mode: str = "state", ou
 def fig7(seeds=None, total_steps: int | None = None, obs_mode: str = "state", out=None, workers: int = 2,
          **kwargs) -> ExperimentResult:
     """Fig. 7: grasping, VD vs L2 vs no pre-training vs the IK expert, in cumulative reward per trajectory
-    (8000 demonstrations, Sigma = 0.5)."""
+    (8000 demonstrations, Sigma = ``SHIPPED_NOISE["grasp"]``)."""
     return _figure("fig7", "Fig. 7: grasping", ("vd", "l2", "none", "expert"), "grasp", seeds, total_steps,
-                   obs_mode, out, workers, **kwargs)
+                   obs_mode, out, workers, datasets=((8000, SHIPPED_NOISE["grasp"]),), **kwargs)
 
 
 # ----------------------------------------------------------------------------------------------
