@@ -34,6 +34,25 @@ def test_solution_set_is_several_distinct_valid_configurations(reach):
             assert np.max(np.abs(g - h)) > DISTINCT
 
 
+def test_wrist_roll_variants_share_the_hand_centre():
+    """The 4 wrist rolls of each tilt put the hand centre at the same goal with the same approach axis:
+    they differ only in the turn about it (the choice documented in expert.py)."""
+    import pybullet as p
+
+    from vdtutorial.expert import reach_targets
+
+    targets = list(reach_targets(np.array([0.45, 0.1, 0.0])))
+    assert len(targets) == 12  # 3 tilts x 4 rolls
+    axes = [np.array(p.getMatrixFromQuaternion(q)).reshape(3, 3) for _, q in targets]
+    for tilt in range(3):
+        group = range(4 * tilt, 4 * tilt + 4)
+        for k in group:
+            np.testing.assert_allclose(targets[k][0], targets[4 * tilt][0])
+            np.testing.assert_allclose(axes[k][:, 2], axes[4 * tilt][:, 2], atol=1e-9)
+        ups = [axes[k][:, 1] for k in group]
+        np.testing.assert_allclose([ups[0] @ u for u in ups], [1, 0, -1, 0], atol=1e-9)
+
+
 def test_eq9_picks_the_nearest_in_l1():
     G = np.array([[1.0, 1, 1, 1, 1, 1], [2.0, 2, 2, 2, 2, 2]])
     lo, hi = np.full(6, -10.0), np.full(6, 10.0)

@@ -32,7 +32,7 @@ default settings, seed 0; pre-RL successes per 200 steps with the mean action, 5
 =====================  ===========================  ===========================
 noiseless expert       2.62 steps per trajectory    3.23 steps per trajectory
 held-out MSE, VD       joint 6: 0.041, mean 0.019   joint 6: 0.036, mean 0.014
-held-out MSE, L2       joint 6: 0.032, mean 0.017   joint 6: 0.033, mean 0.012
+held-out MSE, L2       joint 6: 0.032, mean 0.017   joint 6: 0.032, mean 0.012
 pre-RL successes, VD   14.6 +- 3.0                  23.0 +- 4.8
 pre-RL successes, L2   20.8 +- 2.4                  24.0 +- 5.9
 =====================  ===========================  ===========================
