@@ -266,6 +266,7 @@ class IKExpert:
         dist = float(np.linalg.norm(to_cup))
         if dist > FINAL_APPROACH_DISTANCE:
             return None
-        if dist > 1e-3 and math.degrees(math.acos(float(np.clip(np.dot(approach, to_cup / dist), -1, 1)))) > FINAL_APPROACH_ANGLE_DEG:
+        off_axis = math.degrees(math.acos(float(np.clip(np.dot(approach, to_cup / max(dist, 1e-12)), -1, 1))))
+        if dist > 1e-3 and off_axis > FINAL_APPROACH_ANGLE_DEG:
             return None
         return solve_ik(self.scene, target, orientation, j)

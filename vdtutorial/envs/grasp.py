@@ -9,8 +9,9 @@ puts a finger into the cup or the palm onto the table is a collision, so a state
 the room between hand, cup and table is not the tolerance the task really has (with the reaching
 task's 3.5 cm cup and the grasp point 8 cm up there were 0.8 cm beside the lower fingers, 1.4 cm to the
 palm and 1.5 cm between palm and table, against a stated 3 cm, and no noisy demonstration succeeded).
-The numbers below are therefore chosen together, from the hand of ``jaco6.urdf`` (fingers 1.6 cm thick on a 6 cm circle around the approach axis, one of them
-up; the palm 5 cm behind the hand centre and 6.5 cm below it):
+The numbers below are therefore chosen together, from the hand of ``jaco6.urdf`` (fingers 1.6 cm
+thick on a 6 cm circle around the approach axis, one of them up; the palm 5 cm behind the hand centre
+and 6.5 cm below it):
 
 * the cup (radius :data:`GRASP_CUP_RADIUS`, narrower than the reaching task's) leaves 2.4 cm beside each
   lower finger and 3 cm to the palm;
