@@ -9,7 +9,7 @@ from gymnasium.utils.env_checker import check_env
 import vdtutorial  # noqa: F401  (registers the ids)
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.envs.base import HORIZON, MAX_DELTA
-from vdtutorial.envs.grasp import grasp_point
+from vdtutorial.envs.grasp import POSITION_TOLERANCE, grasp_point
 from vdtutorial.envs.reach import C_FAILURE, C_SUCCESS, reach_goal
 from vdtutorial.envs.scene import HOME
 from vdtutorial.expert import IKExpert
@@ -187,8 +187,47 @@ def test_grasp_success_gives_25_minus_step_cost():
     assert info["is_success"]
     assert reward == 24.0
     tcp, _ = env.unwrapped.scene.tcp_pose()
-    assert np.linalg.norm(tcp - grasp_point(env.unwrapped.cup_position)) < 0.03
+    assert np.linalg.norm(tcp - grasp_point(env.unwrapped.cup_position)) < POSITION_TOLERANCE
     env.close()
+
+
+def test_grasp_success_region_is_collision_free():
+    """The stated tolerance is the real one: at the expert's grasp poses the arm keeps at least
+    POSITION_TOLERANCE from the cup and the table, so every hand position within it is collision-free
+    (the budget in envs/grasp.py: 2.4 cm from the cup, 2.5 cm from the table). And
+    no joint-space neighbour of a grasp pose that the env counts as a success is in collision."""
+    import pybullet as p
+
+    def gap(scene, body):
+        points = p.getClosestPoints(scene.arm, body, 0.5, physicsClientId=scene.client)
+        return min(c[8] for c in points if c[3] != -1)  # the base stands on the table
+
+    rng = np.random.default_rng(0)
+    for seed in (0, 1):
+        env = gym.make(ENV_IDS["grasp"], obs_mode="state")
+        env.reset(seed=seed)
+        expert = IKExpert(env)
+        expert.reset()
+        for _ in range(HORIZON):
+            _, _, terminated, truncated, info = env.step(expert.action())
+            if terminated or truncated:
+                break
+        assert info["is_success"]
+        base = env.unwrapped
+        scene = base.scene
+        cup_gap, table_gap = gap(scene, scene.cup), gap(scene, scene.table)
+        assert POSITION_TOLERANCE <= cup_gap == pytest.approx(0.024, abs=0.001)
+        assert POSITION_TOLERANCE <= table_gap == pytest.approx(0.025, abs=0.001)
+        grasp = scene.joints.copy()
+        successes = 0
+        for _ in range(300):
+            scene.set_joints(grasp + rng.normal(0.0, 0.02, size=6))
+            success, _ = base._goal_status()
+            if success:
+                successes += 1
+                assert not scene.in_collision()
+        assert successes > 50  # the check saw many success states, not a handful
+        env.close()
 
 
 def test_bad_constructor_arguments():

@@ -92,10 +92,11 @@ def _progress(args) -> bool:
 
 # -- the commands ----------------------------------------------------------------------------------------
 def _cmd_demos(args) -> None:
-    from vdtutorial.demos import demo_path, generate_demos
+    from vdtutorial.demos import SHIPPED_NOISE, demo_path, generate_demos
 
-    out = output_path(args.out, demo_path(args.task, args.samples, args.noise, args.seed, root=RUNS_DIR), args.force)
-    demos = generate_demos(args.task, args.samples, args.noise, args.seed, progress=_progress(args))
+    noise = SHIPPED_NOISE[args.task] if args.noise is None else args.noise
+    out = output_path(args.out, demo_path(args.task, args.samples, noise, args.seed, root=RUNS_DIR), args.force)
+    demos = generate_demos(args.task, args.samples, noise, args.seed, progress=_progress(args))
     demos.save(out)
     print(f"{len(demos)} samples from {demos.meta['episodes']} noisy expert episodes "
           f"(noisy success rate {demos.meta['noisy_success_rate']:.2f})")
@@ -263,8 +264,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demos", help="generate expert demonstrations (eqs. 5-8)")
     p.add_argument("--task", choices=("reach", "grasp"), default="reach", help="which task's expert (default reach)")
     p.add_argument("--samples", type=positive_int, default=8000, help="state-action pairs in the data set (default 8000)")
-    p.add_argument("--noise", type=nonnegative_float, default=0.5,
-                   help="Sigma: std of the action noise in radians (default 0.5)")
+    p.add_argument("--noise", type=nonnegative_float, default=None,
+                   help="Sigma: std of the action noise in radians (default: the shipped sets', 0.5 reach, 0.03 grasp)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seeds the cup positions and the noise (default 0)")
     p.add_argument("--out", default=None, help="output file (default: runs/demos/TASK_nN_sigmaS_seedK.npz)")
     _add_force(p)

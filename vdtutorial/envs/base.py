@@ -11,7 +11,7 @@ import math
 import gymnasium as gym
 import numpy as np
 
-from vdtutorial.envs.scene import CAMERA_FAR, CUP_REGION_HIGH, CUP_REGION_LOW, HOME, N_JOINTS, JacoScene
+from vdtutorial.envs.scene import CAMERA_FAR, CUP_RADIUS, CUP_REGION_HIGH, CUP_REGION_LOW, HOME, N_JOINTS, JacoScene
 
 #: Episode horizon H (Section V-A): an episode is truncated after this many actions.
 HORIZON = 25
@@ -47,6 +47,7 @@ class JacoEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
     cup_collidable = False
+    cup_radius = CUP_RADIUS
     default_image_size = 128
 
     def __init__(self, obs_mode: str = "rgbd", image_size: int | None = None, render_mode: str | None = None):
@@ -56,7 +57,8 @@ class JacoEnv(gym.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.obs_mode = obs_mode
         self.render_mode = render_mode
-        self.scene = JacoScene(image_size or self.default_image_size, cup_collidable=self.cup_collidable)
+        self.scene = JacoScene(image_size or self.default_image_size, cup_collidable=self.cup_collidable,
+                                cup_radius=self.cup_radius)
         s, lo, hi = self.scene.image_size, self.scene.lower, self.scene.upper
         self.action_space = gym.spaces.Box(-MAX_DELTA, MAX_DELTA, shape=(N_JOINTS,), dtype=np.float32)
         joints = gym.spaces.Box(lo.astype(np.float32), hi.astype(np.float32), dtype=np.float32)

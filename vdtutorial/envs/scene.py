@@ -58,13 +58,16 @@ class JacoScene:
     image_size: side of the square camera image in pixels (128 for reaching, 256 for grasping in the paper).
     cup_collidable: whether the cup has a collision shape. The reaching task's cup cannot be hit
         (Section V-A); the grasping task's cup can (Section V-B).
+    cup_radius: radius of the cup in metres (the grasping task uses a narrower one that fits between the
+        open fingers, see :mod:`vdtutorial.envs.grasp`).
     """
 
-    def __init__(self, image_size: int = 128, cup_collidable: bool = False):
+    def __init__(self, image_size: int = 128, cup_collidable: bool = False, cup_radius: float = CUP_RADIUS):
         if int(image_size) != image_size or image_size < 16:
             raise ValueError(f"image_size must be an integer >= 16, got {image_size!r}")
         self.image_size = int(image_size)
         self.cup_collidable = cup_collidable
+        self.cup_radius = float(cup_radius)
         self.client = p.connect(p.DIRECT)
         c = self.client
         table_col = p.createCollisionShape(p.GEOM_BOX, halfExtents=TABLE_HALF_EXTENTS, physicsClientId=c)
@@ -76,10 +79,10 @@ class JacoScene:
             useFixedBase=True, flags=p.URDF_USE_SELF_COLLISION, physicsClientId=c,
         )
         cup_col = (
-            p.createCollisionShape(p.GEOM_CYLINDER, radius=CUP_RADIUS, height=CUP_HEIGHT, physicsClientId=c)
+            p.createCollisionShape(p.GEOM_CYLINDER, radius=cup_radius, height=CUP_HEIGHT, physicsClientId=c)
             if cup_collidable else -1
         )
-        cup_vis = p.createVisualShape(p.GEOM_CYLINDER, radius=CUP_RADIUS, length=CUP_HEIGHT, rgbaColor=(0.85, 0.2, 0.15, 1), physicsClientId=c)
+        cup_vis = p.createVisualShape(p.GEOM_CYLINDER, radius=cup_radius, length=CUP_HEIGHT, rgbaColor=(0.85, 0.2, 0.15, 1), physicsClientId=c)
         self.cup = p.createMultiBody(0, cup_col, cup_vis, basePosition=(0.45, 0, CUP_HEIGHT / 2), physicsClientId=c)
         self.bodies = {"table": self.table, "arm": self.arm, "cup": self.cup}
         self._restrict_collisions()

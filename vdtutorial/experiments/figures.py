@@ -1,6 +1,7 @@
 """Figs. 4-7 as functions: the runs of each figure handed to :func:`run_experiment`."""
 from __future__ import annotations
 
+from vdtutorial.demos import SHIPPED_NOISE
 from vdtutorial.experiments.curves import vd_reaches_l2_final
 from vdtutorial.experiments.grid import RunSpec
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
@@ -16,7 +17,7 @@ FIGURES = {
              lambda method, n, sigma: f"{METHOD_LABELS[method]}, {n} demos"),
     "fig6": ("Fig. 6: reaching, expert noise", ("vd", "l2"), "reach", ((8000, 0.05), (8000, 0.25), (8000, 0.5)),
              lambda method, n, sigma: f"{METHOD_LABELS[method]}, Sigma={sigma:g}"),
-    "fig7": ("Fig. 7: grasping", ("vd", "l2", "none", "expert"), "grasp", ((8000, 0.5),),
+    "fig7": ("Fig. 7: grasping", ("vd", "l2", "none", "expert"), "grasp", ((8000, SHIPPED_NOISE["grasp"]),),
              lambda method, n, sigma: METHOD_LABELS[method]),
 }
 
@@ -77,6 +78,6 @@ def fig6(seeds=None, total_steps: int | None = None, obs_mode: str = "state", ou
 def fig7(seeds=None, total_steps: int | None = None, obs_mode: str = "state", out=None, workers: int = 2,
          **kwargs) -> ExperimentResult:
     """Fig. 7: grasping, VD vs L2 vs no pre-training vs the IK expert, in cumulative reward per trajectory
-    (8000 demonstrations, Sigma = 0.5)."""
+    (8000 demonstrations, Sigma = ``SHIPPED_NOISE["grasp"]``)."""
     return _figure("fig7", seeds, total_steps, obs_mode, out, workers, **kwargs)
 

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from gymnasium.wrappers import RecordEpisodeStatistics
 
-from vdtutorial.demos import Demos, demo_path
+from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.envs import ENV_IDS, HORIZON
 from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
 from vdtutorial.experiments.resume import check_resumable, read_run_state, restore_run_state, save_run_state
@@ -54,13 +54,13 @@ def default_trpo_config(obs_mode: str) -> TRPOConfig:
 
 
 def load_demos(task: str, demos: Demos | str | Path | None = None, root: Path | None = None) -> Demos:
-    """``demos`` as a data set: itself, loaded from a path, or (None) the task's shipped 8000-sample,
-    Sigma = 0.5 set under ``root`` (default ``data/``). The task must match."""
+    """``demos`` as a data set: itself, loaded from a path, or (None) the task's shipped 8000-sample set
+    (Sigma ``SHIPPED_NOISE[task]``) under ``root`` (default ``data/``). The task must match."""
     if isinstance(demos, Demos):
         if demos.meta.get("task") != task:
             raise ValueError(f"demonstrations of task {demos.meta.get('task')!r} given for task {task!r}")
         return demos
-    return Demos.load(demos if demos is not None else demo_path(task, 8000, 0.5, 0, root=root), task=task)
+    return Demos.load(demos if demos is not None else demo_path(task, 8000, SHIPPED_NOISE[task], 0, root=root), task=task)
 
 
 def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int = 0,
@@ -205,8 +205,8 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
     per iteration). Returns the trained policy and TRPO's log rows; ``csv_path`` (replaced if it exists)
     receives the rows as they come.
 
-    demos: the data set of the pre-training (a :class:`Demos` or a path; default the shipped 8000-sample,
-        Sigma = 0.5 set); ignored by "none".
+    demos: the data set of the pre-training (a :class:`Demos` or a path; default the task's shipped
+        8000-sample set); ignored by "none".
     pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
         ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.
     trpo_config: default :func:`default_trpo_config` of ``obs_mode``.

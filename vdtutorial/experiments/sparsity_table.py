@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from vdtutorial.demos import Demos, demo_path
+from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.experiments.backends import run_jobs
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.rows import write_csv
@@ -19,7 +19,7 @@ TABLE1 = (
     ("2000 demonstrations; Sigma = 0.5", "reach", 2000, 0.5, 0.359),
     ("8000 demonstrations; Sigma = 0.25", "reach", 8000, 0.25, 0.685),
     ("8000 demonstrations; Sigma = 0.05", "reach", 8000, 0.05, 0.766),
-    ("Grasping", "grasp", 8000, 0.5, 0.693),
+    ("Grasping", "grasp", 8000, SHIPPED_NOISE["grasp"], 0.693),
 )
 
 
