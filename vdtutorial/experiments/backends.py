@@ -33,7 +33,7 @@ import queue
 
 import torch
 
-from vdtutorial.settings import QUICK
+from vdtutorial.settings import QUICK, QUICK_ENV
 
 BACKENDS = ("local", "ray")
 #: Seconds between two ticks of the listener while no report arrives.
@@ -174,7 +174,7 @@ def _run_ray(fn, jobs, workers, address, listener) -> list:
     ray = _import_ray()
     started = not ray.is_initialized()
     if started:
-        env = {"env_vars": {"VDTUTORIAL_QUICK": "1" if QUICK else "0"}}
+        env = {"env_vars": {QUICK_ENV: "1" if QUICK else "0"}}
         if address is None:  # a private local Ray, even if another one runs on this machine
             try:
                 ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, runtime_env=env,
