@@ -12,6 +12,7 @@ import torch
 from vdtutorial.demos import Demos, demo_path, generate_demos
 from vdtutorial.experiments import (METHOD_LABELS, TABLE1, Curve, RunSpec, curves_from_rows, expert_reference,
                                     finetune, format_table1, mean_band, moving_average, pretrained_policy, read_rows,
+                                    results_file,
                                     run_experiment, sparsity_trends, steps_to_reach, vd_reaches_l2_final)
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.vd import svdo_layers
@@ -93,7 +94,7 @@ def test_results_do_not_depend_on_the_number_of_workers_or_the_backend(tmp_path)
         results[backend, workers] = run_experiment("tiny", specs, "tiny", out, workers, checkpoints_root=out,
                                                    pretrain_config=TINY, window=2, command="test", backend=backend,
                                                    progress=False)
-        assert {p.name for p in out.iterdir()} >= {"tiny.csv", "tiny.png", "tiny.json", "runs", "checkpoints"}
+        assert {p.name for p in out.iterdir()} >= {"tiny.csv.gz", "tiny.png", "tiny.json", "runs", "checkpoints"}
         assert len(list((out / "runs").glob("*.csv"))) == 3 and len(list((out / "runs").glob("*.pt"))) == 3
     reference = _without_wall_time(results["local", 1].rows)
     assert _without_wall_time(results["local", 2].rows) == reference
@@ -102,7 +103,7 @@ def test_results_do_not_depend_on_the_number_of_workers_or_the_backend(tmp_path)
     assert record["command"] == "test" and len(record["runs"]) == 3 and record["pretrain_config"]["epochs"] == 1
     assert json.loads((tmp_path / "ray2" / "tiny.json").read_text())["backend"] == "ray"
     # the combined CSV reads back into the same curves
-    rows = read_rows(tmp_path / "local2" / "tiny.csv")
+    rows = read_rows(results_file(tmp_path / "local2", "tiny"))
     again = curves_from_rows(rows, "successes", window=2)["L2"]
     assert np.allclose(again.mean, results["local", 2].curves["L2"].mean)
 

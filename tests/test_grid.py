@@ -1,6 +1,5 @@
 """Restartable grids: a grid killed with SIGKILL and run again gives the rows of an uninterrupted grid;
 saved runs of other settings are an error (or discarded with restart); the defaults of the experiments."""
-import csv
 import json
 import math
 import os
@@ -14,7 +13,7 @@ import pytest
 import torch
 
 from vdtutorial.experiments import (SUBSAMPLED_FISHER_CONFIG, Curve, ExperimentResult, ResumeError, RunSpec,
-                                    default_trpo_config, format_summary, run_experiment)
+                                    default_trpo_config, format_summary, read_rows, results_file, run_experiment)
 from vdtutorial.experiments.resume import settings_differences
 from vdtutorial.settings import QUICK
 from vdtutorial.trpo import TRPOConfig
@@ -25,9 +24,8 @@ COMMAND = [sys.executable, "-m", "vdtutorial", "experiment", "fig4", "--seeds", 
 ITERATIONS = 20
 
 
-def _rows_without_wall_time(path):
-    with open(path, newline="") as f:
-        return [{k: v for k, v in row.items() if k != "wall_time"} for row in csv.DictReader(f)]
+def _rows_without_wall_time(folder):
+    return [{k: v for k, v in row.items() if k != "wall_time"} for row in read_rows(results_file(folder, "fig4"))]
 
 
 def _saved_iterations(runs_dir) -> dict[str, int]:
@@ -64,11 +62,11 @@ def test_a_grid_killed_with_sigkill_resumes_to_the_rows_of_an_uninterrupted_grid
     at_kill = _saved_iterations(killed / "runs")
     assert grid.returncode == -signal.SIGKILL
     assert any(0 < n < ITERATIONS for n in at_kill.values()), f"not killed mid-run: {at_kill}"
-    assert not (killed / "fig4.csv").exists()
+    assert not results_file(killed, "fig4").exists()
 
     again = subprocess.run([*COMMAND, "--out", str(killed)], env=env, check=True, capture_output=True, text=True)
     assert "0 to resume" not in again.stdout and "to resume" in again.stdout
-    assert _rows_without_wall_time(killed / "fig4.csv") == _rows_without_wall_time(whole / "fig4.csv")
+    assert _rows_without_wall_time(killed) == _rows_without_wall_time(whole)
     record = json.loads((killed / "fig4.json").read_text())
     resumed = {run["name"]: run["resumed_at_iteration"] for run in record["runs"]}
     assert any(resumed[name] == n for name, n in at_kill.items() if 0 < n < ITERATIONS)

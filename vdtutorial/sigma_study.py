@@ -7,7 +7,7 @@ For every option and seed it runs VD, L2 and (once per distinct starting sigma) 
 policy's mean-action score before RL in TRPO's layout (8 fresh 25-step runs = one 200-step episode).
 "Iteration 0" is TRPO's first iteration, whose batch is sampled from the initial policy.
 
-Writes ``sigma_study.csv`` (the TRPO rows of every run, a few columns), ``sigma_study.json`` (command,
+Writes ``sigma_study.csv.gz`` (the TRPO rows of every run, a few columns), ``sigma_study.json`` (command,
 settings, the summary per option and method with 95% t-intervals over seeds, the rule's decision) and
 ``sigma_study.png`` into ``out``. Run ``python -m vdtutorial.sigma_study --help``.
 """
@@ -31,7 +31,8 @@ from vdtutorial.demos import demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.evaluation import EPISODE_STEPS, PolicyController, successes_per_episode
 from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, RUNS_DIR, curves_from_rows, finetune, load_demos,
-                                    mean_band, pretrained_policy, read_rows, run_jobs, write_csv)
+                                    mean_band, pretrained_policy, read_rows, results_file, run_jobs,
+                                    write_csv)
 from vdtutorial.initial_sigma import InitialSigma
 from vdtutorial.pretrain import default_config
 from vdtutorial.settings import DATA_DIR
@@ -167,7 +168,7 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
             rows += [{**r, "option": option} for r in rows if r["option"] == source and r["method"] == "none"]
     wall = time.perf_counter() - start
     out.mkdir(parents=True, exist_ok=True)
-    write_csv(out / "sigma_study.csv", rows)
+    write_csv(results_file(out, "sigma_study"), rows)
     plot(rows, window).savefig(out / "sigma_study.png", dpi=110)
     summary = summarise(rows, pre_rl)
     command = shlex.join(["python", "-m", "vdtutorial.sigma_study", "--seeds", *map(str, seeds), "--steps",

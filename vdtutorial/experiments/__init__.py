@@ -63,7 +63,7 @@ Where files go
     Pre-trained checkpoints: the shipped ones in ``data/checkpoints/`` are used when they match the
     requested data set and configuration; otherwise they are made in the results folder. Each results
     folder holds ``runs/RUN.pt`` and ``runs/RUN.csv`` (each run's saved state and rows; another folder
-    with ``state_dir``), ``NAME.csv`` (all runs, one row per iteration, labelled by method, data set and
+    with ``state_dir``), ``NAME.csv.gz`` (all runs, one row per iteration, labelled by method, data set and
     seed), ``NAME.png`` (the figure) and ``NAME.json`` (the exact command, every configuration, the
     summary).
 """
@@ -78,7 +78,7 @@ from vdtutorial.experiments.plots import METRIC_LABELS, plot_curves
 from vdtutorial.experiments.reproduce import reproduce_quick
 from vdtutorial.experiments.resume import ResumeError
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, format_summary, run_experiment
-from vdtutorial.experiments.rows import read_rows, write_csv
+from vdtutorial.experiments.rows import read_rows, results_file, write_csv
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, METHOD_LABELS, METHODS,
                                          METRIC, NUM_ENVS, RL_METHODS, RUNS_DIR, SEEDS, SUBSAMPLED_FISHER_CONFIG,
                                          TOTAL_STEPS, default_trpo_config, expert_reference, finetune, finetune_steps,

@@ -34,7 +34,7 @@ import numpy as np
 from scipy import stats
 
 from vdtutorial.experiments.curves import CONFIDENCE, SMOOTH_WINDOW, moving_average
-from vdtutorial.experiments.rows import read_rows
+from vdtutorial.experiments.rows import read_rows, results_file
 
 #: Bootstrap resamples for the steps-to-reach interval.
 BOOTSTRAP_SAMPLES = 2000
@@ -213,13 +213,13 @@ def claim_table(effects: list[dict]) -> str:
 
 
 def write_claims(folder: str | Path) -> str:
-    """Recompute the claims of the experiment in ``folder`` (``NAME.csv`` and ``NAME.json``) from its rows,
+    """Recompute the claims of the experiment in ``folder`` (``NAME.csv.gz`` and ``NAME.json``) from its rows,
     store them in the JSON record's summary, and return them as a Markdown table: the README quotes
     these tables (``python -m vdtutorial claims FOLDER`` prints them)."""
     folder = Path(folder)
     record_path = next(folder.glob("*.json"))
     record = json.loads(record_path.read_text())
-    rows = read_rows(folder / f"{record['experiment']}.csv")
+    rows = read_rows(results_file(folder, record['experiment']))
     # records written before "window" was stored name it in the "smoothing" text
     window = record.get("window") or int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
     effects = claim_effects(record["experiment"], rows, record["metric"], window)

@@ -19,7 +19,7 @@ from vdtutorial.experiments.curves import CONFIDENCE, SMOOTH_WINDOW, Curve, curv
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.grid import Job, RunSpec, run_grid
 from vdtutorial.experiments.plots import plot_curves
-from vdtutorial.experiments.rows import write_csv
+from vdtutorial.experiments.rows import results_file, write_csv
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, RUNS_DIR, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.settings import DATA_DIR, QUICK, budget
@@ -61,7 +61,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
                    address: str | None = None, state_dir: str | Path | None = None, restart: bool = False,
                    checkpoint_every: int = CHECKPOINT_EVERY, progress: bool | None = None) -> ExperimentResult:
     """Run ``specs`` as a restartable grid (:func:`~vdtutorial.experiments.grid.run_grid`), then write
-    ``NAME.csv`` (all rows), ``NAME.png`` (:func:`plot_curves`) and ``NAME.json`` (command, configuration,
+    ``NAME.csv.gz`` (all rows), ``NAME.png`` (:func:`plot_curves`) and ``NAME.json`` (command, configuration,
     per-run compute times, summary) into ``out``. The summary holds each curve's final point, plus
     whatever ``summarise(curves)`` returns.
 
@@ -90,7 +90,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     wall = time.perf_counter() - start
     rows = [row for result in results for row in result["rows"]]
     out.mkdir(parents=True, exist_ok=True)
-    write_csv(out / f"{name}.csv", rows)
+    write_csv(results_file(out, name), rows)
     curves = curves_from_rows(rows, metric, window)
     figure = plot_curves(curves, metric, title, window)
     figure.savefig(out / f"{name}.png", dpi=120)
