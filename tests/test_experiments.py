@@ -10,10 +10,11 @@ import pytest
 import torch
 
 from vdtutorial.demos import Demos, demo_path, generate_demos
-from vdtutorial.experiments import (METHOD_LABELS, TABLE1, Curve, RunSpec, curves_from_rows, expert_reference,
+from vdtutorial.experiments import (KL_WEIGHTINGS, METHOD_LABELS, TABLE1, Curve, RunSpec, curves_from_rows, expert_reference,
                                     finetune, format_table1, mean_band, moving_average, pretrained_policy, read_rows,
                                     results_file,
-                                    run_experiment, sparsity_trends, steps_to_reach, vd_reaches_l2_final)
+                                    run_experiment, seeds_with_trend, sparsity_trends, steps_to_reach, table1,
+                                    table_means, vd_reaches_l2_final)
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.vd import svdo_layers
 
@@ -168,8 +169,8 @@ def test_curves_from_rows_smooths_each_seed_then_averages():
 # ---------------------------------------------------------------------------------------------
 # Table I
 # ---------------------------------------------------------------------------------------------
-def _table_rows(values):
-    return [{"experiment": row, "task": task, "samples": n, "noise": s, "neuron_fraction": v,
+def _table_rows(values, seed=0):
+    return [{"experiment": row, "task": task, "samples": n, "noise": s, "neuron_fraction": v, "seed": seed,
              "neuron_fraction_paper": paper, "weight_fraction": 0.5}
             for (row, task, n, s, paper), v in zip(TABLE1, values)]
 
@@ -182,7 +183,46 @@ def test_table1_trends_on_hand_made_numbers():
     rows = _table_rows([0.60, 0.65, 0.40, 0.55, 0.70, 0.5])
     assert sparsity_trends(rows) == {"more demonstrations -> sparser": False, "less noise -> sparser": False}
     text = format_table1(rows)
-    assert "does NOT hold" in text and "0.677" in text
+    assert "does NOT hold" in text and "0.677" in text and "(1 seed)" in text
+
+
+def test_table1_means_intervals_and_trends_over_seeds():
+    """Seed 0 has the paper's ordering, seed 1 the reverse: the means (0.5 everywhere but grasping) then
+    hold neither trend strictly, each trend holds in 1 of 2 seeds, and the interval is the t-interval."""
+    paper = [row[-1] for row in TABLE1]
+    reverse = [1 - v for v in paper[:5]] + [paper[5]]
+    rows = _table_rows(paper, 0) + _table_rows(reverse, 1)
+    means = table_means(rows)
+    assert [m["seeds"] for m in means] == [2] * 6
+    first = means[0]  # 0.677 and 0.323: mean 0.5, half-width t_{0.975,1} * sd / sqrt(2) = 12.706 * 0.177
+    assert first["neuron_fraction"] == pytest.approx(0.5)
+    assert first["high"] - first["neuron_fraction"] == pytest.approx(12.7062 * 0.177, rel=1e-4)
+    assert seeds_with_trend(rows) == {"more demonstrations -> sparser": (1, 2), "less noise -> sparser": (1, 2)}
+    assert "in 1 of 2 seeds" in format_table1(rows)
+
+
+def test_cli_kl_weightings_are_the_library_ones():
+    from vdtutorial.__main__ import build_parser
+
+    action = next(a for a in build_parser()._subparsers._group_actions[0].choices["experiment"]._actions
+                  if a.dest == "kl_weighting")
+    assert tuple(action.choices) == tuple(KL_WEIGHTINGS) and KL_WEIGHTINGS["per-set"] is None
+    assert KL_WEIGHTINGS["fixed"] == 7200  # 8000 demonstrations, 10% held out
+
+
+def test_table1_fixed_weighting_pretrains_its_own_checkpoints(tmp_path):
+    """kl_weighting="fixed": every data set is pre-trained with kl_samples = 7200, into checkpoints of
+    their own name (never the per-set ones); a row per data set and seed."""
+    rows = table1(seeds=(0, 1), kl_weighting="fixed", out=tmp_path, workers=1,
+                  pretrain_config=PretrainConfig(epochs=1))
+    assert len(rows) == 12 and {r["kl_samples"] for r in rows} == {7200} and {r["seed"] for r in rows} == {0, 1}
+    made = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
+    assert len(made) == 12 and all(name.endswith(("_kl7200.pt")) for name in made)
+    text = (tmp_path / "table1_fixed.txt").read_text()
+    assert "KL weighting: fixed (kl_samples=7200)" in text and "--kl-weighting fixed" in text
+    assert all(0 <= r["neuron_fraction"] <= 1 for r in read_rows(tmp_path / "table1_fixed.csv"))
+    with pytest.raises(ValueError, match="kl_weighting"):
+        table1(kl_weighting="8000", out=tmp_path)
 
 
 def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):

@@ -190,8 +190,10 @@ def _cmd_experiment(args) -> None:
         raise CommandError("--address names a Ray cluster: use it with --backend ray")
     backend = args.backend or ("ray" if args.address is not None else "local")
     resumable = {"checkpoint_every": args.checkpoint_every} if args.checkpoint_every is not None else {}
+    if args.kl_weighting != "per-set" and args.name != "table1":
+        raise CommandError("--kl-weighting is an option of table1 (the figures use the pre-training default)")
     if args.name == "table1":
-        experiments.table1(obs_mode=args.obs, seed=args.seeds[0] if args.seeds else 0, out=args.out,
+        experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting, out=args.out,
                            workers=args.workers, backend=backend, address=args.address)
         return
     trpo_config = None
@@ -301,7 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1")
     p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1"), help="which figure or table")
-    p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: the first seed)")
+    p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0)")
     p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state", help="policy input (default state)")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
@@ -309,6 +311,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fvp-subsample", type=fraction, default=None,
                    help="fraction of each TRPO batch for the Fisher-vector products (default 1, the whole batch; "
                         "0.1 is the subsampled control)")
+    p.add_argument("--kl-weighting", choices=("per-set", "fixed"), default="per-set",
+                   help="table1 only: the N dividing the KL term, each data set's own (per-set, eq. 3 as written; "
+                        "default) or the 8000-sample set's for all (fixed)")
     p.add_argument("--backend", choices=("local", "ray"), default=None,
                    help="where the runs execute: local worker processes (default), or Ray, one task per run "
                         "with one CPU (pip install -e '.[cluster]'); without --address Ray starts locally "

@@ -83,4 +83,5 @@ from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, METH
                                          METRIC, NUM_ENVS, RL_METHODS, RUNS_DIR, SEEDS, SUBSAMPLED_FISHER_CONFIG,
                                          TOTAL_STEPS, default_trpo_config, expert_reference, finetune, finetune_steps,
                                          load_demos, pretrained_policy)
-from vdtutorial.experiments.sparsity_table import TABLE1, format_table1, sparsity_trends, table1
+from vdtutorial.experiments.sparsity_table import (KL_WEIGHTINGS, TABLE1, format_table1, seeds_with_trend,
+                                                   sparsity_trends, table1, table_means)

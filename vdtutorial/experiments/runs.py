@@ -90,8 +90,8 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
         return policy
     meta = demos.meta
     root = Path(checkpoints_root) if checkpoints_root is not None else budget(RUNS_DIR, RUNS_DIR / "quick")
-    path = checkpoint_path(meta, reg, obs_mode, seed, root=root)
-    shipped = checkpoint_path(meta, reg, obs_mode, seed)
+    path = checkpoint_path(meta, reg, obs_mode, seed, root=root, kl_samples=cfg.kl_samples)
+    shipped = checkpoint_path(meta, reg, obs_mode, seed, kl_samples=cfg.kl_samples)
     candidates = [shipped] if budget(True, False) and shipped != path else []
     expected = {**{k: meta[k] for k in ("task", "samples", "noise", "seed")}, **asdict(cfg)}
     for candidate in [*candidates, path]:
