@@ -36,6 +36,13 @@ def _without_wall_time(rows):
 # ---------------------------------------------------------------------------------------------
 # Runs
 # ---------------------------------------------------------------------------------------------
+def test_finetune_makes_the_folder_of_its_csv(tmp_path):
+    """A run's log may go to a folder that does not exist yet (a study's first run made it crash)."""
+    path = tmp_path / "not" / "yet" / "run.csv"
+    _, rows = finetune("none", "reach", seed=0, total_steps=200, csv_path=path)
+    assert len(read_rows(path)) == len(rows) == 1
+
+
 @pytest.mark.parametrize("method", ["vd", "l2", "none"])
 def test_finetune_writes_a_row_per_iteration(method, tmp_path):
     _, rows = _tiny_run(method, tmp_path)

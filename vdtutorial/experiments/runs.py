@@ -176,6 +176,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
         if saved is not None:
             restore_run_state(algo, state_path, saved)
         if csv_path is not None:  # TRPO appends: start the file from the rows so far (a stale file would mix runs)
+            Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
             Path(csv_path).unlink(missing_ok=True)
             if algo.rows:
                 write_csv(Path(csv_path), algo.rows)
