@@ -122,3 +122,25 @@ def test_pretraining_with_demos_sigma_raises_the_likelihood_of_the_demonstration
     assert fitted.pretrain_info["config"]["initial_sigma"] == "demos"
     with pytest.raises(ValueError, match="spread_net"):
         pretrain(demos, PretrainConfig(reg="l2", epochs=1, initial_sigma="spread"), seed=0, progress=False)
+
+
+@pytest.mark.parametrize("option", ["demos", "spread"])
+def test_image_policies_fit_sigma_on_a_seeded_subset_in_minibatches(option, monkeypatch):
+    """RGBD: the fit renders only a seeded subset of the training states (IMAGE_FIT_STATES) and steps
+    through it in minibatches (IMAGE_FIT_BATCH); the same seed gives the same sigma network."""
+    import vdtutorial.initial_sigma as initial_sigma
+    import vdtutorial.pretrain as pretrain_module
+
+    monkeypatch.setattr(pretrain_module, "IMAGE_FIT_STATES", 24)
+    monkeypatch.setattr(initial_sigma, "IMAGE_FIT_BATCH", 8)
+    small = generate_demos("reach", 60, 0.3, seed=3, progress=False)
+    torch.set_num_threads(1)
+    spec = dict(reg="vd", obs_mode="rgbd", image_size=64, epochs=1, batch_size=20, initial_sigma=option)
+    policy, _ = pretrain(small, PretrainConfig(**spec), seed=0, progress=False)
+    record = policy.pretrain_info["initial_sigma"]
+    assert record["states"] == 24 and record["batch"] == 8 and record["kind"] == option
+    assert record["loss_last"] < record["loss_first"]
+    assert abs(record["sigma_mean"] - 0.3) > 0.02  # moved away from the fixed start
+    again, _ = pretrain(small, PretrainConfig(**spec), seed=0, progress=False)
+    for p, q in zip(policy.sigma.parameters(), again.sigma.parameters()):
+        assert torch.equal(p, q)

@@ -147,9 +147,7 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
     print(f"{'obs':6} {'network':26} {'forward ms':>11} {'fwd+bwd ms':>11} {'weights':>9}")
     for obs_mode in ("state", "rgbd"):
         space = observation_space("reach", obs_mode, 128)
-        idx = np.arange(200)
-        obs = obs_to_tensor(demo_observations(Demos(**{k: getattr(demos, k)[idx] for k in ("joints", "cup", "actions", "episode", "t")},
-                                                       meta=demos.meta), obs_mode, 128))
+        obs = obs_to_tensor(demo_observations(demos, obs_mode, 128, indices=np.arange(200)))
         torch.manual_seed(0)
         plain = make_policy(space, 6, variational=False).mu
         vd = make_policy(space, 6, variational=True).mu.train()

@@ -44,10 +44,14 @@ Methods without the ingredient an option needs
 How a fit works (b and c)
     mu is evaluated once in eval mode (deterministic, log alpha > 3 dropped: the network RL starts from)
     and frozen. The sigma network, also in eval mode (deterministic for a VD policy too), is trained with
-    full-batch Adam for ``fit_steps`` steps at learning rate ``lr`` from its initialisation; only its
-    weights and biases move (a VD sigma network's log sigma^2 gets no gradient in eval mode and is frozen
-    in RL anyway). Full batch: the demonstration sets are small (<= 8000 state vectors), so this is exact
-    and deterministic.
+    Adam for ``fit_steps`` steps at learning rate ``lr`` from its initialisation; only its weights and
+    biases move (a VD sigma network's log sigma^2 gets no gradient in eval mode and is frozen in RL
+    anyway). State inputs: full batch (the sets are small, <= 8000 state vectors, so the fit is exact and
+    deterministic). Image inputs: one full-batch step through the convolutional sigma network over 7200
+    RGBD images costs about half a minute on a laptop core, so 500 of them would take hours; the fit then
+    uses a seeded subset of ``IMAGE_FIT_STATES`` training states (chosen in :func:`vdtutorial.pretrain.
+    set_initial_sigma`) and seeded minibatches of ``IMAGE_FIT_BATCH`` (a few minutes per policy). Both
+    numbers are our choices, made for cost; the paper has no such fit.
 """
 from __future__ import annotations
 
@@ -62,6 +66,10 @@ from torch import nn
 from vdtutorial.vd import svdo_layers
 
 KINDS = ("fixed", "demos", "spread")
+#: Image policies: the fits use this many training states (a seeded subset) ...
+IMAGE_FIT_STATES = 2048
+#: ... in minibatches of this size (module docstring, "How a fit works").
+IMAGE_FIT_BATCH = 256
 #: The paper's (and today's) initial sigma, the policy's ``init_std``: the default of option (a).
 DEFAULT_VALUE = 0.3
 
@@ -124,12 +132,29 @@ def _sigma_of(policy, obs) -> torch.Tensor:
     return policy.min_std + F.softplus(policy.sigma(obs))
 
 
+def _rows(obs, idx):
+    """The states ``idx`` of a batch of observations (a tensor, or a dict of tensors for images)."""
+    return {k: v[idx] for k, v in obs.items()} if isinstance(obs, dict) else obs[idx]
+
+
+def _count(obs) -> int:
+    return len(next(iter(obs.values()))) if isinstance(obs, dict) else len(obs)
+
+
+def _in_chunks(net, obs, chunk: int | None) -> torch.Tensor:
+    """``net(obs)``, evaluated ``chunk`` states at a time (None: at once) to bound the memory of images."""
+    if chunk is None:
+        return net(obs)
+    n = _count(obs)
+    return torch.cat([net(_rows(obs, slice(i, i + chunk))) for i in range(0, n, chunk)])
+
+
 @torch.no_grad()
-def mean_action(policy, obs) -> torch.Tensor:
+def mean_action(policy, obs, chunk: int | None = None) -> torch.Tensor:
     """mu(s) of the network RL starts from: eval mode (deterministic, log alpha > 3 dropped)."""
     was_training = policy.training
     policy.eval()
-    out = policy.mu(obs)
+    out = _in_chunks(policy.mu, obs, chunk)
     policy.train(was_training)
     return out
 
@@ -140,15 +165,19 @@ def gaussian_nll(mu: torch.Tensor, sigma: torch.Tensor, actions: torch.Tensor) -
     return -torch.distributions.Normal(mu, sigma).log_prob(actions).sum(-1).mean()
 
 
-def _fit_sigma(policy, obs, loss_of_sigma, spec: InitialSigma) -> list[float]:
-    """Full-batch Adam on the sigma network's parameters (eval mode) to minimise ``loss_of_sigma``."""
+def _fit_sigma(policy, obs, loss_of_sigma, spec: InitialSigma, batch: int | None = None, seed: int = 0) -> list[float]:
+    """Adam on the sigma network's parameters (eval mode) to minimise ``loss_of_sigma(sigma, idx)``, the
+    loss of the states ``idx``: the whole batch every step (``batch`` None), or seeded minibatches of
+    ``batch`` states (images; module docstring)."""
     was_training = policy.training
     policy.eval()
     params = [p for p in policy.sigma.parameters() if p.requires_grad]
     optimiser = torch.optim.Adam(params, lr=spec.lr)
+    n, generator = _count(obs), torch.Generator().manual_seed(seed)
     losses = []
     for _ in range(spec.fit_steps):
-        loss = loss_of_sigma(_sigma_of(policy, obs))
+        idx = slice(None) if batch is None else torch.randperm(n, generator=generator)[:batch]
+        loss = loss_of_sigma(_sigma_of(policy, _rows(obs, idx)), idx)
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
@@ -157,15 +186,16 @@ def _fit_sigma(policy, obs, loss_of_sigma, spec: InitialSigma) -> list[float]:
     return losses
 
 
-def fit_sigma_to_demos(policy, obs, actions: torch.Tensor, spec: InitialSigma = InitialSigma("demos")) -> list[float]:
+def fit_sigma_to_demos(policy, obs, actions: torch.Tensor, spec: InitialSigma = InitialSigma("demos"),
+                       batch: int | None = None, seed: int = 0) -> list[float]:
     """Option (b): maximum likelihood of the demonstrations ``(obs, actions)`` over sigma's parameters,
     mu frozen. Returns the negative log-likelihood per step."""
-    mu = mean_action(policy, obs)
-    return _fit_sigma(policy, obs, lambda sigma: gaussian_nll(mu, sigma, actions), spec)
+    mu = mean_action(policy, obs, batch)
+    return _fit_sigma(policy, obs, lambda sigma, idx: gaussian_nll(mu[idx], sigma, actions[idx]), spec, batch, seed)
 
 
 @torch.no_grad()
-def vd_spread(mu_net: nn.Module, obs, samples: int = 64, seed: int = 0) -> torch.Tensor:
+def vd_spread(mu_net: nn.Module, obs, samples: int = 64, seed: int = 0, chunk: int | None = None) -> torch.Tensor:
     """Predictive standard deviation of a sparse-VD mean network at each state: the std of its output over
     ``samples`` weight draws from q(W) (eq. 4, local reparameterisation: one independent draw per state
     and pass). The weights that RL prunes (log alpha > 3) are removed, variance included, so the spread
@@ -183,41 +213,45 @@ def vd_spread(mu_net: nn.Module, obs, samples: int = 64, seed: int = 0) -> torch
     net.train()
     generator_state = torch.random.get_rng_state()
     torch.manual_seed(seed)
-    draws = torch.stack([net(obs) for _ in range(samples)])
+    draws = torch.stack([_in_chunks(net, obs, chunk) for _ in range(samples)])
     torch.random.set_rng_state(generator_state)
     return draws.std(dim=0)
 
 
-def fit_sigma_to_spread(policy, obs, spread: torch.Tensor, spec: InitialSigma = InitialSigma("spread")) -> list[float]:
+def fit_sigma_to_spread(policy, obs, spread: torch.Tensor, spec: InitialSigma = InitialSigma("spread"),
+                        batch: int | None = None, seed: int = 0) -> list[float]:
     """Option (c): least squares of log sigma_psi(s) against log ``spread`` (floored at the policy's
     ``min_std`` plus 1e-4, which sigma cannot go below). Returns the loss per step."""
     target = torch.log(spread.clamp_min(policy.min_std + 1e-4))
-    return _fit_sigma(policy, obs, lambda sigma: ((torch.log(sigma) - target) ** 2).mean(), spec)
+    return _fit_sigma(policy, obs, lambda sigma, idx: ((torch.log(sigma) - target[idx]) ** 2).mean(), spec, batch, seed)
 
 
 def apply_initial_sigma(policy, spec: InitialSigma, obs=None, actions: torch.Tensor | None = None,
                         spread_net: nn.Module | None = None, seed: int = 0) -> dict:
     """Set ``policy``'s sigma by option ``spec`` and return a short record of what was done.
 
-    obs, actions: the demonstrations to fit on (options b and c; ignored by a).
+    obs, actions: the demonstrations to fit on (options b and c; ignored by a). Image observations (a
+        dict) are fitted in minibatches of ``IMAGE_FIT_BATCH``; state vectors in one batch.
     spread_net: the VD mean network whose spread option (c) follows (default: ``policy.mu``, which must
-        then be a VD network). seed: seeds the weight draws of the spread."""
+        then be a VD network). seed: seeds the weight draws of the spread and the minibatches."""
     if spec.kind == "fixed":
         set_fixed_sigma(policy, spec.value)
         return {"kind": "fixed", "value": spec.value}
     if obs is None or actions is None:
         raise ValueError(f"initial sigma {spec.kind!r} is fitted on demonstrations: pass obs and actions")
     actions = torch.as_tensor(actions, dtype=torch.float32)
+    batch = IMAGE_FIT_BATCH if isinstance(obs, dict) else None
     if spec.kind == "demos":
-        losses = fit_sigma_to_demos(policy, obs, actions, spec)
+        losses = fit_sigma_to_demos(policy, obs, actions, spec, batch, seed)
     else:
-        spread = vd_spread(spread_net if spread_net is not None else policy.mu, obs, spec.spread_samples, seed)
-        losses = fit_sigma_to_spread(policy, obs, spread, spec)
+        spread = vd_spread(spread_net if spread_net is not None else policy.mu, obs, spec.spread_samples, seed, batch)
+        losses = fit_sigma_to_spread(policy, obs, spread, spec, batch, seed)
     with torch.no_grad():
         was_training = policy.training
         policy.eval()
-        sigma = _sigma_of(policy, obs)
-        nll = gaussian_nll(policy.mu(obs), sigma, actions).item()
+        sigma = _in_chunks(lambda o: _sigma_of(policy, o), obs, batch)
+        nll = gaussian_nll(mean_action(policy, obs, batch), sigma, actions).item()
         policy.train(was_training)
-    return {"kind": spec.kind, "loss_first": losses[0], "loss_last": losses[-1], "demos_nll": nll,
-            "sigma_mean": sigma.mean().item(), "sigma_median": sigma.median().item()}
+    return {"kind": spec.kind, "states": _count(obs), "batch": batch, "loss_first": losses[0],
+            "loss_last": losses[-1], "demos_nll": nll, "sigma_mean": sigma.mean().item(),
+            "sigma_median": sigma.median().item()}

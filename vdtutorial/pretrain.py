@@ -33,6 +33,7 @@ maximum-likelihood fit to the demonstrations, or a fit to the VD network's predi
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -45,7 +46,7 @@ from tqdm.auto import tqdm
 import vdtutorial
 from vdtutorial.demos import Demos, demo_path
 from vdtutorial.envs import ENV_IDS
-from vdtutorial.initial_sigma import InitialSigma, apply_initial_sigma
+from vdtutorial.initial_sigma import IMAGE_FIT_STATES, InitialSigma, apply_initial_sigma
 from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor
 from vdtutorial.settings import DATA_DIR, budget
 from vdtutorial.vd import model_kl, sparsity_report
@@ -124,20 +125,22 @@ def observation_space(task: str, obs_mode: str, image_size: int = 128) -> gym.Sp
     return space
 
 
-def demo_observations(demos: Demos, obs_mode: str, image_size: int = 128, progress: bool = False):
-    """The policy inputs of every sample: the state vectors, or RGBD images re-rendered from the stored
-    states (RGB as the env's uint8, depth as float16 to halve its memory; converted per batch)."""
+def demo_observations(demos: Demos, obs_mode: str, image_size: int = 128, progress: bool = False,
+                      indices: np.ndarray | None = None):
+    """The policy inputs of the samples ``indices`` (default: every sample): the state vectors, or RGBD
+    images re-rendered from the stored states (RGB as the env's uint8, depth as float16 to halve its
+    memory; converted per batch)."""
+    indices = np.arange(len(demos)) if indices is None else np.asarray(indices)
     if obs_mode == "state":
-        return demos.states
+        return demos.states[indices]
     env = gym.make(ENV_IDS[demos.meta["task"]], obs_mode="rgbd", image_size=image_size)
-    n = len(demos)
-    rgb = np.empty((n, 3, image_size, image_size), dtype=np.uint8)
-    depth = np.empty((n, image_size * image_size), dtype=np.float16)
-    for i in tqdm(range(n), desc="rendering demonstration images", disable=not progress):
+    rgb = np.empty((len(indices), 3, image_size, image_size), dtype=np.uint8)
+    depth = np.empty((len(indices), image_size * image_size), dtype=np.float16)
+    for k, i in enumerate(tqdm(indices, desc="rendering demonstration images", disable=not progress)):
         obs = env.unwrapped.observation_at(demos.joints[i], demos.cup[i, :2])
-        rgb[i], depth[i] = obs["rgb"], obs["depth"]
+        rgb[k], depth[k] = obs["rgb"], obs["depth"]
     env.close()
-    return {"rgb": rgb, "depth": depth, "joints": demos.joints.astype(np.float32)}
+    return {"rgb": rgb, "depth": depth, "joints": demos.joints[indices].astype(np.float32)}
 
 
 def _take(obs, idx):
@@ -222,10 +225,15 @@ def set_initial_sigma(policy: GaussianPolicy, demos: Demos, config: PretrainConf
     if spec.kind == "spread" and spread_net is None and not policy.config["variational"]:
         raise ValueError("initial_sigma='spread' follows the VD network's spread: an L2 policy needs the VD "
                          "network pre-trained on the same demonstrations (spread_net)")
-    obs = observations if observations is not None else demo_observations(demos, config.obs_mode, config.image_size)
-    train_idx, _ = split_by_episode(demos, config.val_fraction, seed)
-    actions = torch.as_tensor(demos.actions[train_idx], dtype=torch.float32)
-    return apply_initial_sigma(policy, spec, _take(obs, train_idx), actions, spread_net, seed)
+    fit_idx, _ = split_by_episode(demos, config.val_fraction, seed)
+    if config.obs_mode == "rgbd" and len(fit_idx) > IMAGE_FIT_STATES:  # cost: a seeded subset (initial_sigma)
+        fit_idx = np.sort(np.random.default_rng(seed).choice(fit_idx, IMAGE_FIT_STATES, replace=False))
+    if observations is None:
+        obs = obs_to_tensor(demo_observations(demos, config.obs_mode, config.image_size, indices=fit_idx))
+    else:
+        obs = _take(observations, fit_idx)
+    actions = torch.as_tensor(demos.actions[fit_idx], dtype=torch.float32)
+    return apply_initial_sigma(policy, spec, obs, actions, spread_net, seed)
 
 
 @torch.no_grad()
@@ -270,7 +278,7 @@ def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {"vdtutorial": vdtutorial.__version__, **getattr(policy, "pretrain_info", {}), **(extra or {})}
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # two workers may make the same checkpoint
     torch.save({"config": policy.config, "state_dict": policy.state_dict(), "meta": meta}, tmp)
     tmp.replace(path)
     return path

@@ -78,20 +78,15 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     The policy is always returned as read back from a checkpoint, so a fresh and a reused pre-training
     hand TRPO exactly the same object (parameters, and every ``requires_grad`` at its default:
     pre-training freezes sigma, the RL phase trains it). It is not pruned yet.
-    The checkpoint holds mu with the default initial sigma; another ``config.initial_sigma`` is applied
-    on top of it (mu does not depend on it), an L2 policy's "spread" following the VD checkpoint's mu."""
+    A non-default ``config.initial_sigma`` is applied on top of the default checkpoint (mu does not
+    depend on it; an L2 policy's "spread" follows the VD checkpoint's mu) and saved as a checkpoint of
+    its own (``..._initsigma-OPTION.pt``), so that a resumed run does not fit sigma again."""
     cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
-    if cfg.initial_sigma != PAPER_INITIAL_SIGMA:
-        base = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
-        policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress)
-        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, base, checkpoints_root, progress).mu
-                      if reg == "l2" and cfg.initial_sigma == "spread" else None)
-        policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, spread_net=spread_net)
-        return policy
     meta = demos.meta
     root = Path(checkpoints_root) if checkpoints_root is not None else budget(RUNS_DIR, RUNS_DIR / "quick")
-    path = checkpoint_path(meta, reg, obs_mode, seed, root=root, kl_samples=cfg.kl_samples)
-    shipped = checkpoint_path(meta, reg, obs_mode, seed, kl_samples=cfg.kl_samples)
+    names = {"initial_sigma": cfg.initial_sigma, "kl_samples": cfg.kl_samples}
+    path = checkpoint_path(meta, reg, obs_mode, seed, root=root, **names)
+    shipped = checkpoint_path(meta, reg, obs_mode, seed, **names)
     candidates = [shipped] if budget(True, False) and shipped != path else []
     expected = {**{k: meta[k] for k in ("task", "samples", "noise", "seed")}, **asdict(cfg)}
     for candidate in [*candidates, path]:
@@ -106,9 +101,17 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
             reason = str(exc)
         action = "pre-training again and replacing it" if candidate == path else f"not using it (looking in {root})"
         warnings.warn(f"{reason}: {action}", stacklevel=2)
-    policy, _ = pretrain(demos, cfg, seed=seed, progress=progress)
     source = demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
-    save_checkpoint(policy, path, extra={"command": pretrain_command(reg, source, seed, obs_mode)})
+    if cfg.initial_sigma != PAPER_INITIAL_SIGMA:
+        base = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
+        policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress)
+        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, base, checkpoints_root, progress).mu
+                      if reg == "l2" and cfg.initial_sigma == "spread" else None)
+        policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, spread_net=spread_net)
+        policy.pretrain_info["config"] = asdict(cfg)
+    else:
+        policy, _ = pretrain(demos, cfg, seed=seed, progress=progress)
+    save_checkpoint(policy, path, extra={"command": pretrain_command(reg, source, seed, obs_mode, cfg.initial_sigma)})
     return load_checkpoint(path)
 
 
