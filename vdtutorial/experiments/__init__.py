@@ -77,7 +77,8 @@ from vdtutorial.experiments.grid import RunSpec, run_grid
 from vdtutorial.experiments.plots import METRIC_LABELS, plot_curves
 from vdtutorial.experiments.reproduce import reproduce_quick
 from vdtutorial.experiments.resume import ResumeError
-from vdtutorial.experiments.results import ExperimentResult, experiment_command, format_summary, run_experiment
+from vdtutorial.experiments.results import (ExperimentResult, experiment_command, format_summary, load_result,
+                                           run_experiment)
 from vdtutorial.experiments.rows import read_rows, results_file, write_csv
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, METHOD_LABELS, METHODS,
                                          METRIC, NUM_ENVS, RL_METHODS, RUNS_DIR, SEEDS, SUBSAMPLED_FISHER_CONFIG,

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +38,12 @@ def mean_band(samples, confidence: float = CONFIDENCE) -> tuple[np.ndarray, np.n
         return mean, nan, nan.copy()
     half = stats.t.ppf((1 + confidence) / 2, n - 1) * samples.std(axis=0, ddof=1) / math.sqrt(n)
     return mean, mean - half, mean + half
+
+
+def record_window(record: dict) -> int:
+    """The smoothing window of an experiment's JSON record (records written before ``window`` was stored
+    name it in their ``smoothing`` text)."""
+    return record.get("window") or int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
 
 
 def steps_to_reach(steps, curve, level: float) -> float | None:

@@ -26,14 +26,13 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy import stats
 
-from vdtutorial.experiments.curves import CONFIDENCE, SMOOTH_WINDOW, moving_average
+from vdtutorial.experiments.curves import CONFIDENCE, SMOOTH_WINDOW, moving_average, record_window
 from vdtutorial.experiments.rows import read_rows, results_file
 
 #: Bootstrap resamples for the steps-to-reach interval.
@@ -220,9 +219,7 @@ def write_claims(folder: str | Path) -> str:
     record_path = next(folder.glob("*.json"))
     record = json.loads(record_path.read_text())
     rows = read_rows(results_file(folder, record['experiment']))
-    # records written before "window" was stored name it in the "smoothing" text
-    window = record.get("window") or int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
-    effects = claim_effects(record["experiment"], rows, record["metric"], window)
+    effects = claim_effects(record["experiment"], rows, record["metric"], record_window(record))
     record.setdefault("summary", {})["claims"] = effects
     record_path.write_text(json.dumps(record, indent=1, default=str))
     return claim_table(effects)

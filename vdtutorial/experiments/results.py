@@ -15,11 +15,12 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
-from vdtutorial.experiments.curves import CONFIDENCE, SMOOTH_WINDOW, Curve, curves_from_rows, final_point
+from vdtutorial.experiments.curves import (CONFIDENCE, SMOOTH_WINDOW, Curve, curves_from_rows, final_point,
+                                           record_window)
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.grid import Job, RunSpec, run_grid
 from vdtutorial.experiments.plots import plot_curves
-from vdtutorial.experiments.rows import results_file, write_csv
+from vdtutorial.experiments.rows import read_rows, results_file, write_csv
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, RUNS_DIR, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.settings import DATA_DIR, QUICK, budget
@@ -33,8 +34,33 @@ class ExperimentResult:
     out: Path
     rows: list[dict]
     curves: dict[str, Curve]
-    figure: Figure
+    figure: Figure | None
     summary: dict = field(default_factory=dict)
+    record: dict = field(default_factory=dict)
+
+    @property
+    def window(self) -> int:
+        """The smoothing window of the curves (the record's, for a result read back)."""
+        return record_window(self.record) if self.record else SMOOTH_WINDOW
+
+    @property
+    def metric(self) -> str:
+        return self.record.get("metric", "successes")
+
+
+def load_result(folder: str | Path, name: str | None = None) -> ExperimentResult | None:
+    """Read back an experiment's folder (``NAME.csv.gz`` and ``NAME.json``; ``name`` defaults to the
+    folder's name): rows, record, and the curves rebuilt with the record's smoothing window. None if
+    either file is missing (the JSON is written last, so an experiment still running has none)."""
+    folder = Path(folder)
+    name = name or folder.name
+    rows_path, record_path = results_file(folder, name), folder / f"{name}.json"
+    if not (rows_path.exists() and record_path.exists()):
+        return None
+    record = json.loads(record_path.read_text())
+    rows = read_rows(rows_path)
+    curves = curves_from_rows(rows, record["metric"], record_window(record))
+    return ExperimentResult(name, folder, rows, curves, None, record.get("summary", {}), record)
 
 
 def experiment_command(name: str, **options) -> str:
@@ -113,7 +139,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
                      "numpy": np.__version__, "python": sys.version.split()[0]},
     }
     (out / f"{name}.json").write_text(json.dumps(record, indent=1, default=str))
-    return ExperimentResult(name, out, rows, curves, figure, summary)
+    return ExperimentResult(name, out, rows, curves, figure, summary, record)
 
 
 def format_summary(result: ExperimentResult) -> str:

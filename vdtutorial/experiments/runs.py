@@ -23,7 +23,7 @@ from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path,
                                  default_config, load_checkpoint, pretrain, pretrain_command, save_checkpoint,
                                  set_initial_sigma)
-from vdtutorial.settings import DATA_DIR, RUNS_DIR, budget
+from vdtutorial.settings import RUNS_DIR, budget
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 
 RL_METHODS = ("vd", "l2", "none")

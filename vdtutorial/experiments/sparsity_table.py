@@ -16,7 +16,7 @@ from pathlib import Path
 
 from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.experiments.backends import run_jobs
-from vdtutorial.experiments.curves import CONFIDENCE, mean_band
+from vdtutorial.experiments.curves import mean_band
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.rows import write_csv
 from vdtutorial.experiments.runs import pretrained_policy
