@@ -20,7 +20,7 @@ from vdtutorial.experiments.curves import mean_band
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.rows import write_csv
 from vdtutorial.experiments.runs import pretrained_policy
-from vdtutorial.pretrain import PretrainConfig, default_config
+from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, default_config
 from vdtutorial.vd import sparsity_report
 
 #: Table I: (row, task, demonstrations, Sigma, the paper's neuron sparsification ratio).
@@ -121,7 +121,9 @@ def table1(obs_mode: str = "state", seeds=(0,), kl_weighting: str = "per-set", o
     seeds = tuple(seeds)
     out = Path(out) if out is not None else default_out("table1")
     checkpoints_root = Path(checkpoints_root if checkpoints_root is not None else out).resolve()
-    config = replace(pretrain_config or default_config("vd", obs_mode), kl_samples=KL_WEIGHTINGS[kl_weighting])
+    # sparsity is a property of mu, which the initial sigma does not change: the checkpoints of the base setting
+    config = replace(pretrain_config or default_config("vd", obs_mode), kl_samples=KL_WEIGHTINGS[kl_weighting],
+                     initial_sigma=PAPER_INITIAL_SIGMA)
     plan = [(entry, seed) for seed in seeds for entry in TABLE1]
     jobs = [_SparsityJob(demo_path(task, samples, noise, 0, root=demos_root).resolve(), obs_mode, seed,
                          checkpoints_root, config) for (_, task, samples, noise, _), seed in plan]
