@@ -84,3 +84,22 @@ def test_the_shipped_expert_reference_regenerates(folder):
     for a, b in zip(again, shipped[:2], strict=True):
         assert (a["successes"], a["failures"], a["episodes"]) == (b["successes"], b["failures"], b["episodes"])
         assert _close(a["mean_return"], b["mean_return"])
+
+
+def test_a_shipped_checkpoint_regenerates():
+    """The 2000-sample L2 reach checkpoint of seed 0 (the cheapest to make, ~10 s) pre-trained again with
+    the configuration it records: every tensor equal."""
+    from vdtutorial.demos import Demos
+    from vdtutorial.pretrain import load_checkpoint, pretrain
+
+    path = checkpoint_path({"task": "reach", "samples": 2000, "noise": 0.5}, "l2", "state", 0)
+    shipped = load_checkpoint(path)
+    config = PretrainConfig(**shipped.pretrain_info["config"])
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        again, _ = pretrain(Demos.load(demo_path("reach", 2000, 0.5, 0)), config, seed=0)
+    finally:
+        torch.set_num_threads(threads)
+    for (name, a), b in zip(again.state_dict().items(), shipped.state_dict().values(), strict=True):
+        assert torch.allclose(a, b, rtol=1e-6, atol=1e-9), name
