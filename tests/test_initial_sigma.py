@@ -144,3 +144,20 @@ def test_image_policies_fit_sigma_on_a_seeded_subset_in_minibatches(option, monk
     again, _ = pretrain(small, PretrainConfig(**spec), seed=0, progress=False)
     for p, q in zip(policy.sigma.parameters(), again.sigma.parameters()):
         assert torch.equal(p, q)
+
+
+def test_the_default_start_is_the_sigma_study_choice():
+    """The experiments start RL where the rule of data/results/sigma_study/RULE.md chose (the study's JSON),
+    for VD and L2 alike; the pretrain command's default stays the paper's untouched 0.3, the sigma the
+    shipped checkpoints hold (the experiments apply their start on top)."""
+    import json
+
+    from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, default_config
+    from vdtutorial.settings import DATA_DIR
+
+    study = json.loads((DATA_DIR / "results" / "sigma_study" / "sigma_study.json").read_text())
+    assert len(study["seeds"]) == 5 and study["steps"] == 100_000
+    chosen = study["summary"]["rule"]["chosen"]
+    assert {default_config(reg, obs).initial_sigma for reg in ("vd", "l2") for obs in ("state", "rgbd")} == {chosen}
+    assert PretrainConfig().initial_sigma == PAPER_INITIAL_SIGMA == "0.3"
+    assert build_parser().parse_args(["pretrain", "--reg", "vd", "--demos", "x.npz"]).sigma == PAPER_INITIAL_SIGMA

@@ -271,9 +271,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="policy input: joint angles + cup position, or the paper's RGBD image + joints (default state)")
     p.add_argument("--epochs", type=positive_int, default=None, help=_epochs_help())
     p.add_argument("--sigma", default="0.3",
-                   help="sigma at the start of RL: a number (fixed, the paper's setting; default 0.3), 'demos' "
-                        "(maximum likelihood on the demonstrations, mu frozen) or 'spread' (fitted to the VD "
-                        "network's predictive spread; L2 follows the VD checkpoint of the same seed)")
+                   help="sigma the checkpoint starts RL from: a number (fixed; default 0.3, the network's initial "
+                        "value, which the paper leaves untouched and the shipped checkpoints hold; the experiments "
+                        "fit their start, 'spread', on top when they load a checkpoint), 'demos' (maximum likelihood "
+                        "on the demonstrations, mu frozen) or 'spread' (fitted to the VD network's predictive spread; "
+                        "L2 follows the VD checkpoint of the same seed)")
     p.add_argument("--out", default=None, help="checkpoint file (default: runs/checkpoints/TASK_nN_sigmaS_REG_OBS_seedK.pt)")
     _add_force(p)
     _add_progress(p)
