@@ -26,7 +26,10 @@ RESULTS = DATA_DIR / "results"
 #: One run per shipped figure: (folder, method, seed); the run's data set is the figure's first.
 RUNS = [("fig4", "vd", 0), ("fig5", "vd", 0), ("fig6", "vd", 0), ("fig7", "vd", 0), ("fig4", "none", 1)]
 #: Folders whose rows predate a change of the code and have not been regenerated yet (see README).
-NOT_REGENERATED: dict[str, str] = {}
+_RERUN = ("made before the start-sigma decision and the re-made checkpoints (3 seeds, fixed 0.3); re-run with "
+          "`python -m vdtutorial experiment {0} --seeds 0 1 2 3 4 --out data/results/{0} --state-dir runs/state-reach` "
+          "and remove it from this list")
+NOT_REGENERATED: dict[str, str] = {"fig5": _RERUN.format("fig5"), "fig6": _RERUN.format("fig6")}
 COUNTS = ("iteration", "env_steps", "successes", "episodes", "failures")
 FLOATS = ("mean_return", "mean_kl", "entropy", "surrogate_improvement", "line_search")
 
