@@ -192,10 +192,9 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int = SMOOTH
     return results
 
 
-def _number(x: float) -> str:
-    if math.isinf(x):
-        return "not reached"
-    return f"{x:.3g}" if abs(x) >= 1000 else f"{x:.2f}"
+def _steps(x: float) -> str:
+    """An env-step count for the table: three significant digits, or "not reached" for ``inf``."""
+    return "not reached" if math.isinf(x) else f"{x:.3g}"
 
 
 def claim_table(effects: list[dict]) -> str:
@@ -203,8 +202,9 @@ def claim_table(effects: list[dict]) -> str:
     lines = ["| claim | measure | effect (95% interval) | verdict |", "|---|---|---|---|"]
     for e in effects:
         if e["measure"] == "steps_to_reach":
-            effect = (f"{_number(e['estimate'])} steps ({_number(e['low'])} - {_number(e['high'])}); "
-                      f"limit {_number(e['limit_steps'])}")
+            unit = "" if math.isinf(e["estimate"]) else " steps"
+            effect = (f"{_steps(e['estimate'])}{unit} ({_steps(e['low'])} to {_steps(e['high'])}); "
+                      f"limit {_steps(e['limit_steps'])}")
         else:
             effect = f"{e['estimate']:+.2f} ({e['low']:+.2f} to {e['high']:+.2f})"
         lines.append(f"| {e['text']} | {e['measure']} | {effect} | **{e['verdict']}** |")
