@@ -99,6 +99,20 @@ def test_bad_arguments_give_one_line(argv, expected, capsys):
     assert expected in _one_line_error(capsys, argv)
 
 
+def test_ctrl_c_gives_one_line_and_the_shell_code(monkeypatch, capsys):
+    """Ctrl-C during an experiment: no traceback, exit code 130 (128 + SIGINT), and how to continue."""
+    from vdtutorial import experiments
+
+    def interrupted(**kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(experiments, "fig4", interrupted)
+    assert main(["experiment", "fig4", "--seeds", "0"]) == 130
+    err = capsys.readouterr().err.replace("[quick mode: small budgets]\n", "")
+    assert err.startswith("interrupted: ") and "rerun the same command to continue" in err and "Traceback" not in err
+    assert err.count("\n") == 1
+
+
 def test_missing_and_corrupt_files_give_one_line_with_the_real_regenerate_command(tmp_path, capsys):
     missing = tmp_path / "grasp_n4000_sigma0.25_seed3.npz"
     err = _one_line_error(capsys, ["evaluate", "--demos", str(missing)])

@@ -330,7 +330,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="discard the saved states of this experiment's runs and start them again")
     p.add_argument("--checkpoint-every", type=positive_int, default=None, metavar="K",
                    help="TRPO iterations between two saved states of a run (default 10)")
-    p.set_defaults(func=_cmd_experiment)
+    p.set_defaults(func=_cmd_experiment, on_interrupt="the finished runs and the saved states of the others are "
+                   "kept: rerun the same command to continue")
 
     p = sub.add_parser("claims", help="the paper's claims as effect sizes with 95%% intervals, from experiment folders")
     p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4); their JSON records are updated")
@@ -353,6 +354,10 @@ def main(argv=None) -> int:
         print("[quick mode: small budgets]", file=sys.stderr)
     try:
         args.func(args)
+    except KeyboardInterrupt:  # Ctrl-C: one line saying what survives, and the shell's code for SIGINT
+        hint = getattr(args, "on_interrupt", None)
+        print(f"interrupted{': ' + hint if hint else ''}", file=sys.stderr)
+        return 130
     except (CommandError, ValueError, OSError) as exc:  # expected: bad path, corrupt file, bad value
         if os.environ.get(TRACEBACK_VARIABLE):
             raise
