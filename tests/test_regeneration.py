@@ -2,7 +2,7 @@
 figure are re-run here and compared with the shipped rows. A change to the code that alters results
 (the env, the policy, pre-training, TRPO, a default) fails this test until the results are regenerated.
 
-What determinism covers (README, "Regenerating the shipped results"): the same package versions
+What determinism covers (README, "Regenerable results, and what determinism covers"): the same package versions
 (torch, numpy, pybullet, gymnasium as recorded in NAME.json), one torch thread per run (the experiments
 set it; other thread counts change the order of floating-point sums), the same CPU family. Counts are
 compared exactly, floats to a relative 1e-6 (exact on the machine that made them; the tolerance only
@@ -25,14 +25,6 @@ ITERATIONS = 3
 RESULTS = DATA_DIR / "results"
 #: One run per shipped figure: (folder, method, seed); the run's data set is the figure's first.
 RUNS = [("fig4", "vd", 0), ("fig5", "vd", 0), ("fig6", "vd", 0), ("fig7", "vd", 0), ("fig4", "none", 1)]
-#: Folders whose rows predate a change of the code and have not been regenerated yet (see README).
-_RERUN = ("made before the start-sigma decision and the re-made checkpoints (3 seeds, fixed 0.3); re-run with "
-          "`python -m vdtutorial experiment {0} --seeds 0 1 2 3 4 --out data/results/{0} --state-dir runs/state-reach` "
-          "and remove it from this list")
-NOT_REGENERATED: dict[str, str] = {
-    "fig5": _RERUN.format("fig5"), "fig6": _RERUN.format("fig6"),
-    "fig7": "made before the grasp task was fixed (3 seeds, fixed 0.3); re-run with `python -m vdtutorial experiment "
-            "fig7 --seeds 0 1 2 3 4 --out data/results/fig7 --state-dir runs/state-grasp` and remove it from this list"}
 COUNTS = ("iteration", "env_steps", "successes", "episodes", "failures")
 FLOATS = ("mean_return", "mean_kl", "entropy", "surrogate_improvement", "line_search")
 
@@ -54,8 +46,6 @@ def _close(a, b) -> bool:
 
 @pytest.mark.parametrize("folder, method, seed", RUNS)
 def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_path):
-    if folder in NOT_REGENERATED:
-        pytest.xfail(NOT_REGENERATED[folder])
     record, run, shipped = _shipped(folder, method, seed)
     pretrain = PretrainConfig(reg="l2" if method == "none" else method, obs_mode=run["obs_mode"],
                               **record["pretrain_config"])
@@ -85,8 +75,6 @@ def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_
 
 @pytest.mark.parametrize("folder", ["fig4", "fig7"])
 def test_the_shipped_expert_reference_regenerates(folder):
-    if folder in NOT_REGENERATED:
-        pytest.xfail(NOT_REGENERATED[folder])
     record, run, shipped = _shipped(folder, "expert", 0)
     again = expert_reference(run["task"], 0, episodes=2)
     for a, b in zip(again, shipped[:2], strict=True):
