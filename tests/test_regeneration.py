@@ -23,16 +23,22 @@ from vdtutorial.trpo import TRPOConfig
 
 ITERATIONS = 3
 RESULTS = DATA_DIR / "results"
-#: One run per shipped figure: (folder, method, seed); the run's data set is the figure's first.
-RUNS = [("fig4", "vd", 0), ("fig5", "vd", 0), ("fig6", "vd", 0), ("fig7", "vd", 0), ("fig4", "none", 1)]
+#: One run per shipped figure and control: (folder, method, seed); the run's data set is the figure's first.
+RUNS = [("fig4", "vd", 0), ("fig5", "vd", 0), ("fig6", "vd", 0), ("fig7", "vd", 0), ("fig4", "none", 1),
+        ("fig4_state_fvp0.1", "l2", 0)]
 COUNTS = ("iteration", "env_steps", "successes", "episodes", "failures")
 FLOATS = ("mean_return", "mean_kl", "entropy", "surrogate_improvement", "line_search")
 
 
+def record_name(folder: str) -> str:
+    """The experiment a folder holds: a control (``fig4_state_fvp0.1``) is named after its figure."""
+    return folder.split("_")[0]
+
+
 def _shipped(folder: str, method: str, seed: int):
-    record = json.loads((RESULTS / folder / f"{folder}.json").read_text())
+    record = json.loads((RESULTS / folder / f"{record_name(folder)}.json").read_text())
     run = next(r for r in record["runs"] if r["method"] == method and r["seed"] == seed)
-    rows = [r for r in read_rows(results_file(RESULTS / folder, folder))
+    rows = [r for r in read_rows(results_file(RESULTS / folder, record_name(folder)))
             if r["method"] == method and r["seed"] == seed and r["samples"] == run["samples"]
             and r["noise"] == run["noise"]]
     return record, run, rows
