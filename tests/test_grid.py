@@ -137,3 +137,15 @@ def test_wall_time_estimate_on_hand_made_runs():
     assert makespan([], 4) == 0.0
     # Fig. 4's VD, L2, none; Fig. 5 adds VD and L2 on 2000 and 4000 samples; Fig. 6 on Sigma 0.05 and 0.25
     assert len(distinct_runs(["fig4", "fig5", "fig6"], seeds=(0,))) == 3 + 4 + 4
+
+
+def test_run_seconds_adds_pretraining_only_where_no_checkpoint_is_shipped():
+    from vdtutorial.experiments.estimate import distinct_runs, needs_pretraining, run_seconds
+
+    runs = {(s.method, s.samples): s for s in distinct_runs(["fig4", "fig5"], seeds=(0,))}
+    cost = {"vd": 1000.0, "l2": 400.0}
+    assert not needs_pretraining(runs[("vd", 8000)])          # shipped rgbd checkpoint of Fig. 4's data set
+    assert run_seconds(runs[("vd", 8000)], 100.0, cost, 50.0) == 3000.0 + 50.0
+    assert needs_pretraining(runs[("l2", 2000)])              # no shipped image checkpoint for 2000 samples
+    assert run_seconds(runs[("l2", 2000)], 100.0, cost, 50.0) == 3000.0 + 50.0 + 400.0
+    assert run_seconds(next(s for s in runs.values() if s.method == "none"), 100.0, cost, 50.0) == 3000.0

@@ -105,3 +105,26 @@ def test_a_shipped_checkpoint_regenerates():
         torch.set_num_threads(threads)
     for (name, a), b in zip(again.state_dict().items(), shipped.state_dict().values(), strict=True):
         assert torch.allclose(a, b, rtol=1e-6, atol=1e-9), name
+
+
+def test_a_shipped_image_checkpoint_regenerates_its_first_epoch():
+    """The image pipeline (camera, RGBD encoding, convolutional policy, pre-training) as shipped: the L2 rgbd
+    checkpoint of seed 0 records its 40 epochs, and L2 pre-training has no schedule that depends on the
+    number of epochs, so one epoch made now must log exactly its first row (~40 s: 8000 renders, one epoch)."""
+    from dataclasses import replace
+
+    from vdtutorial.demos import Demos
+    from vdtutorial.pretrain import load_checkpoint, pretrain
+
+    path = checkpoint_path({"task": "reach", "samples": 8000, "noise": 0.5}, "l2", "rgbd", 0)
+    shipped = load_checkpoint(path)
+    config = replace(PretrainConfig(**shipped.pretrain_info["config"]), epochs=1)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        _, history = pretrain(Demos.load(demo_path("reach", 8000, 0.5, 0)), config, seed=0, progress=False)
+    finally:
+        torch.set_num_threads(threads)
+    first = shipped.pretrain_info["history"][0]
+    differ = {k: (history[0][k], first[k]) for k in first if not _close(history[0][k], first[k])}
+    assert not differ, differ

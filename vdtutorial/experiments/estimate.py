@@ -3,8 +3,9 @@
 A run is one task on one core (one torch thread, see :mod:`~vdtutorial.experiments.backends`), so a
 grid's wall time on ``cores`` cores is the time at which the last run ends when the runs, in the grid's
 order, each start on the first core that is free (Ray and the local pool both hand out tasks that
-way). A run lasts ``total_steps / steps_per_s`` seconds, plus ``pretrain_s`` when its pre-trained
-checkpoint is not shipped and must be made first. The expert's reference runs take seconds and are left
+way). A run lasts ``total_steps / steps_per_s`` seconds, plus ``pretrain_s[method]`` when its pre-trained
+checkpoint is not shipped and must be made first, plus ``sigma_fit_s`` for every VD and L2 run, which fits
+its start sigma before RL (``initial_sigma="spread"``, once per run). The expert's reference runs take seconds and are left
 out. The rate is a parameter, to be measured (``python -m vdtutorial bench finetune`` gives the rate of
 one process on one core); it is the rate of one run *per core*, so on a machine whose cores slow each
 other down (shared memory bandwidth) use the rate measured with all cores busy.
@@ -49,13 +50,24 @@ def needs_pretraining(spec: RunSpec) -> bool:
         spec.task, spec.samples, spec.noise, 0).exists()
 
 
-def wall_time_table(steps_per_s: float, pretrain_s: float, cores=(2, 8, 16, 32, 64), seeds=(0, 1, 2),
-                    total_steps: int = 300_000, obs_mode: str = "rgbd") -> str:
+def run_seconds(spec: RunSpec, steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_s: float = 0.0,
+                total_steps: int = 300_000) -> float:
+    """Estimated duration of one run on one core (module docstring)."""
+    seconds = total_steps / steps_per_s
+    if spec.method in ("vd", "l2"):
+        seconds += sigma_fit_s + (pretrain_s[spec.method] if needs_pretraining(spec) else 0.0)
+    return seconds
+
+
+def wall_time_table(steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_s: float = 0.0,
+                    cores=(2, 8, 16, 32, 64), seeds=(0, 1, 2), total_steps: int = 300_000,
+                    obs_mode: str = "rgbd") -> str:
     """A Markdown table of estimated wall time (hours) by number of cores for the image Fig. 4 alone and
-    for the whole image section (Figs. 4-7, one shared state folder)."""
+    for the whole image section (Figs. 4-7, one shared state folder). ``pretrain_s``: seconds of one
+    pre-training per method ("vd", "l2")."""
     groups = {"Fig. 4": ["fig4"], "Figs. 4-7": list(FIGURES)}
     runs = {group: distinct_runs(names, seeds, total_steps, obs_mode) for group, names in groups.items()}
-    seconds = {group: [total_steps / steps_per_s + (pretrain_s if needs_pretraining(spec) else 0.0) for spec in specs]
+    seconds = {group: [run_seconds(spec, steps_per_s, pretrain_s, sigma_fit_s, total_steps) for spec in specs]
                for group, specs in runs.items()}
     header = " | ".join(f"{group}: {len(specs)} runs ({sum(map(needs_pretraining, specs))} pre-train first)"
                         for group, specs in runs.items())
