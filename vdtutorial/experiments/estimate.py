@@ -4,9 +4,9 @@ A run is one task on one core (one torch thread, see :mod:`~vdtutorial.experimen
 grid's wall time on ``cores`` cores is the time at which the last run ends when the runs, in the grid's
 order, each start on the first core that is free (Ray and the local pool both hand out tasks that
 way). A run lasts ``total_steps / steps_per_s`` seconds, plus ``pretrain_s[method]`` when its pre-trained
-checkpoint is not shipped and must be made first, plus ``sigma_fit_s`` for every VD and L2 run, which fits
-its start sigma before RL (``initial_sigma="spread"``, once per run). The expert's reference runs take seconds and are left
-out. The rate is a parameter, to be measured (``python -m vdtutorial bench finetune`` gives the rate of
+checkpoint is not shipped and must be made first, plus ``sigma_fit_s`` for every VD and L2 run, which
+fits its start sigma before RL (``initial_sigma="spread"``, once per run). The expert's reference runs
+take seconds and are left out. The rate is a parameter, to be measured (``python -m vdtutorial bench finetune`` gives the rate of
 one process on one core); it is the rate of one run *per core*, so on a machine whose cores slow each
 other down (shared memory bandwidth) use the rate measured with all cores busy.
 """
