@@ -232,6 +232,30 @@ def test_table1_fixed_weighting_pretrains_its_own_checkpoints(tmp_path):
         table1(kl_weighting="8000", out=tmp_path)
 
 
+@pytest.mark.parametrize("folder", ["table1", "table1_rgbd"])
+def test_shipped_table1_rows_are_the_shipped_checkpoints(folder):
+    """Every shipped per-set Table I row whose checkpoint is shipped too (all state rows; the image table's
+    8000-sample, Sigma = 0.5 row, whose other image checkpoints are too big to ship) is what
+    ``sparsity_report`` measures on that checkpoint now."""
+    from vdtutorial.pretrain import load_checkpoint
+    from vdtutorial.settings import DATA_DIR
+    from vdtutorial.vd import sparsity_report
+
+    rows = read_rows(DATA_DIR / "results" / folder / "table1_per-set.csv")
+    assert {r["experiment"] for r in rows} == {row[0] for row in TABLE1}
+    checked = 0
+    for r in rows:
+        meta = {"task": r["task"], "samples": int(r["samples"]), "noise": float(r["noise"])}
+        path = checkpoint_path(meta, "vd", r["obs_mode"], int(r["seed"]))
+        if not path.exists():
+            continue
+        report = sparsity_report(load_checkpoint(path).mu)
+        assert float(r["neuron_fraction"]) == pytest.approx(report.neuron_fraction, abs=1e-12), path.name
+        assert float(r["weight_fraction"]) == pytest.approx(report.weight_fraction, abs=1e-12), path.name
+        checked += 1
+    assert checked == (len(rows) if folder == "table1" else 1)
+
+
 def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):
     """With no checkpoints_root, quick mode looks up and saves checkpoints under runs/quick, not data/."""
     from vdtutorial.experiments import runs
