@@ -1,4 +1,6 @@
 """Shared test settings."""
+import vdtutorial  # noqa: F401  (first: it pins the CPU kernels before numpy loads, see vdtutorial.kernels)
+
 import pytest
 import torch
 

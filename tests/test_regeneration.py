@@ -4,9 +4,10 @@ figure are re-run here and compared with the shipped rows. A change to the code 
 
 What determinism covers (README, "Regenerable results, and what determinism covers"): the same package versions
 (torch, numpy, pybullet, gymnasium as recorded in NAME.json), one torch thread per run (the experiments
-set it; other thread counts change the order of floating-point sums), the same CPU family. Counts are
-compared exactly, floats to a relative 1e-6 (exact on the machine that made them; the tolerance only
-absorbs the last digits of another CPU's vector kernels, far below any change of the code).
+set it; other thread counts change the order of floating-point sums), the AVX2 vector kernels (which
+``import vdtutorial`` pins, :mod:`vdtutorial.kernels`: conftest imports it before numpy; without the pins an
+AVX-512 CPU fails this test). Counts are compared exactly, floats to a relative 1e-6 (bit for bit on the
+machines measured; the tolerance leaves room for a last bit, far below any change of the code).
 """
 import json
 import math

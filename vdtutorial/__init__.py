@@ -3,8 +3,14 @@
 
 Pipeline: IK expert -> noisy demonstrations -> behavioural cloning with sparse variational dropout
 (or L2) -> pruning (log alpha > 3) -> TRPO fine-tuning. Importing the package registers the
-gymnasium environments ``vdtutorial/JacoReach-v0`` and ``vdtutorial/JacoGrasp-v0``.
+gymnasium environments ``vdtutorial/JacoReach-v0`` and ``vdtutorial/JacoGrasp-v0``, after pinning
+torch's and numpy's CPU kernels to AVX2 (:mod:`vdtutorial.kernels`: the shipped results then regenerate
+bit for bit on any x86-64 CPU with AVX2), which must happen before numpy loads.
 """
 __version__ = "0.1.0"
+
+from vdtutorial.kernels import pin_vector_kernels as _pin_vector_kernels  # noqa: E402  (stdlib only)
+
+_pin_vector_kernels()
 
 from vdtutorial import envs as _envs  # noqa: E402,F401  (registers the environment ids)

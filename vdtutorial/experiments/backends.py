@@ -33,6 +33,7 @@ import queue
 
 import torch
 
+from vdtutorial.kernels import NATIVE_ENV, PINNED
 from vdtutorial.settings import QUICK, QUICK_ENV
 
 BACKENDS = ("local", "ray")
@@ -174,7 +175,10 @@ def _run_ray(fn, jobs, workers, address, listener) -> list:
     ray = _import_ray()
     started = not ray.is_initialized()
     if started:
-        env = {"env_vars": {QUICK_ENV: "1" if QUICK else "0"}}
+        # a Ray worker loads numpy before it runs a task, so the kernel pins must be in its environment from
+        # the start (vdtutorial.kernels), as must the quick switch
+        pins = {name: os.environ[name] for name in (*PINNED, NATIVE_ENV) if name in os.environ}
+        env = {"env_vars": {QUICK_ENV: "1" if QUICK else "0", **pins}}
         if address is None:  # a private local Ray, even if another one runs on this machine
             try:
                 ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, runtime_env=env,

@@ -21,6 +21,7 @@ from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.grid import Job, RunSpec, run_grid
 from vdtutorial.experiments.plots import plot_curves
 from vdtutorial.experiments.rows import read_rows, results_file, write_csv
+from vdtutorial.kernels import kernel_settings
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, RUNS_DIR, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.settings import DATA_DIR, QUICK, budget
@@ -137,6 +138,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
         "summary": summary,
         "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__, "gymnasium": gym.__version__,
                      "numpy": np.__version__, "python": sys.version.split()[0]},
+        "kernels": kernel_settings(),  # the CPU vector kernels in use (vdtutorial.kernels)
     }
     (out / f"{name}.json").write_text(json.dumps(record, indent=1, default=str))
     return ExperimentResult(name, out, rows, curves, figure, summary, record)
