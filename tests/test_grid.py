@@ -14,7 +14,11 @@ import torch
 
 from vdtutorial.experiments import (SUBSAMPLED_FISHER_CONFIG, Curve, ExperimentResult, ResumeError, RunSpec,
                                     default_trpo_config, format_summary, read_rows, results_file, run_experiment)
+from vdtutorial.demos import demo_path
+from vdtutorial.experiments import finetune
+from vdtutorial.experiments import runs as runs_module
 from vdtutorial.experiments.resume import settings_differences
+from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import QUICK
 from vdtutorial.trpo import TRPOConfig
 
@@ -103,6 +107,32 @@ def test_a_longer_budget_extends_finished_runs_to_the_rows_of_a_longer_run(tmp_p
                            tmp_path / "b", 1, window=2, progress=False)
     drop = (lambda rows: [{k: v for k, v in r.items() if k != "wall_time"} for r in rows])
     assert drop(longer.rows[:2]) == drop(short.rows) and drop(longer.rows) == drop(fresh.rows)
+
+
+def test_a_resumed_run_does_not_fit_its_start_sigma_again(tmp_path, monkeypatch):
+    """A resumed pre-trained run takes every parameter from its state: its network is built from the default
+    checkpoint, the start sigma is not fitted again (minutes for an image policy), and the rows are those of an
+    uninterrupted run."""
+    config = PretrainConfig(epochs=1, initial_sigma="spread")
+
+    def run(steps, state_path=None):
+        return finetune("vd", "reach", demo_path("reach", 2000, 0.5, 0), total_steps=steps, pretrain_config=config,
+                        checkpoints_root=tmp_path, state_path=state_path, checkpoint_every=1)[1]
+
+    whole = run(800)
+    run(400, tmp_path / "state.pt")
+    fitted = list((tmp_path / "checkpoints").glob("*initsigma-spread.pt"))
+    assert len(fitted) == 1
+    fitted[0].unlink()
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the start sigma was fitted again for a resumed run")
+
+    monkeypatch.setattr(runs_module, "set_initial_sigma", no_fit)
+    resumed = run(800, tmp_path / "state.pt")
+    drop = (lambda rows: [{k: v for k, v in r.items() if k != "wall_time"} for r in rows])
+    assert len(resumed) == 4 and drop(resumed) == drop(whole)
+    assert not fitted[0].exists()
 
 
 def test_settings_differences_name_nested_settings():

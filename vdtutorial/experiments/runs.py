@@ -149,7 +149,8 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     state_path: the run's resumable state. If the file exists, the run continues from it -- after
         checking that it was saved with the same settings (:func:`run_settings`; otherwise
         :class:`~vdtutorial.experiments.resume.ResumeError`) -- and every chunk saves it again. The rows
-        are then those of an uninterrupted run (wall times aside).
+        are then those of an uninterrupted run (wall times aside). A resumed pre-trained run needs only the
+        default checkpoint (the state holds every parameter, the fitted start sigma included).
     """
     if method not in RL_METHODS:
         raise ValueError(f"method must be one of {RL_METHODS} (the expert is measured by expert_reference), "
@@ -172,7 +173,10 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
             policy = make_policy(env.single_observation_space, env.single_action_space.shape[0], variational=False,
                                  init_std=InitialSigma.parse(cfg.initial_sigma).value)  # no demos: fixed sigma
         else:
-            policy = pretrained_policy(method, data, obs_mode, seed, cfg, checkpoints_root, progress)
+            # a resumed run's parameters all come from its state: the network is built from the default
+            # checkpoint, without fitting the start sigma again (minutes for an image policy) only to overwrite it
+            network = cfg if saved is None else replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
+            policy = pretrained_policy(method, data, obs_mode, seed, network, checkpoints_root, progress)
             if method == "vd":
                 policy.prune_()
         algo = TRPO(policy, env, trpo_config, seed=seed)
