@@ -1,5 +1,6 @@
 """Restartable grids: a grid killed with SIGKILL and run again gives the rows of an uninterrupted grid;
 saved runs of other settings are an error (or discarded with restart); the defaults of the experiments."""
+import io
 import json
 import math
 import os
@@ -17,7 +18,7 @@ from vdtutorial.experiments import (SUBSAMPLED_FISHER_CONFIG, Curve, ExperimentR
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments import finetune
 from vdtutorial.experiments import runs as runs_module
-from vdtutorial.experiments.resume import settings_differences
+from vdtutorial.experiments.resume import GZIP_MAGIC, read_run_state, settings_differences
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import QUICK
 from vdtutorial.trpo import TRPOConfig
@@ -28,8 +29,12 @@ COMMAND = [sys.executable, "-m", "vdtutorial", "experiment", "fig4", "--seeds", 
 ITERATIONS = 20
 
 
+def _without_wall_time(rows):
+    return [{k: v for k, v in row.items() if k != "wall_time"} for row in rows]
+
+
 def _rows_without_wall_time(folder):
-    return [{k: v for k, v in row.items() if k != "wall_time"} for row in read_rows(results_file(folder, "fig4"))]
+    return _without_wall_time(read_rows(results_file(folder, "fig4")))
 
 
 def _saved_iterations(runs_dir) -> dict[str, int]:
@@ -37,8 +42,8 @@ def _saved_iterations(runs_dir) -> dict[str, int]:
     saved = {}
     for path in runs_dir.glob("*.pt"):
         try:
-            state = torch.load(path, weights_only=True)
-        except Exception:  # noqa: BLE001 -- a file being replaced right now: look again next time
+            state = read_run_state(path)
+        except ResumeError:  # a file being replaced right now: look again next time
             continue
         if "iteration" in state:
             saved[path.stem] = state["iteration"]
@@ -105,7 +110,7 @@ def test_a_longer_budget_extends_finished_runs_to_the_rows_of_a_longer_run(tmp_p
                             tmp_path / "a", 1, window=2, progress=False)
     fresh = run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 800, "none")], "tiny",
                            tmp_path / "b", 1, window=2, progress=False)
-    drop = (lambda rows: [{k: v for k, v in r.items() if k != "wall_time"} for r in rows])
+    drop = _without_wall_time
     assert drop(longer.rows[:2]) == drop(short.rows) and drop(longer.rows) == drop(fresh.rows)
 
 
@@ -130,9 +135,30 @@ def test_a_resumed_run_does_not_fit_its_start_sigma_again(tmp_path, monkeypatch)
 
     monkeypatch.setattr(runs_module, "set_initial_sigma", no_fit)
     resumed = run(800, tmp_path / "state.pt")
-    drop = (lambda rows: [{k: v for k, v in r.items() if k != "wall_time"} for r in rows])
-    assert len(resumed) == 4 and drop(resumed) == drop(whole)
+    assert len(resumed) == 4 and _without_wall_time(resumed) == _without_wall_time(whole)
     assert not fitted[0].exists()
+
+
+def test_run_states_are_compressed_and_uncompressed_states_still_resume(tmp_path):
+    """States are written gzip-compressed; a state in the earlier, uncompressed format (``torch.save``'s
+    own) continues to the rows of an uninterrupted run, and its next save is compressed."""
+    def run(steps, state_path=None):
+        return finetune("none", "reach", total_steps=steps, state_path=state_path, checkpoint_every=1)[1]
+
+    whole = run(800)
+    path = tmp_path / "state.pt"
+    run(400, path)
+    compressed = path.read_bytes()
+    assert compressed[:2] == GZIP_MAGIC
+    state = read_run_state(path)
+    assert state["iteration"] == 2 and state["run_settings"]["method"] == "none"
+    uncompressed = io.BytesIO()
+    torch.save(state, uncompressed)
+    assert len(compressed) < 0.9 * len(uncompressed.getvalue())
+    path.write_bytes(uncompressed.getvalue())
+    resumed = run(800, path)
+    assert len(resumed) == 4 and _without_wall_time(resumed) == _without_wall_time(whole)
+    assert path.read_bytes()[:2] == GZIP_MAGIC
 
 
 def test_settings_differences_name_nested_settings():

@@ -666,18 +666,15 @@ class TRPO:
         return self.rows
 
     # -- checkpoints ------------------------------------------------------------------------------
-    def save(self, path: str | os.PathLike) -> None:
-        """Write policy, baseline, iteration index and log rows (loadable with weights_only=True)."""
-        state = {"policy": self.policy.state_dict(), "baseline": self.baseline.state_dict(),
-                 "iteration": self.iteration_index, "rows": self.rows,
-                 "seed": self.seed, "config": asdict(self.config)}
-        tmp = f"{os.fspath(path)}.tmp"
-        torch.save(state, tmp)
-        os.replace(tmp, path)  # a crash mid-write never leaves a half-written checkpoint
+    def checkpoint(self) -> dict:
+        """Policy, baseline, iteration index and log rows: everything a run needs to continue exactly
+        (TRPO draws its resets and action noise from (seed, iteration), so no generator state is needed)."""
+        return {"policy": self.policy.state_dict(), "baseline": self.baseline.state_dict(),
+                "iteration": self.iteration_index, "rows": self.rows,
+                "seed": self.seed, "config": asdict(self.config)}
 
-    def load(self, path: str | os.PathLike) -> None:
-        """Restore a checkpoint written by :meth:`save` by a run with the same seed and config."""
-        state = torch.load(path, weights_only=True)
+    def restore(self, state: dict) -> None:
+        """Continue from a :meth:`checkpoint` of a run with the same seed and config."""
         # fields added to TRPOConfig after a checkpoint was written take their defaults, which keep
         # the behaviour of the code that wrote it
         saved_config = {**asdict(TRPOConfig()), **state["config"]}
@@ -688,6 +685,16 @@ class TRPO:
         self.baseline.load_state_dict(state["baseline"])
         self.iteration_index = state["iteration"]
         self.rows = state["rows"]
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write :meth:`checkpoint` to ``path`` (loadable with weights_only=True)."""
+        tmp = f"{os.fspath(path)}.tmp"
+        torch.save(self.checkpoint(), tmp)
+        os.replace(tmp, path)  # a crash mid-write never leaves a half-written checkpoint
+
+    def load(self, path: str | os.PathLike) -> None:
+        """Restore a checkpoint written by :meth:`save` (see :meth:`restore`)."""
+        self.restore(torch.load(path, weights_only=True))
 
     def close(self) -> None:
         self.env.close()

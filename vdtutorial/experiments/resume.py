@@ -3,7 +3,8 @@
 A fine-tuning run is a pure function of its settings: TRPO derives each iteration's environment resets
 and action noise from (seed, iteration), so the state after iteration k -- policy, baseline, iteration
 index and log rows, which :meth:`TRPO.save <vdtutorial.trpo.TRPO.save>` writes -- continues the run
-exactly. The state file here is TRPO's checkpoint plus two things:
+exactly. The state file here is TRPO's checkpoint (:meth:`TRPO.checkpoint <vdtutorial.trpo.TRPO.checkpoint>`)
+plus two things:
 
 * ``run_settings``: everything that determines the run's numbers (method, data set, seed, observation
   mode, pre-training and TRPO configurations; see :func:`vdtutorial.experiments.runs.run_settings`).
@@ -14,10 +15,17 @@ exactly. The state file here is TRPO's checkpoint plus two things:
   the run (a future baseline or critic, say) draws from them.
 
 Writes go to a temporary file first and are moved into place with ``os.replace``, so a run killed at any
-moment (SIGKILL included) leaves either the previous state or the new one, never half a file.
+moment (SIGKILL included) leaves either the previous state or the new one, never half a file. The file is
+``torch.save``'s format compressed with gzip: the weights a VD policy pruned are stored as exact zeros (98%
+of its largest image layer) and its masks as one byte each, so an image VD run's state shrinks from 1.26 MB
+to 0.51 MB -- which matters when the states of a grid that spans several working sessions are committed as
+it goes.
+States written uncompressed (before this format) are still read.
 """
 from __future__ import annotations
 
+import gzip
+import io
 import os
 import random
 from pathlib import Path
@@ -32,10 +40,16 @@ class ResumeError(ValueError):
     """A saved run cannot continue the requested one: other settings, or more iterations than asked for."""
 
 
+#: The first two bytes of every gzip stream; ``torch.save``'s own format is a zip archive ("PK").
+GZIP_MAGIC = b"\x1f\x8b"
+
+
 def _atomic_save(state: dict, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(state, tmp)
+    tmp.write_bytes(gzip.compress(buffer.getvalue(), compresslevel=6, mtime=0))  # mtime=0: equal states, equal files
     os.replace(tmp, path)
 
 
@@ -53,16 +67,9 @@ def _set_rng_state(state: dict) -> None:
 
 
 def save_run_state(algo: TRPO, path: str | os.PathLike, settings: dict, seconds: float) -> None:
-    """Write ``algo``'s checkpoint (:meth:`TRPO.save`) with the run's settings, the global random states
-    and the run's compute time so far (``seconds``), atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    staging = path.with_name(path.name + ".trpo")
-    algo.save(staging)
-    state = torch.load(staging, weights_only=True)
-    state.update(run_settings=settings, rng=_rng_state(), seconds=seconds)
-    _atomic_save(state, path)
-    staging.unlink()
+    """Write ``algo``'s checkpoint (:meth:`TRPO.checkpoint`) with the run's settings, the global random
+    states and the run's compute time so far (``seconds``), atomically."""
+    _atomic_save({**algo.checkpoint(), "run_settings": settings, "rng": _rng_state(), "seconds": seconds}, Path(path))
 
 
 def save_finished_rows(path: str | os.PathLike, settings: dict, rows: list[dict], seconds: float) -> None:
@@ -73,7 +80,8 @@ def save_finished_rows(path: str | os.PathLike, settings: dict, rows: list[dict]
 def read_run_state(path: str | os.PathLike) -> dict:
     """A state file as written by :func:`save_run_state` or :func:`save_finished_rows`."""
     try:
-        state = torch.load(path, weights_only=True)
+        data = Path(path).read_bytes()
+        state = torch.load(io.BytesIO(gzip.decompress(data) if data[:2] == GZIP_MAGIC else data), weights_only=True)
     except Exception as exc:  # truncated or not a state file: say which file, and what to do
         raise ResumeError(f"{path} is not a readable run state ({exc}); delete it or rerun with --restart") from exc
     if not isinstance(state, dict) or "run_settings" not in state:
@@ -106,8 +114,8 @@ def check_resumable(path: str | os.PathLike, state: dict, settings: dict, iterat
                           "rerun with --restart, or ask for at least as many steps")
 
 
-def restore_run_state(algo: TRPO, path: str | os.PathLike, state: dict) -> None:
-    """Continue ``algo`` from the state file ``path`` (already read into ``state``): TRPO's checkpoint and
-    the global random states."""
-    algo.load(path)
+def restore_run_state(algo: TRPO, state: dict) -> None:
+    """Continue ``algo`` from a state read by :func:`read_run_state`: TRPO's checkpoint and the global
+    random states."""
+    algo.restore(state)
     _set_rng_state(state["rng"])

@@ -181,7 +181,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
                 policy.prune_()
         algo = TRPO(policy, env, trpo_config, seed=seed)
         if saved is not None:
-            restore_run_state(algo, state_path, saved)
+            restore_run_state(algo, saved)
         if csv_path is not None:  # TRPO appends: start the file from the rows so far (a stale file would mix runs)
             Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
             Path(csv_path).unlink(missing_ok=True)
