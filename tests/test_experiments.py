@@ -15,6 +15,7 @@ from vdtutorial.experiments import (KL_WEIGHTINGS, METHOD_LABELS, TABLE1, Curve,
                                     results_file,
                                     run_experiment, seeds_with_trend, sparsity_trends, steps_to_reach, table1,
                                     table_means, vd_reaches_l2_final)
+from vdtutorial.experiments import backends
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.vd import svdo_layers
 
@@ -114,6 +115,31 @@ def test_results_do_not_depend_on_the_number_of_workers_or_the_backend(tmp_path)
     rows = read_rows(results_file(tmp_path / "local2", "tiny"))
     again = curves_from_rows(rows, "successes", window=2)["L2"]
     assert np.allclose(again.mean, results["local", 2].curves["L2"].mean)
+
+
+class _FlakyRay:
+    """Stands in for the ray module: ``init`` times out the way Ray's does on a busy machine, ``failures`` times."""
+
+    def __init__(self, failures):
+        self.failures, self.calls = failures, []
+
+    def init(self, **kwargs):
+        self.calls.append("init")
+        if self.calls.count("init") <= self.failures:
+            raise Exception("The current node timed out during startup.")  # noqa: TRY002 -- what Ray raises
+
+    def shutdown(self):
+        self.calls.append("shutdown")
+
+
+def test_a_local_ray_that_times_out_at_startup_is_tried_again():
+    ray = _FlakyRay(failures=2)
+    backends._start_local_ray(ray, 2, {})
+    assert ray.calls == ["init", "shutdown", "init", "shutdown", "init"]
+    ray = _FlakyRay(failures=backends.LOCAL_RAY_ATTEMPTS)
+    with pytest.raises(RuntimeError, match=r"in 3 tries \(The current node timed out.*65983.*local backend"):
+        backends._start_local_ray(ray, 2, {})
+    assert ray.calls.count("init") == backends.LOCAL_RAY_ATTEMPTS
 
 
 def test_expert_reference_counts_like_a_trpo_iteration():

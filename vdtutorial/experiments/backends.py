@@ -171,6 +171,28 @@ def _import_ray():
     return ray
 
 
+#: Tries to start a private local Ray. On a heavily loaded machine its raylet gives up when the dashboard
+#: agent takes more than 15 s to start (ray-project/ray issue 65983); a later try may find the machine less busy.
+LOCAL_RAY_ATTEMPTS = 3
+
+
+def _start_local_ray(ray, workers: int, runtime_env: dict) -> None:
+    """``ray.init`` of a private local Ray with ``workers`` CPUs, tried up to :data:`LOCAL_RAY_ATTEMPTS`
+    times (whatever a failed try left behind is shut down before the next)."""
+    for attempt in range(1, LOCAL_RAY_ATTEMPTS + 1):
+        try:
+            ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, runtime_env=runtime_env,
+                     logging_level=logging.WARNING, object_store_memory=200 * 2 ** 20)
+            return
+        except Exception as exc:  # Ray raises a bare Exception when its node does not come up
+            ray.shutdown()
+            if attempt == LOCAL_RAY_ATTEMPTS:
+                raise RuntimeError(
+                    f"Ray could not start on this machine in {attempt} tries ({exc}). On a heavily loaded machine "
+                    "Ray's raylet gives up when its agent process takes more than 15 s to start (ray-project/ray "
+                    "issue 65983): retry when the machine is less busy, or use the local backend") from exc
+
+
 def _run_ray(fn, jobs, workers, address, listener) -> list:
     ray = _import_ray()
     started = not ray.is_initialized()
@@ -180,14 +202,7 @@ def _run_ray(fn, jobs, workers, address, listener) -> list:
         pins = {name: os.environ[name] for name in (*PINNED, NATIVE_ENV) if name in os.environ}
         env = {"env_vars": {QUICK_ENV: "1" if QUICK else "0", **pins}}
         if address is None:  # a private local Ray, even if another one runs on this machine
-            try:
-                ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, runtime_env=env,
-                         logging_level=logging.WARNING, object_store_memory=200 * 2 ** 20)
-            except Exception as exc:  # Ray raises a bare Exception when its node does not come up
-                raise RuntimeError(
-                    f"Ray could not start on this machine ({exc}). On a heavily loaded machine Ray's raylet gives "
-                    "up when its agent process takes more than 15 s to start (ray-project/ray issue 65983): "
-                    "retry when the machine is less busy, or use the local backend") from exc
+            _start_local_ray(ray, workers, env)
         else:
             ray.init(address=address, runtime_env=env, logging_level=logging.WARNING)
     try:
