@@ -94,6 +94,8 @@ def _one_line_error(capsys, argv) -> str:
     (["pretrain", "--reg", "dropout", "--demos", "x.npz"], "invalid choice: 'dropout'"),
     (["bench", "gpu"], "invalid choice: 'gpu'"),
     (["train"], "invalid choice: 'train'"),
+    (["experiment", "table1", "--restart", "--state-dir", "x"], "table1 pre-trains only (no TRPO runs to resume): "
+                                                               "--state-dir, --restart are options of the figures"),
 ])
 def test_bad_arguments_give_one_line(argv, expected, capsys):
     assert expected in _one_line_error(capsys, argv)
@@ -109,7 +111,7 @@ def test_ctrl_c_gives_one_line_and_the_shell_code(monkeypatch, capsys):
     monkeypatch.setattr(experiments, "fig4", interrupted)
     assert main(["experiment", "fig4", "--seeds", "0"]) == 130
     err = capsys.readouterr().err.replace("[quick mode: small budgets]\n", "")
-    assert err.startswith("interrupted: ") and "rerun the same command to continue" in err and "Traceback" not in err
+    assert err.startswith("interrupted: ") and "rerun the same command (without --restart) to continue" in err and "Traceback" not in err
     assert err.count("\n") == 1
 
 

@@ -3,6 +3,9 @@ numbers the figures and Table I report, on hand-made inputs."""
 import csv
 import json
 import math
+import os
+import signal
+import time
 import warnings
 
 import numpy as np
@@ -140,6 +143,29 @@ def test_a_local_ray_that_times_out_at_startup_is_tried_again():
     with pytest.raises(RuntimeError, match=r"in 3 tries \(The current node timed out.*65983.*local backend"):
         backends._start_local_ray(ray, 2, {})
     assert ray.calls.count("init") == backends.LOCAL_RAY_ATTEMPTS
+
+
+def _pool_job(job):
+    """A job for the local pool: ("sleep", seconds), ("fail", _) raises, ("die", _) kills its own worker."""
+    kind, seconds = job
+    if kind == "fail":
+        raise ValueError("this run failed")
+    yield {"env_steps": 0}
+    if kind == "die":
+        time.sleep(1)  # let the worker's "started" message reach the parent first
+        os.kill(os.getpid(), signal.SIGKILL)  # what the system's out-of-memory killer does
+    time.sleep(seconds)
+    return seconds
+
+
+@pytest.mark.parametrize("kind, error", [("fail", "this run failed"), ("die", "died without an error")])
+def test_a_failed_or_killed_worker_stops_the_pool_at_once(kind, error):
+    """A run that fails, or whose worker is killed, stops the grid while the other run is still going (the
+    pool used to report a failure only after every other run had ended, and to wait for ever for a killed one)."""
+    start = time.monotonic()
+    with pytest.raises((ValueError, RuntimeError), match=error):
+        backends.run_jobs(_pool_job, [("sleep", 120), (kind, 0)], workers=2)
+    assert time.monotonic() - start < 60
 
 
 def test_expert_reference_counts_like_a_trpo_iteration():

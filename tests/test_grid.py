@@ -4,12 +4,14 @@ import io
 import json
 import math
 import os
+import random
 import shutil
 import signal
 import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 import torch
 
@@ -17,6 +19,7 @@ from vdtutorial.experiments import (SUBSAMPLED_FISHER_CONFIG, Curve, ExperimentR
                                     default_trpo_config, format_summary, read_rows, results_file, run_experiment)
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments import finetune
+from vdtutorial.experiments import resume as resume_module
 from vdtutorial.experiments import runs as runs_module
 from vdtutorial.experiments.resume import GZIP_MAGIC, read_run_state, settings_differences
 from vdtutorial.pretrain import PretrainConfig
@@ -79,6 +82,23 @@ def test_a_grid_killed_with_sigkill_resumes_to_the_rows_of_an_uninterrupted_grid
     record = json.loads((killed / "fig4.json").read_text())
     resumed = {run["name"]: run["resumed_at_iteration"] for run in record["runs"]}
     assert any(resumed[name] == n for name, n in at_kill.items() if 0 < n < ITERATIONS)
+
+
+@pytest.mark.skipif(not QUICK, reason="runs the experiment command: quick mode only")
+def test_ctrl_c_stops_a_grid_with_workers_with_one_line(tmp_path):
+    """SIGINT reaches the command and its workers (a terminal's Ctrl-C goes to the whole process group): the
+    command answers with its one line and exit code 130, the workers with nothing."""
+    env = {**os.environ, "VDTUTORIAL_QUICK": "1"}
+    grid = subprocess.Popen([*COMMAND, "--out", str(tmp_path)], env=env, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline and grid.poll() is None and not _saved_iterations(tmp_path / "runs"):
+        time.sleep(0.05)
+    os.killpg(grid.pid, signal.SIGINT)
+    _, err = grid.communicate(timeout=120)
+    assert grid.returncode == 130, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert err.count("interrupted: ") == 1 and "(without --restart)" in err
 
 
 def _tiny_grid(out, trpo_config=None, **kwargs):
@@ -161,6 +181,40 @@ def test_run_states_are_compressed_and_uncompressed_states_still_resume(tmp_path
     assert path.read_bytes()[:2] == GZIP_MAGIC
 
 
+def test_the_global_random_states_are_restored_on_resume():
+    """A run draws only from its own seeded generators today; the saved global states keep a resumed run
+    exact should any part of it draw from torch's, numpy's or Python's global generator."""
+    torch.manual_seed(1), np.random.seed(1), random.seed(1)
+    saved = resume_module._rng_state()
+    expected = (torch.rand(3), np.random.rand(3), [random.random() for _ in range(3)])
+    torch.manual_seed(2), np.random.seed(2), random.seed(2)
+    resume_module._set_rng_state(saved)
+    drawn = (torch.rand(3), np.random.rand(3), [random.random() for _ in range(3)])
+    assert torch.equal(drawn[0], expected[0]) and np.array_equal(drawn[1], expected[1]) and drawn[2] == expected[2]
+
+
+def test_states_are_written_whole_through_a_temporary_file_of_their_own(tmp_path, monkeypatch):
+    """Two processes saving the same run (two grids on one state folder) never share a temporary file,
+    and a save that fails leaves the previous state and no temporary file behind."""
+    path = tmp_path / "run.pt"
+    resume_module.save_finished_rows(path, {"method": "expert"}, [{"successes": 1}], 1.0)
+    names = []
+    real_replace = os.replace
+
+    def failing_replace(source, target):
+        names.append(os.path.basename(source))
+        raise OSError("disk full")
+
+    monkeypatch.setattr(resume_module.os, "replace", failing_replace)
+    for _ in range(2):
+        with pytest.raises(OSError, match="disk full"):
+            resume_module.save_finished_rows(path, {"method": "expert"}, [{"successes": 2}], 2.0)
+    monkeypatch.setattr(resume_module.os, "replace", real_replace)
+    assert len(set(names)) == 2 and all(name.startswith("run.pt.") and name.endswith(".tmp") for name in names)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.pt"]
+    assert read_run_state(path)["rows"] == [{"successes": 1}]
+
+
 def test_settings_differences_name_nested_settings():
     saved = {"seed": 0, "trpo_config": {"max_kl": 0.01, "fvp_subsample": 1.0}}
     wanted = {"seed": 0, "trpo_config": {"max_kl": 0.01, "fvp_subsample": 0.1}}
@@ -203,5 +257,7 @@ def test_run_seconds_adds_pretraining_only_where_no_checkpoint_is_shipped():
     assert not needs_pretraining(runs[("vd", 8000)])          # shipped rgbd checkpoint of Fig. 4's data set
     assert run_seconds(runs[("vd", 8000)], 100.0, cost, 50.0) == 3000.0 + 50.0
     assert needs_pretraining(runs[("l2", 2000)])              # no shipped image checkpoint for 2000 samples
-    assert run_seconds(runs[("l2", 2000)], 100.0, cost, 50.0) == 3000.0 + 50.0 + 400.0
+    # ... and its start sigma follows the VD network's spread: the VD checkpoint is made too
+    assert run_seconds(runs[("l2", 2000)], 100.0, cost, 50.0) == 3000.0 + 50.0 + 400.0 + 1000.0
+    assert run_seconds(runs[("vd", 2000)], 100.0, cost, 50.0) == 3000.0 + 50.0 + 1000.0
     assert run_seconds(next(s for s in runs.values() if s.method == "none"), 100.0, cost, 50.0) == 3000.0

@@ -193,6 +193,12 @@ def _cmd_experiment(args) -> None:
     if args.kl_weighting != "per-set" and args.name != "table1":
         raise CommandError("--kl-weighting is an option of table1 (the figures use the pre-training default)")
     if args.name == "table1":
+        ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
+                                            ("--state-dir", args.state_dir), ("--restart", args.restart or None),
+                                            ("--checkpoint-every", args.checkpoint_every)) if value is not None]
+        if ignored:
+            raise CommandError(f"table1 pre-trains only (no TRPO runs to resume): {', '.join(ignored)} "
+                               "are options of the figures")
         experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting, out=args.out,
                            workers=args.workers, backend=backend, address=args.address)
         return
@@ -331,7 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint-every", type=positive_int, default=None, metavar="K",
                    help="TRPO iterations between two saved states of a run (default 10)")
     p.set_defaults(func=_cmd_experiment, on_interrupt="the finished runs and the saved states of the others are "
-                   "kept: rerun the same command to continue")
+                   "kept: rerun the same command (without --restart) to continue")
 
     p = sub.add_parser("claims", help="the paper's claims as effect sizes with 95%% intervals, from experiment folders")
     p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4); their JSON records are updated")
@@ -358,7 +364,7 @@ def main(argv=None) -> int:
         hint = getattr(args, "on_interrupt", None)
         print(f"interrupted{': ' + hint if hint else ''}", file=sys.stderr)
         return 130
-    except (CommandError, ValueError, OSError) as exc:  # expected: bad path, corrupt file, bad value
+    except (CommandError, ValueError, OSError, ImportError) as exc:  # expected: bad path, corrupt file, bad value, Ray not installed
         if os.environ.get(TRACEBACK_VARIABLE):
             raise
         message = " ".join(str(exc).split()) or type(exc).__name__

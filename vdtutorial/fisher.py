@@ -9,6 +9,9 @@ respect to theta, on N states,
 
     F = J^T M J,   M = diag(1 / sigma^2) on the mu outputs, diag(2 / sigma^2) on the sigma outputs, / N.
 
+The sigma network ends in a softplus, sigma = min_std + softplus(z), and the code takes J with respect to its
+pre-activation z: M's sigma entries then carry the chain factor (d sigma / d z)^2 = sigmoid(z)^2.
+
 So F v = J^T (M (J v)): one Jacobian-vector product, pushing the parameter direction v forwards
 through the two networks (a tangent pass), and one vector-Jacobian product, an ordinary backward pass.
 Both run over the activations of one forward pass at theta_old, cached once per update. This is

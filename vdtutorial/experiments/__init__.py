@@ -1,8 +1,8 @@
 """The paper's experiments (Section V): Figs. 4-7 and Table I, as functions that write their evidence.
 
 Modules, one idea each: :mod:`~vdtutorial.experiments.runs` (one run: pre-trained policy -> TRPO, the
-expert's reference), :mod:`~vdtutorial.experiments.resume` (a run's saved state), :mod:`~vdtutorial.experiments.grid` (a
-restartable grid of runs), :mod:`~vdtutorial.experiments.backends` (local processes or Ray),
+expert's reference), :mod:`~vdtutorial.experiments.resume` (a run's saved state), :mod:`~vdtutorial.experiments.run_lock`
+(one process at a time per run), :mod:`~vdtutorial.experiments.grid` (a restartable grid of runs), :mod:`~vdtutorial.experiments.backends` (local processes or Ray),
 :mod:`~vdtutorial.experiments.progress` (the grid's progress lines),
 :mod:`~vdtutorial.experiments.curves` (smoothing, bands, "steps to reach"),
 :mod:`~vdtutorial.experiments.plots` (the figure), :mod:`~vdtutorial.experiments.rows` (CSV files),

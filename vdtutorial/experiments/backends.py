@@ -30,6 +30,7 @@ import logging
 import multiprocessing
 import os
 import queue
+import signal
 
 import torch
 
@@ -107,6 +108,9 @@ def _init_worker(reports, parent: int) -> None:
     global _reports, _parent
     _reports, _parent = reports, parent
     torch.set_num_threads(1)
+    # Ctrl-C reaches the whole process group: the parent alone answers it (it terminates the pool), so that
+    # the user sees one line instead of a traceback from every worker
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _pool_task(task) -> None:
@@ -117,29 +121,52 @@ def _pool_task(task) -> None:
             os._exit(1)
         _reports.put((index, "report", value))
 
+    _reports.put((index, "started", os.getpid()))
     _reports.put((index, "result", _drive(fn, job, report)))
 
 
+def process_exists(pid: int) -> bool:
+    """Whether a process with this id runs on this machine (another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def _run_pool(fn, jobs, workers, listener) -> list:
+    """Each job is a task of a spawned pool. A failed run stops the grid as soon as it fails (its exception
+    is raised here); so does a worker that dies while it runs a job (killed by the system, out of memory),
+    which a pool would otherwise replace silently, leaving the grid waiting for ever."""
     context = multiprocessing.get_context("spawn")
     reports = context.Queue()
-    results = {}
+    results, running, failures = {}, {}, []
     with context.Pool(min(workers, len(jobs)), initializer=_init_worker, initargs=(reports, os.getpid())) as pool:
-        done = pool.map_async(_pool_task, [(fn, i, job) for i, job in enumerate(jobs)], chunksize=1)
+        for i, job in enumerate(jobs):
+            pool.apply_async(_pool_task, ((fn, i, job),), error_callback=failures.append)
         while len(results) < len(jobs):
+            if failures:
+                raise failures[0]
             try:
                 index, kind, value = reports.get(timeout=_POLL)
             except queue.Empty:
-                if done.ready():
-                    done.get()  # a worker failed: raise its exception here
+                dead = [index for index, pid in running.items() if not process_exists(pid)]
+                if dead:
+                    name = getattr(getattr(jobs[dead[0]], "spec", None), "name", f"job {dead[0]}")
+                    raise RuntimeError(f"the worker process running {name} died without an error (killed by the "
+                                       "system, out of memory?)")
                 listener.tick()
                 continue
-            if kind == "report":
+            if kind == "started":
+                running[index] = value
+            elif kind == "report":
                 listener.report(index, value)
             else:
                 results[index] = value
+                running.pop(index, None)
                 listener.finished(index, value)
-        done.get()
         pool.close()  # let the workers exit on their own: terminating them leaks their semaphores
         pool.join()
     return [results[i] for i in range(len(jobs))]

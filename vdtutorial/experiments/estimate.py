@@ -5,7 +5,8 @@ grid's wall time on ``cores`` cores is the time at which the last run ends when 
 order, each start on the first core that is free (Ray and the local pool both hand out tasks that
 way). A run lasts ``total_steps / steps_per_s`` seconds, plus ``pretrain_s[method]`` when its pre-trained
 checkpoint is not shipped and must be made first, plus ``sigma_fit_s`` for every VD and L2 run, which
-fits its start sigma before RL (``initial_sigma="spread"``, once per run). The expert's reference runs
+fits its start sigma before RL (``initial_sigma="spread"``, once per run; an L2 run's fit needs the VD
+checkpoint, see :func:`run_seconds`). The expert's reference runs
 take seconds and are left out. The rate is a parameter, to be measured (``python -m vdtutorial bench finetune`` gives the rate of
 one process on one core); it is the rate of one run *per core*, so on a machine whose cores slow each
 other down (shared memory bandwidth) use the rate measured with all cores busy.
@@ -13,11 +14,12 @@ other down (shared memory bandwidth) use the rate measured with all cores busy.
 from __future__ import annotations
 
 import heapq
+from dataclasses import replace
 
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments.figures import FIGURES, figure_specs
 from vdtutorial.experiments.grid import RunSpec
-from vdtutorial.pretrain import checkpoint_path
+from vdtutorial.pretrain import RL_START_SIGMA, checkpoint_path
 
 
 def makespan(seconds: list[float], cores: int) -> float:
@@ -52,10 +54,14 @@ def needs_pretraining(spec: RunSpec) -> bool:
 
 def run_seconds(spec: RunSpec, steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_s: float = 0.0,
                 total_steps: int = 300_000) -> float:
-    """Estimated duration of one run on one core (module docstring)."""
+    """Estimated duration of one run on one core (module docstring). An L2 run whose start sigma is fitted
+    to the VD network's spread (``RL_START_SIGMA == "spread"``) needs the VD checkpoint of its data set and
+    seed too, and is costed as making it: it may start before, or beside, the VD run that would."""
     seconds = total_steps / steps_per_s
     if spec.method in ("vd", "l2"):
         seconds += sigma_fit_s + (pretrain_s[spec.method] if needs_pretraining(spec) else 0.0)
+    if spec.method == "l2" and RL_START_SIGMA == "spread" and needs_pretraining(replace(spec, method="vd")):
+        seconds += pretrain_s["vd"]
     return seconds
 
 

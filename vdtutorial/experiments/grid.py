@@ -21,6 +21,7 @@ from vdtutorial.experiments.backends import run_jobs
 from vdtutorial.experiments.progress import GridProgress
 from vdtutorial.experiments.resume import ResumeError, check_resumable, read_run_state, save_finished_rows
 from vdtutorial.experiments.rows import write_csv
+from vdtutorial.experiments.run_lock import WAIT_S, RunLock, holder_alive, lock_path
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, METHODS, METRIC, NUM_ENVS, TOTAL_STEPS,
                                          expert_reference, expert_settings, finetune_steps, run_settings)
 from vdtutorial.pretrain import PretrainConfig, default_config
@@ -114,7 +115,9 @@ def _result(job: Job, rows: list[dict], seconds: float, resumed_at: int = 0) -> 
 def run_job(job: Job):
     """Execute (or continue) one run, as a job function of :func:`~vdtutorial.experiments.backends.run_jobs`:
     yields the progress reports of :func:`~vdtutorial.experiments.runs.finetune_steps`, saves the run's
-    state as it goes, writes its CSV at the end, and returns :func:`_result`."""
+    state as it goes, writes its CSV at the end, and returns :func:`_result`. A TRPO run holds its lock
+    (:class:`~vdtutorial.experiments.run_lock.RunLock`) while it computes; if another process holds it,
+    the job waits and then continues from the state that process left (finished, usually)."""
     spec, start = job.spec, time.perf_counter()
     if spec.method == "expert":
         rows = expert_reference(spec.task, spec.seed, EXPERT_EPISODES)
@@ -123,13 +126,20 @@ def run_job(job: Job):
         yield {"env_steps": job.env_steps}
         resumed_at = 0
     else:
-        resumed_at = len(read_run_state(job.state_path)["rows"]) if job.state_path.exists() else 0
-        demos = (None if spec.method == "none"
-                 else demo_path(spec.task, spec.samples, spec.noise, 0, root=job.demos_root))
-        _, rows = yield from finetune_steps(spec.method, spec.task, demos, spec.obs_mode, spec.seed, spec.total_steps,
-                                            pretrain_config=job.pretrain_config, trpo_config=job.trpo_config,
-                                            checkpoints_root=job.checkpoints_root, state_path=job.state_path,
-                                            checkpoint_every=job.checkpoint_every)
+        lock = RunLock(job.state_path)
+        while not lock.acquire():  # another grid computes this run: wait for it, then take its result
+            yield {"env_steps": 0}  # a report, so that a pool worker notices a killed grid while it waits
+            time.sleep(WAIT_S)
+        try:
+            resumed_at = len(read_run_state(job.state_path)["rows"]) if job.state_path.exists() else 0
+            demos = (None if spec.method == "none"
+                     else demo_path(spec.task, spec.samples, spec.noise, 0, root=job.demos_root))
+            _, rows = yield from finetune_steps(spec.method, spec.task, demos, spec.obs_mode, spec.seed,
+                                                spec.total_steps, pretrain_config=job.pretrain_config,
+                                                trpo_config=job.trpo_config, checkpoints_root=job.checkpoints_root,
+                                                state_path=job.state_path, checkpoint_every=job.checkpoint_every)
+        finally:
+            lock.release()
         seconds = read_run_state(job.state_path)["seconds"]
     write_csv(job.csv_path, rows)
     return _result(job, rows, seconds, resumed_at)
@@ -143,7 +153,9 @@ def run_grid(name: str, jobs: list[Job], workers: int = 2, backend: str = "local
     rows are its result), a partial one resumes from its last state, and a state saved with other
     settings (or more iterations than asked for) stops the grid with a
     :class:`~vdtutorial.experiments.resume.ResumeError` that names the file and the settings, unless
-    ``restart`` discards the saved states of these jobs first. Progress: :class:`GridProgress`.
+    ``restart`` discards the saved states of these jobs first. A run that another grid sharing the state
+    folder is computing right now (its lock, :mod:`~vdtutorial.experiments.run_lock`) is put last and
+    waited for rather than computed twice. Progress: :class:`GridProgress`.
     """
     results: list[dict | None] = [None] * len(jobs)
     pending, left, partial, problems = [], [], 0, []
@@ -171,10 +183,15 @@ def run_grid(name: str, jobs: list[Job], workers: int = 2, backend: str = "local
     if problems:
         others = f" (and {len(problems) - 1} more saved runs of this experiment)" if len(problems) > 1 else ""
         raise ResumeError(problems[0] + others)
+    # runs that another grid is computing now go last: by the time a worker reaches them they may be finished
+    busy = {i for i in pending if holder_alive(lock_path(jobs[i].state_path))}
+    order = sorted(range(len(pending)), key=lambda k: pending[k] in busy)
+    pending, left = [pending[k] for k in order], [left[k] for k in order]
     bar = GridProgress(name, [jobs[i].spec.name for i in pending], left, len(jobs) - len(pending), len(jobs), progress)
     try:
+        elsewhere = f", {len(busy)} of them being computed by another grid (waited for last)" if busy else ""
         bar.note(f"{len(jobs)} runs: {len(jobs) - len(pending)} found finished, {partial} to resume, "
-                 f"{len(pending) - partial} to start (states saved in {jobs[0].state_path.parent})")
+                 f"{len(pending) - partial} to start{elsewhere} (states saved in {jobs[0].state_path.parent})")
         for i, result in zip(pending, run_jobs(run_job, [jobs[i] for i in pending], workers, backend, address, bar)):
             results[i] = result
     finally:

@@ -28,6 +28,7 @@ import gzip
 import io
 import os
 import random
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -45,12 +46,23 @@ GZIP_MAGIC = b"\x1f\x8b"
 
 
 def _atomic_save(state: dict, path: Path) -> None:
+    """Write ``state`` gzip-compressed to ``path`` so that a reader sees the old file or the new one, never a
+    part: into a temporary file of its own (two processes saving the same run never share one), flushed to
+    the disk, then renamed over ``path``."""
     path.parent.mkdir(parents=True, exist_ok=True)
     buffer = io.BytesIO()
     torch.save(state, buffer)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(gzip.compress(buffer.getvalue(), compresslevel=6, mtime=0))  # mtime=0: equal states, equal files
-    os.replace(tmp, path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as file:
+            file.write(gzip.compress(buffer.getvalue(), compresslevel=6, mtime=0))  # mtime=0: equal states, equal files
+            file.flush()
+            os.fsync(file.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp's 0o600 would hide the state from the other users of a shared folder
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _rng_state() -> dict:
@@ -108,7 +120,8 @@ def check_resumable(path: str | os.PathLike, state: dict, settings: dict, iterat
     differences = settings_differences(state["run_settings"], settings)
     if differences:
         raise ResumeError(f"{path} holds a run with other settings ({'; '.join(differences)}): rerun with "
-                          "--restart to discard the saved runs of this experiment, or choose another --out")
+                          "--restart to discard the saved runs of this experiment, or choose another --out "
+                          "(another --state-dir if you named one)")
     if len(state["rows"]) > iterations:
         raise ResumeError(f"{path} holds {len(state['rows'])} iterations, more than the {iterations} asked for: "
                           "rerun with --restart, or ask for at least as many steps")
