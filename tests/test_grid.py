@@ -111,6 +111,8 @@ def test_saved_runs_of_other_settings_are_an_error_and_restart_discards_them(tmp
     first = _tiny_grid(tmp_path, checkpoint_every=1)
     again = _tiny_grid(tmp_path)  # the same grid: every run is found finished and not run again
     assert [r["wall_time"] for r in again.rows] == [r["wall_time"] for r in first.rows]
+    runs = json.loads((tmp_path / "tiny.json").read_text())["runs"]
+    assert [run["resumed_at_iteration"] for run in runs] == [None, None]  # found finished, not started at 0
     other = TRPOConfig(max_kl=0.02)
     with pytest.raises(ResumeError, match=r"max_kl: 0\.01 -> 0\.02.*--restart"):
         _tiny_grid(tmp_path, other)

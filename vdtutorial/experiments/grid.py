@@ -103,8 +103,10 @@ def _summary(spec: RunSpec, rows: list[dict]) -> str:
     return f"{len(rows)} rows, last {metric} {rows[-1][metric]:.4g}"
 
 
-def _result(job: Job, rows: list[dict], seconds: float, resumed_at: int = 0) -> dict:
-    """A run's rows labelled with its spec, its compute time, and a one-line summary."""
+def _result(job: Job, rows: list[dict], seconds: float, resumed_at: int | None = 0) -> dict:
+    """A run's rows labelled with its spec, its compute time, and a one-line summary. ``resumed_at``: the
+    iteration this invocation continued it from (0: started now; None: found finished, its history is
+    that of earlier invocations)."""
     spec = job.spec
     tags = {"label": spec.label, "method": spec.method, "task": spec.task, "samples": spec.samples,
             "noise": spec.noise, "obs_mode": spec.obs_mode, "seed": spec.seed}
@@ -175,7 +177,7 @@ def run_grid(name: str, jobs: list[Job], workers: int = 2, backend: str = "local
             continue
         if len(state["rows"]) == job.rows_expected:
             write_csv(job.csv_path, state["rows"])
-            results[i] = _result(job, state["rows"], state["seconds"])
+            results[i] = _result(job, state["rows"], state["seconds"], resumed_at=None)
         else:
             pending.append(i)
             left.append(job.env_steps * (1 - len(state["rows"]) / job.rows_expected))

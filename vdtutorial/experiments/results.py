@@ -134,6 +134,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
         "trpo_config": asdict(trpo_config),
         "demos_root": str(demos_root), "checkpoints_root": str(checkpoints_root), "state_dir": str(state_dir),
         "runs": [{**asdict(job.spec), "name": job.spec.name, "seconds": result["seconds"],
+                  # the iteration this command continued the run from; null: found finished
                   "resumed_at_iteration": result["resumed_at"]} for job, result in zip(jobs, results)],
         "summary": summary,
         "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__, "gymnasium": gym.__version__,
