@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from vdtutorial.kernels import kernel_settings
 from vdtutorial.trpo import TRPO
 
 
@@ -78,10 +79,28 @@ def _set_rng_state(state: dict) -> None:
     np.random.set_state((kind, keys.numpy().astype(np.uint32), position, has_gauss, gauss))
 
 
+def numerics() -> dict[str, str]:
+    """What, besides a run's settings, decides its last digits: the torch and numpy versions and the CPU
+    kernels in use (:func:`vdtutorial.kernels.kernel_settings`). Another value does not change what the
+    run is, so it is not a setting; it only voids the promise of rows equal to an uninterrupted run's."""
+    return {"torch": str(torch.__version__), "numpy": str(np.__version__), **kernel_settings()}
+
+
+def numerics_warning(state: dict) -> str | None:
+    """A warning if ``state`` was saved under other numerics than this process's (None: the same, or a
+    state from before they were saved)."""
+    differences = settings_differences(state.get("numerics", numerics()), numerics())
+    if not differences:
+        return None
+    return (f"resuming a run saved under other numerics ({'; '.join(differences)}): it continues, but its rows "
+            "may differ in the last digits from those of an uninterrupted run")
+
+
 def save_run_state(algo: TRPO, path: str | os.PathLike, settings: dict, seconds: float) -> None:
     """Write ``algo``'s checkpoint (:meth:`TRPO.checkpoint`) with the run's settings, the global random
-    states and the run's compute time so far (``seconds``), atomically."""
-    _atomic_save({**algo.checkpoint(), "run_settings": settings, "rng": _rng_state(), "seconds": seconds}, Path(path))
+    states, the numerics (:func:`numerics`) and the run's compute time so far (``seconds``), atomically."""
+    _atomic_save({**algo.checkpoint(), "run_settings": settings, "rng": _rng_state(), "numerics": numerics(),
+                  "seconds": seconds}, Path(path))
 
 
 def save_finished_rows(path: str | os.PathLike, settings: dict, rows: list[dict], seconds: float) -> None:

@@ -16,7 +16,8 @@ from gymnasium.wrappers import RecordEpisodeStatistics
 from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.envs import ENV_IDS, HORIZON
 from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
-from vdtutorial.experiments.resume import check_resumable, read_run_state, restore_run_state, save_run_state
+from vdtutorial.experiments.resume import (check_resumable, numerics_warning, read_run_state, restore_run_state,
+                                          save_run_state)
 from vdtutorial.experiments.rows import write_csv
 from vdtutorial.initial_sigma import InitialSigma
 from vdtutorial.policy import GaussianPolicy, make_policy
@@ -165,6 +166,8 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     if state_path is not None and Path(state_path).exists():
         saved = read_run_state(state_path)
         check_resumable(state_path, saved, settings, iterations)
+        if (warning := numerics_warning(saved)) is not None:
+            warnings.warn(f"{state_path}: {warning}", stacklevel=2)
     start = time.perf_counter()
     env = make_vec_env(ENV_IDS[task], num_envs, obs_mode=obs_mode, image_size=cfg.image_size)
     try:
