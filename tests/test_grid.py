@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -285,3 +286,18 @@ def test_run_seconds_adds_pretraining_only_where_no_checkpoint_is_shipped():
     assert run_seconds(runs[("l2", 2000)], 100.0, cost, 50.0) == 3000.0 + 50.0 + 400.0 + 1000.0
     assert run_seconds(runs[("vd", 2000)], 100.0, cost, 50.0) == 3000.0 + 50.0 + 1000.0
     assert run_seconds(next(s for s in runs.values() if s.method == "none"), 100.0, cost, 50.0) == 3000.0
+
+
+def test_the_readmes_wall_time_table_is_what_its_command_prints():
+    """The README's estimate table comes from the command printed above it, with the measured numbers."""
+    import ast
+    import re
+
+    from vdtutorial.experiments.estimate import wall_time_table
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    call = re.search(r"print\(wall_time_table\(([^)]*)\)\)", readme)
+    assert call, "the README no longer shows the estimate's command"
+    args = ast.literal_eval(f"({call.group(1)},)")
+    assert wall_time_table(*args) in readme
+
