@@ -198,7 +198,7 @@ def _cmd_experiment(args) -> None:
                                             ("--checkpoint-every", args.checkpoint_every)) if value is not None]
         if ignored:
             raise CommandError(f"table1 pre-trains only (no TRPO runs to resume): {', '.join(ignored)} "
-                               "are options of the figures")
+                               f"{'are options' if len(ignored) > 1 else 'is an option'} of the figures")
         experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting, out=args.out,
                            workers=args.workers, backend=backend, address=args.address)
         return
