@@ -66,7 +66,7 @@ def test_every_figure_has_claims():
     assert set(CLAIMS) == {"fig4", "fig5", "fig6", "fig7"} and all(CLAIMS.values())
 
 
-SHIPPED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd_fvp0.1", "fig4_state_fvp0.1")
+SHIPPED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig4_state_fvp0.1")
 
 
 @pytest.mark.parametrize("folder", SHIPPED)
