@@ -1,5 +1,6 @@
-"""The project's own promises: dependency lists agree, notebooks carry no outputs, the quick switch is
-read in one place, CI runs the README's test command, and every notebook is under test."""
+"""The project's own promises: dependency lists agree, notebooks carry no outputs and remove the temporary
+folders they make, the quick switch is read in one place, CI runs the README's test command, and every
+notebook is under test."""
 import json
 import re
 import tomllib
@@ -37,6 +38,17 @@ def test_notebooks_are_committed_without_outputs():
         for cell in json.loads(nb.read_text())["cells"]:
             if cell["cell_type"] == "code":
                 assert not cell.get("outputs") and cell.get("execution_count") is None, f"{nb.name} has outputs"
+
+
+def test_notebooks_remove_their_temporary_folders():
+    # Learners rerun chapters many times: a temporary folder left by each run would pile up in their /tmp.
+    for nb in sorted((ROOT / "notebooks").glob("*.ipynb")):
+        code = ["".join(c["source"]) for c in json.loads(nb.read_text())["cells"] if c["cell_type"] == "code"]
+        made = {name for cell in code for name in re.findall(r"^(\w+) = Path\(tempfile\.mkdtemp\(", cell, re.M)}
+        if made:
+            assert "shutil.rmtree(" in code[-1], f"{nb.name}: its last cell removes no folder"
+            missing = {name for name in made if not re.search(rf"\b{name}\b", code[-1])}
+            assert not missing, f"{nb.name}: the last cell leaves {sorted(missing)} behind"
 
 
 def test_quick_switch_is_read_in_exactly_one_place():
