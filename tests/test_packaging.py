@@ -13,22 +13,45 @@ def _name(requirement: str) -> str:
     return re.split(r"[<>=!~ \[]", requirement.strip(), maxsplit=1)[0].lower()
 
 
-def test_environment_yml_matches_pyproject():
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    wanted = {_name(r) for r in project["dependencies"] + project["optional-dependencies"]["test"]}
-    listed = set()
+#: conda-forge's names for the packages PyPI knows by another name.
+CONDA_NAMES = {"pytorch-cpu": "torch", "meshcat-python": "meshcat", "ray-default": "ray"}
+
+
+def _conda_requirements() -> dict[str, str]:
+    """environment.yml's conda-forge packages (not its pip section), by their PyPI names, with their ranges."""
     text = (ROOT / "environment.yml").read_text()
-    for line in text[text.index("dependencies:"):].splitlines():
-        m = re.match(r"\s*-\s+([A-Za-z0-9_.\-]+[^#]*)", line)
-        if m and not line.strip().startswith("- pip:"):
-            listed.add(_name(m.group(1)))
-    listed -= {"python", "pip", "-e"}
-    assert listed == wanted
+    listed = {}
+    for line in text[text.index("dependencies:"):text.index("- pip:")].splitlines():
+        if m := re.match(r"\s*-\s+([A-Za-z0-9_.\-]+)(\S*)", line):
+            listed[CONDA_NAMES.get(m[1], m[1])] = m[2]
+    return {name: spec for name, spec in listed.items() if name not in ("python", "pip")}
 
 
-def test_torch_is_pinned_to_one_version_everywhere():
-    assert '"torch==2.13.0"' in (ROOT / "pyproject.toml").read_text()
-    assert "torch==2.13.0" in (ROOT / "environment.yml").read_text()
+def test_environment_yml_matches_pyproject():
+    """Same packages, and the same ranges (pybullet aside: conda-forge numbers it by bullet3's releases, 3.25)."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    wanted = {_name(r): r[len(_name(r)):].split(";")[0].strip()
+              for r in project["dependencies"] + project["optional-dependencies"]["test"]}
+    listed = _conda_requirements()
+    assert set(listed) == set(wanted)
+    assert {k: v for k, v in listed.items() if k != "pybullet"} == {k: v for k, v in wanted.items() if k != "pybullet"}
+    pip_section = (ROOT / "environment.yml").read_text().split("- pip:")[1]
+    assert [line.strip() for line in pip_section.splitlines() if line.strip()] == ["- -e ."]
+
+
+def test_the_lock_pins_every_requirement_within_its_range():
+    """constraints-py311.txt pins one version of each declared package, inside pyproject.toml's range."""
+    from packaging.requirements import Requirement
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    locked = dict(line.split("==") for line in (ROOT / "constraints-py311.txt").read_text().splitlines()
+                  if line and not line.startswith("#"))
+    locked = {re.sub(r"[-_.]+", "-", k).lower(): v for k, v in locked.items()}
+    for text in project["dependencies"] + project["optional-dependencies"]["test"]:
+        requirement = Requirement(text)
+        version = locked[re.sub(r"[-_.]+", "-", requirement.name).lower()]
+        assert requirement.specifier.contains(version), f"{requirement} does not admit the locked {version}"
+    assert locked["torch"] == "2.13.0"  # the version every shipped result records
 
 
 def test_notebooks_are_committed_without_outputs():
@@ -81,3 +104,56 @@ def test_data_folder_stays_small():
 
     size = sum(p.stat().st_size for p in (ROOT / "data").rglob("*") if shipped(p))
     assert size < 30 * 2**20
+
+
+def _absolute_paths(text: str) -> list[str]:
+    """Tokens of ``text`` that name a place on some machine: POSIX ``/x...``, ``~/...`` or a Windows drive."""
+    tokens = re.split(r"[\s\"'=,;()\[\]]+", text)
+    return [t for t in tokens if re.match(r"^(/[A-Za-z_.]|~/|[A-Za-z]:[\\/])", t)]
+
+
+def _shipped_texts(path: Path):
+    """The text records inside one shipped file: a checkpoint's config and meta, a data set's meta.json, a
+    gzip's content, or the file itself; images carry none of ours."""
+    import gzip
+    import zipfile
+
+    import torch
+
+    if path.suffix == ".png":
+        return
+    if path.suffix == ".pt":
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+        yield json.dumps({key: value for key, value in blob.items() if key != "state_dict"}, default=str)
+    elif path.suffix == ".npz":
+        with zipfile.ZipFile(path) as archive:
+            yield archive.read("meta.json").decode()
+    elif path.suffix == ".gz":
+        yield gzip.decompress(path.read_bytes()).decode()
+    else:
+        yield path.read_text()
+
+
+def test_no_shipped_file_names_the_machine_that_made_it():
+    """Shipped records name folders and commands relative to the folder holding data/ (settings.recorded_path)."""
+    files = [p for p in sorted((ROOT / "data").rglob("*")) if p.is_file()]
+    assert len(files) > 50
+    found = {str(p.relative_to(ROOT)): hits for p in files
+             if (hits := [h for text in _shipped_texts(p) for h in _absolute_paths(text)])}
+    assert not found
+
+
+def test_the_absolute_path_check_sees_paths_in_every_kind_of_record(tmp_path):
+    import gzip
+
+    import torch
+
+    assert _absolute_paths('"argv": ["/home/ada/vdtutorial/__main__.py", "--out", "data/results/fig4"]') == \
+        ["/home/ada/vdtutorial/__main__.py"]
+    assert _absolute_paths(r"--demos C:\Users\ada\data\demos\x.npz, 3e5 steps / 200, log alpha > 3") == \
+        [r"C:\Users\ada\data\demos\x.npz"]
+    torch.save({"meta": {"command": "python -m vdtutorial pretrain --demos /work/x/data/demos/a.npz"}},
+               tmp_path / "a.pt")
+    (tmp_path / "b.csv.gz").write_bytes(gzip.compress(b"run,/tmp/state\n"))
+    assert [h for p in (tmp_path / "a.pt", tmp_path / "b.csv.gz") for t in _shipped_texts(p)
+            for h in _absolute_paths(t)] == ["/work/x/data/demos/a.npz", "/tmp/state"]

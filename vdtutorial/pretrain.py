@@ -48,7 +48,7 @@ from vdtutorial.demos import Demos, demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.initial_sigma import IMAGE_FIT_STATES, InitialSigma, apply_initial_sigma
 from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor
-from vdtutorial.settings import DATA_DIR, budget
+from vdtutorial.settings import DATA_DIR, budget, recorded_path
 from vdtutorial.vd import model_kl, sparsity_report
 
 REGULARISERS = ("vd", "l2")
@@ -266,8 +266,10 @@ def evaluate_imitation(policy: GaussianPolicy, obs, actions: torch.Tensor, idx: 
 # -- checkpoints -----------------------------------------------------------------------------------------
 
 def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sigma: str = PAPER_INITIAL_SIGMA) -> str:
+    """The command line that makes a checkpoint, as its meta records it (the data set's path relative to the
+    folder holding data/, so that a shipped checkpoint names no machine)."""
     sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f" --sigma {initial_sigma}"
-    return f"python -m vdtutorial pretrain --reg {reg} --demos {demos_path} --seed {seed} --obs {obs_mode}{sigma}"
+    return f"python -m vdtutorial pretrain --reg {reg} --demos {recorded_path(demos_path)} --seed {seed} --obs {obs_mode}{sigma}"
 
 
 def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
@@ -308,7 +310,12 @@ def _make_hint(path: Path) -> str:
 
 
 class CheckpointError(ValueError):
-    """A checkpoint is missing, unreadable, or not the policy that was asked for."""
+    """A checkpoint is missing, unreadable, or not the policy that was asked for. ``difference``: for a
+    checkpoint that is readable but another policy, what differs (``epochs=150, expected 60``), alone."""
+
+    def __init__(self, message: str, difference: str | None = None):
+        super().__init__(message)
+        self.difference = difference
 
 
 def load_checkpoint(path, **expected) -> GaussianPolicy:
@@ -330,8 +337,8 @@ def load_checkpoint(path, **expected) -> GaussianPolicy:
     where = {"initial_sigma": PAPER_INITIAL_SIGMA, **meta.get("demos", {}), **meta.get("config", {}), **config}
     for key, want in expected.items():
         if where.get(key) != want:
-            raise CheckpointError(f"checkpoint {path} has {key}={where.get(key)!r}, expected {want!r}. "
-                                  f"{meta.get('command', fix)}")
+            difference = f"{key}={where.get(key)!r}, expected {want!r}"
+            raise CheckpointError(f"checkpoint {path} has {difference}. {meta.get('command', fix)}", difference)
     policy = GaussianPolicy.from_config(config)
     try:
         policy.load_state_dict(state)

@@ -43,11 +43,51 @@ def budget(full, quick):
     return quick if QUICK else full
 
 
-#: Where shipped and generated artefacts live (demonstrations, checkpoints, result CSVs): the
-#: repository's ``data/`` folder, or the folder named by ``VDTUTORIAL_DATA``.
-DATA_DIR = Path(os.environ.get("VDTUTORIAL_DATA", Path(__file__).resolve().parent.parent / "data"))
+#: The file that marks a folder written by ``python -m vdtutorial notebooks DEST`` (:mod:`vdtutorial.chapters`).
+BOOK_RECORD = "vdtutorial-book.json"
+_PACKAGE = Path(__file__).resolve().parent
+
+
+def _shipped_dir() -> Path:
+    """Where the shipped chapters and data are: the source checkout this package was imported from (its
+    ``notebooks/`` and ``data/``), else the copy inside the installed package (a wheel carries them as
+    ``vdtutorial/book``)."""
+    checkout = _PACKAGE.parent
+    if (checkout / "pyproject.toml").is_file() and (checkout / "data").is_dir():
+        return checkout
+    return _PACKAGE / "book"
+
+
+#: The folder holding the shipped ``notebooks/`` and ``data/`` (read only: ``notebooks DEST`` copies them out).
+SHIPPED_DIR = _shipped_dir()
+
+
+def _project_dir() -> Path:
+    """The folder that holds ``data/`` (and ``notebooks/``, ``runs/``): the folder written by ``python -m
+    vdtutorial notebooks DEST`` that contains the working directory, if any, so that chapters run from such
+    a copy read and write there; else :data:`SHIPPED_DIR`."""
+    here = Path.cwd()
+    return next((folder for folder in (here, *here.parents) if (folder / BOOK_RECORD).is_file()), SHIPPED_DIR)
+
+
+PROJECT_DIR = _project_dir()
+#: Where shipped and generated artefacts live (demonstrations, checkpoints, result CSVs): ``data/`` in
+#: :data:`PROJECT_DIR`, or the folder named by ``VDTUTORIAL_DATA``.
+DATA_DIR = Path(os.environ.get("VDTUTORIAL_DATA", PROJECT_DIR / "data"))
 
 #: Where commands write what they make unless told otherwise (``--out``): ``runs/`` beside ``data/``
 #: (or the folder named by ``VDTUTORIAL_RUNS``), so that the shipped artefacts in ``data/`` are never
-#: replaced by accident.
-RUNS_DIR = Path(os.environ.get("VDTUTORIAL_RUNS", DATA_DIR.parent / "runs"))
+#: replaced by accident. When the package's own copy is all there is (an installed wheel used outside a
+#: folder written by ``notebooks DEST``), nothing is written into the installation: ``runs/`` in the working
+#: directory.
+RUNS_DIR = Path(os.environ.get("VDTUTORIAL_RUNS", (Path.cwd() if PROJECT_DIR == _PACKAGE / "book" else PROJECT_DIR)
+                               / "runs"))
+
+
+def recorded_path(path) -> str:
+    """``path`` as a record that may be shipped writes it (a result's JSON, a checkpoint's command): relative
+    to the folder that holds ``data/`` when it is inside it (``data/demos/...``, ``runs/...``), so that a
+    shipped file never names the machine that made it and its commands run from any clone or copy. A
+    path outside that folder (a user's scratch folder) is written as given."""
+    path, project = Path(path).resolve(), DATA_DIR.resolve().parent
+    return path.relative_to(project).as_posix() if path.is_relative_to(project) else str(path)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shlex
 import sys
 import time
@@ -24,7 +25,7 @@ from vdtutorial.experiments.rows import read_rows, results_file, write_csv
 from vdtutorial.kernels import kernel_settings
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, RUNS_DIR, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
-from vdtutorial.settings import DATA_DIR, QUICK, budget
+from vdtutorial.settings import DATA_DIR, QUICK, budget, recorded_path
 from vdtutorial.trpo import TRPOConfig
 
 @dataclass
@@ -71,8 +72,22 @@ def experiment_command(name: str, **options) -> str:
         if value is None:
             continue
         flag = "--" + key.replace("_", "-")
-        parts += [flag, *map(str, value)] if isinstance(value, (tuple, list)) else [flag, str(value)]
+        parts += [flag, *map(str, value)] if isinstance(value, (tuple, list)) else [flag, _recorded_argument(value)]
     return shlex.join(parts)
+
+
+def _recorded_argument(value) -> str:
+    """A command-line argument as a shipped record writes it: a path relative to the folder holding data/."""
+    return recorded_path(value) if isinstance(value, Path) or os.path.isabs(str(value)) else str(value)
+
+
+def recorded_argv() -> list[str]:
+    """This process's command line as a record writes it: ``python -m vdtutorial ...`` rather than the path of
+    the package's ``__main__.py``, and paths relative to the folder holding data/ (see ``recorded_path``)."""
+    program = sys.argv[0]
+    head = (["python", "-m", "vdtutorial"] if Path(program).name == "__main__.py"
+            and Path(program).resolve().parent == Path(vdtutorial.__file__).resolve().parent else [Path(program).name])
+    return head + [_recorded_argument(arg) for arg in sys.argv[1:]]
 
 
 def default_out(name: str) -> Path:
@@ -125,14 +140,16 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
                "claims": claim_effects(name, rows, metric, window),
                **(summarise(curves) if summarise else {})}
     record = {
-        "experiment": name, "command": command, "argv": sys.argv, "quick": QUICK, "title": title,
+        "experiment": name, "command": command, "argv": recorded_argv(), "quick": QUICK, "title": title,
         "metric": metric, "num_envs": NUM_ENVS, "steps_per_iteration": trpo_config.steps_per_iter,
         "window": window, "smoothing": f"trailing moving average over {window} iterations", "band": f"{CONFIDENCE:.0%} Student-t "
         "interval of the mean over seeds", "workers": workers, "backend": backend, "wall_time_s": wall,
         "pretrain_config": {k: v for k, v in asdict(pretrain_config or default_config("vd", specs[0].obs_mode)).items()
                             if k not in ("reg", "obs_mode")},  # these two are set per run
         "trpo_config": asdict(trpo_config),
-        "demos_root": str(demos_root), "checkpoints_root": str(checkpoints_root), "state_dir": str(state_dir),
+        # folders as the commands name them: relative to the folder that holds data/
+        "demos_root": recorded_path(demos_root), "checkpoints_root": recorded_path(checkpoints_root),
+        "state_dir": recorded_path(state_dir),
         "runs": [{**asdict(job.spec), "name": job.spec.name, "seconds": result["seconds"],
                   # the iteration this command continued the run from; null: found finished
                   "resumed_at_iteration": result["resumed_at"]} for job, result in zip(jobs, results)],

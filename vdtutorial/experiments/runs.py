@@ -24,7 +24,7 @@ from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path,
                                  default_config, load_checkpoint, pretrain, pretrain_command, save_checkpoint,
                                  set_initial_sigma)
-from vdtutorial.settings import RUNS_DIR, budget
+from vdtutorial.settings import RUNS_DIR, budget, recorded_path
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 
 RL_METHODS = ("vd", "l2", "none")
@@ -97,11 +97,13 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
             policy = load_checkpoint(candidate, **expected)
             if policy.pretrain_info.get("seed") == seed:
                 return policy
-            reason = f"checkpoint {candidate} was pre-trained with seed {policy.pretrain_info.get('seed')}, not {seed}"
+            reason = f"seed={policy.pretrain_info.get('seed')!r}, expected {seed!r}"
         except CheckpointError as exc:
-            reason = str(exc)
-        action = "pre-training again and replacing it" if candidate == path else f"not using it (looking in {root})"
-        warnings.warn(f"{reason}: {action}", stacklevel=2)
+            reason = exc.difference or str(exc)
+        # expected whenever a budget differs from the checkpoint's (a quick run beside a shipped checkpoint):
+        # one plain line, not a warning
+        action = "pre-training again to replace it" if candidate == path else f"pre-training under {recorded_path(root)}"
+        print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): {action}", flush=True)
     source = demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
     if cfg.initial_sigma != PAPER_INITIAL_SIGMA:
         base = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
