@@ -217,6 +217,18 @@ def _cmd_experiment(args) -> None:
     _print_summary(result)
 
 
+def _cmd_notebooks(args) -> None:
+    """The chapters and the data they load, written into a folder of the learner's (see vdtutorial.chapters)."""
+    from vdtutorial.chapters import EditedFilesError, write_notebooks
+
+    try:
+        book = write_notebooks(args.dest, force=args.force)
+    except EditedFilesError as exc:
+        raise CommandError(str(exc)) from exc
+    print(f"wrote {book.chapters} chapters and {book.data_files} data files into {book.dest}; start with "
+          f"jupyter lab {book.dest / 'notebooks' / '00_start_here.ipynb'}")
+
+
 def _cmd_claims(args) -> None:
     """The paper's claims as effect sizes with 95% intervals, from an experiment's rows (see experiments.effects)."""
     from vdtutorial.experiments import write_claims
@@ -338,6 +350,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="TRPO iterations between two saved states of a run (default 10)")
     p.set_defaults(func=_cmd_experiment, on_interrupt="the finished runs and the saved states of the others are "
                    "kept: rerun the same command (without --restart) to continue")
+
+    p = sub.add_parser("notebooks", help="write the chapters and the data they load into a folder of yours")
+    p.add_argument("dest", help="the folder to write (made if missing); the chapters then run from DEST/notebooks")
+    p.add_argument("--force", action="store_true", help="overwrite files you have changed since they were written")
+    p.set_defaults(func=_cmd_notebooks)
 
     p = sub.add_parser("claims", help="the paper's claims as effect sizes with 95%% intervals, from experiment folders")
     p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4); their JSON records are updated")

@@ -8,8 +8,10 @@ it are untouched. Importing pybullet anywhere later is free: Python hands back t
 """
 from __future__ import annotations
 
+import functools
 import os
 import sys
+import warnings
 
 
 def _import_quietly():
@@ -33,3 +35,15 @@ def _import_quietly():
 
 
 pybullet = _import_quietly()
+
+
+@functools.cache
+def warn_if_images_are_slow() -> None:
+    """Warn once per process when this pybullet has no numpy support: camera images then come back as
+    Python sequences, about 3x slower (a source build made in pip's isolated environment, see
+    :mod:`vdtutorial.install_check`, which prints the command that rebuilds it)."""
+    if not pybullet.isNumpyEnabled():
+        from vdtutorial.install_check import NUMPY_BUILD
+
+        warnings.warn("pybullet was built without numpy support: camera images are about 3x slower. "
+                      f"Rebuild it with: {NUMPY_BUILD}", stacklevel=3)

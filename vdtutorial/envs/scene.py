@@ -15,6 +15,7 @@ from importlib import resources
 
 import numpy as np
 from vdtutorial.envs.bullet import pybullet as p
+from vdtutorial.envs.bullet import warn_if_images_are_slow
 
 #: Kinova's "home" pose of the Jaco 2 6-DOF in Kinova's joint convention (degrees), the start pose.
 HOME_DEG = (275.0, 167.5, 57.5, 240.0, 82.5, 75.0)
@@ -157,6 +158,7 @@ class JacoScene:
         TinyRenderer, no shadows and no segmentation mask: the cheapest image pybullet makes without
         a GPU. The z-buffer is turned into metric depth with the projection's near/far planes.
         """
+        warn_if_images_are_slow()
         s = self.image_size
         _, _, rgba, zbuf, _ = p.getCameraImage(
             s, s, self._view, self._proj, shadow=0, renderer=p.ER_TINY_RENDERER,

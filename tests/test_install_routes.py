@@ -1,0 +1,100 @@
+"""Where learners run the package: the chapters written out of an installation, the folders they then read
+and write, the records that must not name the machine that made them, and chapter 00's install checks."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from vdtutorial import install_check
+from vdtutorial.chapters import EditedFilesError, shipped_files, write_notebooks
+from vdtutorial.settings import BOOK_RECORD, DATA_DIR, recorded_path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_notebooks_writes_every_chapter_and_data_file_and_records_them(tmp_path):
+    book = write_notebooks(tmp_path / "book")
+    chapters = sorted(p.name for p in (ROOT / "notebooks").glob("*.ipynb"))
+    assert sorted(p.name for p in (book.dest / "notebooks").glob("*.ipynb")) == chapters
+    assert book.chapters == len(chapters) and book.data_files == sum(1 for p in (ROOT / "data").rglob("*") if p.is_file())
+    assert (book.dest / "data/results/fig4/fig4.json").read_bytes() == (ROOT / "data/results/fig4/fig4.json").read_bytes()
+    record = json.loads((book.dest / BOOK_RECORD).read_text())
+    assert set(record["files"]) == {p.as_posix() for p in shipped_files()}
+
+
+def test_notebooks_refuses_to_overwrite_an_edited_chapter_unless_forced(tmp_path):
+    dest = tmp_path / "book"
+    write_notebooks(dest)
+    write_notebooks(dest)  # untouched: written again without a word
+    chapter = dest / "notebooks" / "04_sparse_variational_dropout.ipynb"
+    chapter.write_text(chapter.read_text().replace("log", "LOG", 1))
+    edited = chapter.read_text()
+    with pytest.raises(EditedFilesError, match="04_sparse_variational_dropout.ipynb.*--force"):
+        write_notebooks(dest)
+    assert chapter.read_text() == edited  # refused before anything was written
+    write_notebooks(dest, force=True)
+    assert chapter.read_text() == (ROOT / "notebooks" / chapter.name).read_text()
+
+
+def test_a_foreign_file_in_the_way_counts_as_edited(tmp_path):
+    (tmp_path / "notebooks").mkdir()
+    (tmp_path / "notebooks" / "00_start_here.ipynb").write_text("{}")
+    with pytest.raises(EditedFilesError):
+        write_notebooks(tmp_path)
+
+
+def test_the_command_refuses_in_one_line(tmp_path, capsys):
+    from vdtutorial.__main__ import main
+
+    (tmp_path / "file").write_text("")
+    assert main(["notebooks", str(tmp_path / "file")]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "is a file, not a folder" in errors[0]
+
+
+def test_chapters_run_from_a_written_folder_read_and_write_there(tmp_path):
+    write_notebooks(tmp_path / "book")
+    where = subprocess.run([sys.executable, "-c", "from vdtutorial import settings as s; print(s.DATA_DIR); print(s.RUNS_DIR)"],
+                           cwd=tmp_path / "book" / "notebooks", capture_output=True, text=True, check=True).stdout.split()
+    assert [Path(p) for p in where] == [tmp_path / "book" / "data", tmp_path / "book" / "runs"]
+
+
+def test_recorded_paths_are_relative_to_the_folder_holding_data():
+    assert recorded_path(DATA_DIR / "demos" / "x.npz") == "data/demos/x.npz"
+    assert recorded_path(DATA_DIR.parent / "runs" / "state") == "runs/state"
+    assert recorded_path("/elsewhere/scratch") == "/elsewhere/scratch"  # outside: a user's own folder, as given
+
+
+class _FakeDistribution:
+    def __init__(self, **files):
+        self.files = files
+
+    def read_text(self, name):
+        return self.files.get(name)
+
+
+@pytest.mark.parametrize("files, route", [
+    ({"INSTALLER": "pip\n", "WHEEL": "Wheel-Version: 1.0\nTag: cp311-cp311-manylinux_2_17_x86_64\n"}, "wheel"),
+    ({"INSTALLER": "pip\n", "WHEEL": "Wheel-Version: 1.0\nTag: cp313-cp313-linux_x86_64\n"}, "source"),
+    ({"INSTALLER": "conda\n"}, "conda"),
+])
+def test_pybullet_route_is_read_from_its_metadata(files, route):
+    assert install_check.pybullet_route(_FakeDistribution(**files)) == route
+
+
+def test_pybullet_without_numpy_is_a_fix_with_the_rebuild_command(monkeypatch):
+    import pybullet
+
+    monkeypatch.setattr(pybullet, "isNumpyEnabled", lambda: 0)
+    monkeypatch.setattr(install_check, "pybullet_route", lambda: "source")
+    rows = dict((item, (status, message)) for status, item, message in install_check.pybullet_checks())
+    status, message = rows["pybullet numpy"]
+    assert status == "FIX" and "--no-build-isolation" in message and "--no-cache-dir" in message
+
+
+def test_this_machine_passes_the_checks_it_runs_ci_on():
+    rows = install_check.environment_checks()
+    assert [row for row in rows if row[0] == "FIX"] == []
+    assert ("ok", "pybullet numpy", "built with numpy support (fast camera images)") in rows

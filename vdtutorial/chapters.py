@@ -1,0 +1,72 @@
+"""The chapters as a learner takes them away: ``python -m vdtutorial notebooks DEST`` (chapter 00 shows it).
+
+A ``pip install`` of the wheel carries the notebooks and the shipped data (``vdtutorial/book``), so no
+clone is needed. This writes them into DEST as ``notebooks/`` and ``data/``, with a record file
+(``settings.BOOK_RECORD``). A chapter run from DEST finds that record above its working directory, so it
+reads ``DEST/data`` and writes ``DEST/runs`` (``settings.PROJECT_DIR``).
+
+The record holds the hash of every file written. Writing again (say, after upgrading the package)
+replaces the files the learner has not touched, and refuses, unless ``force``, when one of them was
+edited: a learner's answers are never overwritten by accident.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import vdtutorial
+from vdtutorial.settings import BOOK_RECORD, SHIPPED_DIR
+
+
+class EditedFilesError(FileExistsError):
+    """DEST holds files changed since they were written (or not written by us): not overwritten."""
+
+
+@dataclass(frozen=True)
+class WrittenBook:
+    dest: Path
+    chapters: int
+    data_files: int
+
+
+def shipped_files(source: Path = SHIPPED_DIR) -> list[Path]:
+    """What a learner's copy holds, relative to ``source``: the chapters and the teaching notes, and every
+    shipped data file (demonstrations, checkpoints, results) they load."""
+    chapters = sorted((source / "notebooks").glob("*.ipynb")) + sorted((source / "notebooks").glob("*.md"))
+    data = sorted(p for p in (source / "data").rglob("*") if p.is_file())
+    if not chapters or not data:
+        raise FileNotFoundError(f"{source} holds no notebooks/ or data/: this installation carries no chapters")
+    return [p.relative_to(source) for p in chapters + data]
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def write_notebooks(dest: str | Path, force: bool = False, source: Path = SHIPPED_DIR) -> WrittenBook:
+    """Copy the chapters and their data from ``source`` into ``dest`` (see the module docstring).
+
+    Raises :class:`EditedFilesError`, before writing anything, if a file to be replaced differs both from
+    what was last written there and from what would be written now, unless ``force``."""
+    dest = Path(dest)
+    if dest.exists() and not dest.is_dir():
+        raise NotADirectoryError(f"{dest} is a file, not a folder: name a folder for the chapters")
+    record_path = dest / BOOK_RECORD
+    written = json.loads(record_path.read_text())["files"] if record_path.is_file() else {}
+    files = shipped_files(source)
+    digests = {path.as_posix(): _digest(source / path) for path in files}
+    edited = [name for name in digests if (dest / name).is_file()
+              and _digest(dest / name) not in (written.get(name), digests[name])]
+    if edited and not force:
+        raise EditedFilesError(f"{dest} holds {len(edited)} file(s) changed since they were written, e.g. "
+                               f"{edited[0]}: pass --force to overwrite them, or name another folder")
+    for path in files:
+        (dest / path).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source / path, dest / path)
+    record = {"vdtutorial": vdtutorial.__version__, "files": digests}
+    record_path.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+    return WrittenBook(dest, sum(name.startswith("notebooks/") and name.endswith(".ipynb") for name in digests),
+                       sum(name.startswith("data/") for name in digests))

@@ -1,0 +1,119 @@
+"""What this machine has, and how it got it: chapter 00's environment check, one line per item.
+
+Each check returns ``(status, item, message)`` rows: ``ok``, ``note`` (worth knowing, nothing to do) or
+``FIX`` (with the command that fixes it). Nothing raises, so a learner sees every problem at once.
+
+pybullet is the piece that differs most between machines. Its last release (3.2.7) has prebuilt wheels
+only for Linux x86_64 and CPython up to 3.11; elsewhere pip compiles it from source (a few minutes, a C++
+compiler and the Python headers needed), or conda-forge supplies a build. A source build made in pip's
+isolated build environment has no numpy in it, so ``pybullet.isNumpyEnabled()`` is 0 and every camera
+image comes back as Python lists, about 3x slower (chapter 01 renders them).
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import importlib.metadata as md
+import platform
+import sys
+from pathlib import Path
+
+#: The release the source-build commands name (the one the shipped results were made with).
+PYBULLET_RELEASE = "3.2.7"
+#: The commands that build pybullet with numpy support: numpy must be in the environment before the build,
+#: and pip's cache must not hand back a wheel an earlier isolated build left there.
+NUMPY_BUILD = ("pip install numpy setuptools wheel && pip install --force-reinstall --no-cache-dir "
+               f"--no-build-isolation pybullet=={PYBULLET_RELEASE}")
+
+
+def on_colab() -> bool:
+    """Whether this kernel runs on Google Colab (its ``google.colab`` module is importable)."""
+    return importlib.util.find_spec("google.colab") is not None
+
+
+def pybullet_route(distribution=None) -> str:
+    """How pybullet arrived: ``"conda"`` (a conda package), ``"wheel"`` (a prebuilt manylinux/macOS/Windows
+    wheel from the package index) or ``"source"`` (built on this machine from the sdist), read from the
+    installed distribution's metadata. ``distribution``: an ``importlib.metadata.Distribution`` (tests)."""
+    dist = distribution or md.distribution("pybullet")
+    if (dist.read_text("INSTALLER") or "").strip() == "conda" or _conda_record("pybullet"):
+        return "conda"
+    tags = [line.split(":", 1)[1].strip() for line in (dist.read_text("WHEEL") or "").splitlines()
+            if line.startswith("Tag:")]
+    # an index's wheel carries a portable platform tag; a wheel pip builds here names the bare platform
+    portable = ("manylinux", "musllinux", "macosx", "win")
+    return "wheel" if any(tag.split("-")[-1].startswith(portable) for tag in tags) else "source"
+
+
+def _conda_record(name: str) -> bool:
+    return any((Path(sys.prefix) / "conda-meta").glob(f"{name}-[0-9]*.json"))
+
+
+def _missing_pybullet() -> str:
+    """What to run when pybullet is missing, for this platform and Python."""
+    system, machine, minor = platform.system(), platform.machine(), sys.version_info[:2]
+    if system == "Linux" and machine == "x86_64" and minor <= (3, 11):
+        return f"`pip install pybullet=={PYBULLET_RELEASE}` (a prebuilt wheel)"
+    if system == "Linux":
+        return (f"build it once (about 4-7 minutes; it needs g++ and the Python headers, e.g. "
+                f"`sudo apt install g++ python3-dev`): `{NUMPY_BUILD}`; or use conda-forge: "
+                "`conda install -c conda-forge pybullet`")
+    return ("use conda-forge, which has builds for macOS and Windows: `conda env create -f environment.yml` "
+            "(or `conda install -c conda-forge pybullet`)")
+
+
+def pybullet_checks() -> list[tuple[str, str, str]]:
+    """pybullet's presence, its route (wheel, source build, conda) and its numpy support."""
+    try:
+        import pybullet
+    except ImportError:
+        return [("FIX", "pybullet", f"not installed: {_missing_pybullet()}")]
+    route = pybullet_route()
+    described = {"wheel": "a prebuilt wheel", "source": "built from source on this machine",
+                 "conda": "a conda package"}[route]
+    rows = [("ok", "pybullet", f"{md.version('pybullet')}, {described}")]
+    if pybullet.isNumpyEnabled():
+        rows.append(("ok", "pybullet numpy", "built with numpy support (fast camera images)"))
+    else:
+        fix = NUMPY_BUILD if route == "source" or sys.version_info[:2] > (3, 11) else \
+            "pip install --force-reinstall --no-cache-dir pybullet"
+        rows.append(("FIX", "pybullet numpy", f"built WITHOUT numpy support: camera images are about 3x slower. "
+                     f"Rebuild it: `{fix}`"))
+    return rows
+
+
+def package_checks(names=("numpy", "torch", "gymnasium", "meshcat", "matplotlib", "ipywidgets")) -> list[tuple]:
+    """Each package installed and importable, with its version (pybullet: :func:`pybullet_checks`)."""
+    rows = []
+    for name in names:
+        try:
+            version = md.version(name)
+            importlib.import_module(name)
+        except md.PackageNotFoundError:
+            rows.append(("FIX", name, f"not installed: `pip install vdtutorial` (or `pip install -e .` in a clone) "
+                         f"pulls it in"))
+            continue
+        except Exception as exc:  # installed but broken
+            rows.append(("FIX", name, f"installed ({version}) but `import {name}` fails: {exc!r}. Reinstall it: "
+                         f"`pip install --force-reinstall {name}`"))
+            continue
+        rows.append(("ok", name, version))
+    return rows
+
+
+def python_check() -> tuple[str, str, str]:
+    """The Python version, and the pybullet route it implies."""
+    version = platform.python_version()
+    if sys.version_info[:2] < (3, 11):
+        return ("FIX", "python", f"{version}: vdtutorial needs Python 3.11 or newer")
+    detail = "pybullet has a prebuilt wheel here" if sys.version_info[:2] == (3, 11) else \
+        "pybullet is built from source once (or comes from conda-forge)"
+    return ("ok", "python", f"{version} ({sys.executable}); {detail}")
+
+
+def environment_checks() -> list[tuple[str, str, str]]:
+    """Every check of this module, in the order chapter 00 prints them."""
+    rows = [python_check(), *package_checks(), *pybullet_checks()]
+    if on_colab():
+        rows.append(("note", "colab", "running on Google Colab: chapter 00 turns on Colab's widget manager"))
+    return rows
