@@ -293,16 +293,16 @@ def test_run_seconds_adds_pretraining_only_where_no_checkpoint_is_shipped():
     assert run_seconds(next(s for s in runs.values() if s.method == "none"), 100.0, cost, 50.0) == 3000.0
 
 
-def test_the_readmes_wall_time_table_is_what_its_command_prints():
-    """The README's estimate table comes from the command printed above it, with the measured numbers."""
+def test_the_long_runs_pages_wall_time_table_is_what_its_command_prints():
+    """docs/long-runs.md's estimate table comes from the command printed above it, with the measured numbers."""
     import ast
     import re
 
     from vdtutorial.experiments.estimate import wall_time_table
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    call = re.search(r"print\(wall_time_table\(([^)]*)\)\)", readme)
-    assert call, "the README no longer shows the estimate's command"
+    page = (Path(__file__).resolve().parents[1] / "docs" / "long-runs.md").read_text()
+    call = re.search(r"print\(wall_time_table\(([^)]*)\)\)", page)
+    assert call, "docs/long-runs.md no longer shows the estimate's command"
     args = ast.literal_eval(f"({call.group(1)},)")
-    assert wall_time_table(*args) in readme
+    assert wall_time_table(*args) in page
 

@@ -2,7 +2,7 @@
 figure are re-run here and compared with the shipped rows. A change to the code that alters results
 (the env, the policy, pre-training, TRPO, a default) fails this test until the results are regenerated.
 
-What determinism covers (README, "Regenerable results, and what determinism covers"): the same package versions
+What determinism covers (docs/results.md, "Regenerable results, and what determinism covers"): the same package versions
 (torch, numpy, pybullet, gymnasium as recorded in NAME.json), one torch thread per run (the experiments
 set it; other thread counts change the order of floating-point sums), the AVX2 vector kernels (which
 ``import vdtutorial`` pins, :mod:`vdtutorial.kernels`: conftest imports it before numpy; without the pins an

@@ -109,7 +109,7 @@ class TRPOConfig:
         the paper (2018) most likely used the whole batch. The Fisher only sets the metric of the
         step, but a small subset sees little of it: with 20 of 200 samples the full step overshoots
         the KL bound, the line search cuts it back, and the policies here learned more slowly per
-        step (README, chapter 07). 1.0 (the whole batch) is the default; smaller values are a
+        step (docs/results.md, chapter 07). 1.0 (the whole batch) is the default; smaller values are a
         speed option and a control.
     cg_damping: added to the Fisher matrix (F + damping * I) so that CG works on a well-conditioned
         positive-definite matrix even when F is singular, e.g. along the directions of pruned
