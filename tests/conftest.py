@@ -1,8 +1,32 @@
 """Shared test settings."""
 import vdtutorial  # noqa: F401  (first: it pins the CPU kernels before numpy loads, see vdtutorial.kernels)
 
+import json
+import platform
+from pathlib import Path
+
+import gymnasium
+import numpy
 import pytest
 import torch
+
+
+def numerics_here() -> dict:
+    """The versions that decide a run's floating-point results, as shipped records name them."""
+    return {"torch": torch.__version__, "numpy": numpy.__version__, "gymnasium": gymnasium.__version__,
+            "python": ".".join(platform.python_version_tuple()[:2])}
+
+
+def require_recorded_numerics(record_path: Path) -> None:
+    """Skip, naming both sets of versions, unless this process runs the versions the shipped record
+    ``record_path`` was made under: results regenerate bit for bit only there (CI's Python 3.11 leg installs
+    them from constraints-py311.txt). Elsewhere a difference is not a bug, so it must not fail a test."""
+    made = json.loads(Path(record_path).read_text())["versions"]
+    made = {**made, "python": ".".join(made["python"].split(".")[:2])}
+    here = numerics_here()
+    if any(made[key] != value for key, value in here.items()):
+        pytest.skip(f"exact regeneration holds under the recorded versions "
+                    f"({', '.join(f'{k} {made[k]}' for k in here)}); this is {', '.join(f'{k} {v}' for k, v in here.items())}")
 
 
 @pytest.fixture(autouse=True)
@@ -12,3 +36,11 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def pytest_report_header(config):
+    """Which package and which numerics this run tests (CI's two legs differ in both)."""
+    import pybullet
+
+    return (f"vdtutorial from {Path(vdtutorial.__file__).parent}; {', '.join(f'{k} {v}' for k, v in numerics_here().items())}; "
+            f"pybullet.isNumpyEnabled() = {bool(pybullet.isNumpyEnabled())}")

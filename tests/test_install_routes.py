@@ -98,3 +98,23 @@ def test_this_machine_passes_the_checks_it_runs_ci_on():
     rows = install_check.environment_checks()
     assert [row for row in rows if row[0] == "FIX"] == []
     assert ("ok", "pybullet numpy", "built with numpy support (fast camera images)") in rows
+
+
+def test_a_missing_pybullet_says_how_to_get_it_on_this_machine():
+    hide = ("import importlib.util as u; real = u.find_spec; "
+            "u.find_spec = lambda name, *a: None if name == 'pybullet' else real(name, *a); import vdtutorial")
+    run = subprocess.run([sys.executable, "-c", hide], capture_output=True, text=True)
+    assert run.returncode != 0
+    assert f"pybullet is not installed: {install_check.missing_pybullet()}" in run.stderr.splitlines()[-1]
+
+
+@pytest.mark.parametrize("system, machine, version, advice", [
+    ("Linux", "x86_64", (3, 11), "a prebuilt wheel"), ("Linux", "x86_64", (3, 13), "--no-build-isolation"),
+    ("Linux", "aarch64", (3, 11), "--no-build-isolation"), ("Darwin", "arm64", (3, 12), "conda-forge"),
+    ("Windows", "AMD64", (3, 11), "conda-forge"),
+])
+def test_the_advice_for_a_missing_pybullet_follows_the_platform(monkeypatch, system, machine, version, advice):
+    monkeypatch.setattr(install_check.platform, "system", lambda: system)
+    monkeypatch.setattr(install_check.platform, "machine", lambda: machine)
+    monkeypatch.setattr(install_check.sys, "version_info", (*version, 0, "final", 0))
+    assert advice in install_check.missing_pybullet()

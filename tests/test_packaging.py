@@ -83,12 +83,16 @@ def test_quick_switch_is_read_in_exactly_one_place():
 
 
 def test_ci_runs_the_readme_test_command():
+    """CI's first leg installs with the lock and runs the README's test command; its second leg runs the
+    README's Colab cell (.ci/colab_cell.py finds it)."""
     readme = (ROOT / "README.md").read_text()
     ci = (ROOT / ".ci" / "run").read_text()
-    test_line = ci.strip().splitlines()[-1]
-    assert test_line.startswith("pytest") and "--nbmake" in test_line and "notebooks" in test_line
-    assert test_line in readme
-    assert "VDTUTORIAL_QUICK=1" in ci
+    install = 'pip install -c constraints-py311.txt -e ".[test]"'
+    test_line = "pytest -n 2 --nbmake tests notebooks"
+    assert f"{install} && VDTUTORIAL_QUICK=1 {test_line}" in readme
+    assert f"python -m pip install --quiet -c constraints-py311.txt -e \".[test]\"" in ci
+    assert f"\n{test_line}\n" in ci and "export VDTUTORIAL_QUICK=1" in ci
+    assert "<!-- colab-cell" in readme and "colab_cell.py" in ci
 
 
 def test_data_folder_stays_small():
@@ -157,3 +161,15 @@ def test_the_absolute_path_check_sees_paths_in_every_kind_of_record(tmp_path):
     (tmp_path / "b.csv.gz").write_bytes(gzip.compress(b"run,/tmp/state\n"))
     assert [h for p in (tmp_path / "a.pt", tmp_path / "b.csv.gz") for t in _shipped_texts(p)
             for h in _absolute_paths(t)] == ["/work/x/data/demos/a.npz", "/tmp/state"]
+
+
+def test_every_shipped_result_was_made_under_the_locked_versions():
+    """One set of versions behind all shipped results, and the lock file installs it (python: its minor)."""
+    locked = dict(line.split("==") for line in (ROOT / "constraints-py311.txt").read_text().splitlines()
+                  if line and not line.startswith("#"))
+    for record in sorted((ROOT / "data" / "results").glob("*/*.json")):
+        versions = json.loads(record.read_text())["versions"]
+        assert versions["torch"].split("+")[0] == locked["torch"], record
+        for name in ("numpy", "gymnasium"):  # the sigma study records torch and Python only
+            assert versions.get(name, locked[name]) == locked[name], record
+        assert versions["python"].startswith("3.11."), record

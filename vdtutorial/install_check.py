@@ -49,8 +49,8 @@ def _conda_record(name: str) -> bool:
     return any((Path(sys.prefix) / "conda-meta").glob(f"{name}-[0-9]*.json"))
 
 
-def _missing_pybullet() -> str:
-    """What to run when pybullet is missing, for this platform and Python."""
+def missing_pybullet() -> str:
+    """What to run when pybullet is missing, for this platform and Python (the package's import says it too)."""
     system, machine, minor = platform.system(), platform.machine(), sys.version_info[:2]
     if system == "Linux" and machine == "x86_64" and minor <= (3, 11):
         return f"`pip install pybullet=={PYBULLET_RELEASE}` (a prebuilt wheel)"
@@ -67,7 +67,7 @@ def pybullet_checks() -> list[tuple[str, str, str]]:
     try:
         import pybullet
     except ImportError:
-        return [("FIX", "pybullet", f"not installed: {_missing_pybullet()}")]
+        return [("FIX", "pybullet", f"not installed: {missing_pybullet()}")]
     route = pybullet_route()
     described = {"wheel": "a prebuilt wheel", "source": "built from source on this machine",
                  "conda": "a conda package"}[route]
@@ -111,9 +111,27 @@ def python_check() -> tuple[str, str, str]:
     return ("ok", "python", f"{version} ({sys.executable}); {detail}")
 
 
+def front_end_checks() -> list[tuple[str, str, str]]:
+    """What the notebook front end needs to draw widgets, and what torch will run on."""
+    rows = []
+    try:
+        rows.append(("ok", "jupyterlab_widgets", md.version("jupyterlab_widgets")))
+    except md.PackageNotFoundError:
+        rows.append(("note", "jupyterlab_widgets", "not found: sliders may show as plain text in JupyterLab. "
+                     "Fix with `pip install jupyterlab_widgets` (then restart JupyterLab)"))
+    try:
+        import torch
+
+        rows.append(("ok", "torch threads", f"{torch.get_num_threads()} CPU threads; CUDA available: "
+                     f"{torch.cuda.is_available()} (not needed, everything here runs on the CPU)"))
+    except ImportError:
+        pass  # reported by package_checks
+    return rows
+
+
 def environment_checks() -> list[tuple[str, str, str]]:
     """Every check of this module, in the order chapter 00 prints them."""
-    rows = [python_check(), *package_checks(), *pybullet_checks()]
+    rows = [python_check(), *package_checks(), *pybullet_checks(), *front_end_checks()]
     if on_colab():
         rows.append(("note", "colab", "running on Google Colab: chapter 00 turns on Colab's widget manager"))
     return rows

@@ -9,6 +9,7 @@ it are untouched. Importing pybullet anywhere later is free: Python hands back t
 from __future__ import annotations
 
 import functools
+import importlib.util
 import os
 import sys
 import warnings
@@ -17,6 +18,10 @@ import warnings
 def _import_quietly():
     if "pybullet" in sys.modules:
         return sys.modules["pybullet"]
+    if importlib.util.find_spec("pybullet") is None:  # say how to get it on this machine, not just its name
+        from vdtutorial.install_check import missing_pybullet
+
+        raise ModuleNotFoundError(f"pybullet is not installed: {missing_pybullet()}", name="pybullet")
     sys.stderr.flush()
     try:
         saved = os.dup(2)
