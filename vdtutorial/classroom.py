@@ -30,10 +30,10 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-from vdtutorial.settings import QUICK_ENV
+from vdtutorial.settings import QUICK_ENV, SHIPPED_DIR
 
-#: The teacher's edition: the repository's notebooks (like ``data/``, found from a clone).
-NOTEBOOKS_DIR = Path(__file__).resolve().parent.parent / "notebooks"
+#: The teacher's edition: the shipped notebooks (a clone's ``notebooks/``, or the copy an installed wheel carries).
+NOTEBOOKS_DIR = SHIPPED_DIR / "notebooks"
 #: The nbgrader assignment that holds every chapter.
 ASSIGNMENT = "vdtutorial"
 #: Seconds a single cell may run during autograding before nbgrader interrupts it. Quick-mode cells take
@@ -50,8 +50,7 @@ class ClassroomError(Exception):
 def chapters(source: Path = NOTEBOOKS_DIR) -> dict[str, Path]:
     """The chapter notebooks of ``source`` by name (``"03_demonstrations"`` -> its path)."""
     if not source.is_dir():
-        raise ClassroomError(f"no notebooks folder at {source}: run from a clone of the repository "
-                             "or pass --source with the teacher's notebooks")
+        raise ClassroomError(f"no notebooks folder at {source}: pass --source with the teacher's notebooks")
     found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]_*.ipynb"))}
     if not found:
         raise ClassroomError(f"{source} holds no chapter notebooks (NN_name.ipynb)")
