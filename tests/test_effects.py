@@ -2,6 +2,7 @@
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -75,6 +76,6 @@ def test_results_page_claim_tables_are_generated_from_the_shipped_rows(folder):
     rows = read_rows(results_file(DATA_DIR / "results" / folder, record['experiment']))
     window = int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
     effects = claim_effects(record["experiment"], rows, record["metric"], window)
-    assert claim_table(effects) in (DATA_DIR.parent / "docs" / "results.md").read_text()
+    assert claim_table(effects) in (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
     stored = [(e["text"], e["verdict"]) for e in record["summary"]["claims"]]
     assert stored == [(e["text"], e["verdict"]) for e in effects]  # NAME.json holds the same effects

@@ -6,6 +6,8 @@ import re
 import tomllib
 from pathlib import Path
 
+import vdtutorial
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -75,7 +77,7 @@ def test_notebooks_remove_their_temporary_folders():
 
 
 def test_quick_switch_is_read_in_exactly_one_place():
-    readers = [p for p in (ROOT / "vdtutorial").rglob("*.py") if "VDTUTORIAL_QUICK" in p.read_text()]
+    readers = [p for p in Path(vdtutorial.__file__).parent.rglob("*.py") if "VDTUTORIAL_QUICK" in p.read_text()]
     assert [p.name for p in readers] == ["settings.py"]
     for nb in (ROOT / "notebooks").glob("*.ipynb"):
         text = nb.read_text()  # notebooks may mention the variable, but read budgets from vdtutorial.settings

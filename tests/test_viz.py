@@ -21,9 +21,10 @@ import pybullet as p
 import pytest
 import umsgpack
 
+import vdtutorial
 from vdtutorial import viz
 
-JACO_URDF = Path(__file__).resolve().parents[1] / "vdtutorial" / "assets" / "jaco6.urdf"
+JACO_URDF = Path(vdtutorial.__file__).resolve().parent / "assets" / "jaco6.urdf"  # the package under test
 TABLE_HALF_EXTENTS = (0.4, 0.6, 0.02)
 CUP_RADIUS, CUP_LENGTH = 0.04, 0.1
 
