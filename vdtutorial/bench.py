@@ -228,18 +228,13 @@ def bench_finetune(iterations: int | None = None) -> list[dict]:
             runs.append({"algo": algo, "collect": 0.0, "update": 0.0, "cpu": 0.0, "stats": []})
         for i in range(iterations + 1):
             for run in runs:  # every case collects from the shared env, reset with its own seeds
-                algo = run["algo"]
-                cpu, start = time.process_time(), time.perf_counter()
-                batch = algo.collect()
-                middle = time.perf_counter()
-                step = algo.update(batch)
-                end = time.perf_counter()
-                algo.iteration_index += 1
+                cpu = time.process_time()
+                row = run["algo"].iterate()
                 if i > 0:  # the first iteration warms up
-                    run["collect"] += middle - start
-                    run["update"] += end - middle
+                    run["collect"] += row["collect_s"]
+                    run["update"] += row["update_s"]
                     run["cpu"] += time.process_time() - cpu
-                    run["stats"].append(step)
+                    run["stats"].append(row)
         for (label, fisher, fvp_subsample), run in zip(FINETUNE_CASES, runs):
             steps = iterations * run["algo"].config.steps_per_iter
             stats = run["stats"]
