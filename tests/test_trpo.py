@@ -241,6 +241,18 @@ def test_fvp_subsample_is_seeded_after_the_rollout_and_validated():
             TRPOConfig(fvp_subsample=bad)
 
 
+def test_iterate_advances_the_iteration_and_logs_its_times():
+    torch.manual_seed(0)
+    algo = TRPO(LinearPolicy(), make_env(), TRPOConfig(steps_per_iter=40), seed=0)
+    rows = [algo.iterate() for _ in range(3)]
+    assert algo.iteration_index == 3 and algo.rows == rows
+    assert [(r["iteration"], r["env_steps"]) for r in rows] == [(0, 40), (1, 80), (2, 120)]
+    assert list(rows[0])[-len(TIMING_COLUMNS):] == list(TIMING_COLUMNS)
+    assert all(r["collect_s"] > 0 and r["update_s"] > 0 for r in rows)
+    # wall_time adds up the iterations: each one's collect and update seconds
+    assert rows[-1]["wall_time"] == pytest.approx(sum(r["collect_s"] + r["update_s"] for r in rows), rel=1e-9)
+
+
 def test_pruned_weights_stay_exactly_zero_and_frozen_parameters_fixed():
     torch.manual_seed(0)
     policy = MaskedPolicy()
