@@ -20,6 +20,7 @@ from vdtutorial.experiments import (KL_WEIGHTINGS, METHOD_LABELS, TABLE1, Curve,
                                     table_means, vd_reaches_l2_final)
 from vdtutorial.experiments import backends
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
+from vdtutorial.trpo import TIMING_COLUMNS
 from vdtutorial.vd import svdo_layers
 
 #: A shipped data set (read only) and budgets that keep each run to about a second.
@@ -34,7 +35,7 @@ def _tiny_run(method, tmp_path, seed=0, name="run"):
 
 
 def _without_wall_time(rows):
-    return [{k: v for k, v in row.items() if k != "wall_time"} for row in rows]
+    return [{k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in rows]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -9,7 +9,8 @@ from torch.distributions import Normal, kl_divergence
 
 from vdtutorial.fisher import GaussNewtonFisher, supports
 from vdtutorial.policy import make_policy, obs_to_tensor
-from vdtutorial.trpo import TRPO, TRPOConfig, fisher_vector_product, flat_grad, make_vec_env
+from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
+from vdtutorial.trust_region import fisher_vector_product, flat_grad
 from vdtutorial.vd import svdo_layers
 
 STATE_SPACE = spaces.Box(-1.0, 1.0, (9,), np.float32)
@@ -130,7 +131,7 @@ def test_trpo_with_the_product_keeps_pruned_weights_zero_and_frozen_parameters_f
     layers = svdo_layers(policy)
     before = [(layer.weight.detach().clone(), layer.log_sigma2.detach().clone()) for layer in layers]
     algo = TRPO(policy, env, TRPOConfig(steps_per_iter=64), seed=0, fisher="gauss_newton")
-    rows = [algo.iteration() for _ in range(3)]
+    rows = [algo.iterate() for _ in range(3)]
     env.close()
     assert any(r["line_search"] != "rejected" for r in rows)
     for layer, (weight, log_sigma2) in zip(layers, before):
@@ -192,7 +193,7 @@ def test_state_fine_tuning_rows_are_the_same_with_either_product():
     for fisher in ("double_backward", "gauss_newton"):
         env = make_vec_env(ENV_IDS["reach"], NUM_ENVS, obs_mode="state")
         algo = TRPO(load_checkpoint(checkpoint_path(meta, "vd", "state", 0)).prune_(), env, seed=0, fisher=fisher)
-        rows[fisher] = [algo.iteration() for _ in range(3)]
+        rows[fisher] = [algo.iterate() for _ in range(3)]
         env.close()
     for a, b in zip(rows["double_backward"], rows["gauss_newton"]):
         for key in ("successes", "episodes", "line_search"):

@@ -25,7 +25,7 @@ from vdtutorial.experiments import runs as runs_module
 from vdtutorial.experiments.resume import GZIP_MAGIC, read_run_state, settings_differences
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import QUICK
-from vdtutorial.trpo import TRPOConfig
+from vdtutorial.trpo import TIMING_COLUMNS, TRPOConfig
 
 #: 20 iterations per TRPO run, a state saved after each: a wide window in which to kill the grid.
 COMMAND = [sys.executable, "-m", "vdtutorial", "experiment", "fig4", "--seeds", "0", "--steps", "4000",
@@ -34,7 +34,7 @@ ITERATIONS = 20
 
 
 def _without_wall_time(rows):
-    return [{k: v for k, v in row.items() if k != "wall_time"} for row in rows]
+    return [{k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in rows]
 
 
 def _rows_without_wall_time(folder):

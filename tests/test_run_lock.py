@@ -11,6 +11,7 @@ import time
 from vdtutorial.experiments import RunSpec, default_trpo_config, run_experiment
 from vdtutorial.experiments import grid as grid_module
 from vdtutorial.experiments.run_lock import STALE_S, RunLock, holder_alive, lock_path
+from vdtutorial.trpo import TIMING_COLUMNS
 
 
 def _dead_pid() -> int:
@@ -74,7 +75,7 @@ def _grid(out, progress=False):
 
 
 def _without_wall_time(rows):
-    return [{k: v for k, v in row.items() if k != "wall_time"} for row in rows]
+    return [{k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in rows]
 
 
 def test_a_job_waits_while_another_process_holds_its_run_then_continues_from_its_state(tmp_path, monkeypatch):

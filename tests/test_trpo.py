@@ -1,4 +1,4 @@
-"""Tests of vdtutorial.trpo: each piece against a hand or brute-force computation, then the whole
+"""Tests of vdtutorial.trpo and vdtutorial.trust_region: each piece against a hand or brute-force computation, then the whole
 algorithm on a tiny 1-D reaching task defined here."""
 import copy
 
@@ -12,8 +12,8 @@ from torch.distributions import Normal, kl_divergence
 
 from vdtutorial.bench import _MLPGaussianPolicy
 from vdtutorial.policy import obs_to_tensor
-from vdtutorial.trpo import (TRPO, TRPOConfig, _iteration_seeds, conjugate_gradient, fisher_vector_product, flat_grad,
-                             gae, line_search, make_vec_env)
+from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, _iteration_seeds, gae, make_vec_env
+from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search
 
 
 # ---------------------------------------------------------------------------------------------
@@ -241,6 +241,18 @@ def test_fvp_subsample_is_seeded_after_the_rollout_and_validated():
             TRPOConfig(fvp_subsample=bad)
 
 
+def test_iterate_advances_the_iteration_and_logs_its_times():
+    torch.manual_seed(0)
+    algo = TRPO(LinearPolicy(), make_env(), TRPOConfig(steps_per_iter=40), seed=0)
+    rows = [algo.iterate() for _ in range(3)]
+    assert algo.iteration_index == 3 and algo.rows == rows
+    assert [(r["iteration"], r["env_steps"]) for r in rows] == [(0, 40), (1, 80), (2, 120)]
+    assert list(rows[0])[-len(TIMING_COLUMNS):] == list(TIMING_COLUMNS)
+    assert all(r["collect_s"] > 0 and r["update_s"] > 0 for r in rows)
+    # wall_time adds up the iterations: each one's collect and update seconds
+    assert rows[-1]["wall_time"] == pytest.approx(sum(r["collect_s"] + r["update_s"] for r in rows), rel=1e-9)
+
+
 def test_pruned_weights_stay_exactly_zero_and_frozen_parameters_fixed():
     torch.manual_seed(0)
     policy = MaskedPolicy()
@@ -248,7 +260,7 @@ def test_pruned_weights_stay_exactly_zero_and_frozen_parameters_fixed():
     weight_before = policy.weight.detach().clone()
     algo = TRPO(policy, make_env(), TRPOConfig(steps_per_iter=40), seed=0)
     assert algo.params == [policy.weight, policy.log_std]
-    rows = [algo.iteration() for _ in range(4)]
+    rows = [algo.iterate() for _ in range(4)]
     assert any(r["line_search"] != "rejected" for r in rows)
     w = policy.weight.detach()
     assert torch.all(w[policy.mask == 0] == 0)
@@ -291,8 +303,8 @@ def test_rejects_next_step_autoreset():
 def test_dict_observations_use_the_joints_for_the_baseline():
     torch.manual_seed(0)
     algo = TRPO(LinearPolicy(), make_env(dict_obs=True), TRPOConfig(steps_per_iter=40), seed=0)
-    algo.iteration()
-    algo.iteration()
+    algo.iterate()
+    algo.iterate()
     assert algo.baseline.weights.shape == (1 + 1 + 4,)  # [x, x^2, t, t^2, t^3, 1]
 
 
@@ -315,13 +327,14 @@ def test_checkpoint_resume_reproduces_the_uninterrupted_run(tmp_path, fvp_subsam
     second.load(tmp_path / "ckpt.pt")
     second.run(6 * 40, csv_path=tmp_path / "resumed.csv", progress=False)
 
-    def without_wall_time(path):
+    def without_timing(path):  # the timing columns are the last ones
         lines = path.read_text().splitlines()
-        return [line.rsplit(",", 1)[0] for line in lines]
+        assert lines[0].split(",")[-len(TIMING_COLUMNS):] == list(TIMING_COLUMNS)
+        return [line.rsplit(",", len(TIMING_COLUMNS))[0] for line in lines]
 
-    full_lines = without_wall_time(tmp_path / "full.csv")
+    full_lines = without_timing(tmp_path / "full.csv")
     assert len(full_lines) == 7  # header + 6 rows
-    assert without_wall_time(tmp_path / "resumed.csv") == full_lines
+    assert without_timing(tmp_path / "resumed.csv") == full_lines
     for a, b in zip(full.policy.parameters(), second.policy.parameters()):
         assert torch.equal(a, b)
     with pytest.raises(ValueError, match="different seed"):
@@ -343,7 +356,7 @@ def test_async_vector_env_gives_the_same_iterations_as_sync():
         torch.manual_seed(0)
         env = make_vec_env(lambda: PointReach(), 2, asynchronous=asynchronous)
         algo = TRPO(LinearPolicy(), env, TRPOConfig(steps_per_iter=40), seed=5)
-        rows[asynchronous] = [{k: v for k, v in algo.iteration().items() if k != "wall_time"} for _ in range(2)]
+        rows[asynchronous] = [{k: v for k, v in algo.iterate().items() if k not in TIMING_COLUMNS} for _ in range(2)]
         algo.close()
     assert rows[True] == rows[False]
 

@@ -1,4 +1,4 @@
-"""The optional value-network baseline of vdtutorial.trpo and bootstrapping at time limits; the
+"""The optional value-network baseline of vdtutorial.baselines and bootstrapping at time limits; the
 default (rllab's linear baseline, value 0 after every episode end) is covered by test_trpo.py."""
 import gymnasium
 import numpy as np
@@ -6,7 +6,8 @@ import pytest
 import torch
 from gymnasium import spaces
 
-from vdtutorial.trpo import TRPO, MLPBaseline, TRPOConfig, make_vec_env
+from vdtutorial.baselines import MLPBaseline
+from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, make_vec_env
 from test_trpo import LinearPolicy, PointReach
 
 MLP_CONFIG = TRPOConfig(steps_per_iter=40, baseline="mlp", critic_batch_size=16, bootstrap_time_limits=True)
@@ -54,7 +55,7 @@ def test_critic_state_survives_save_load_and_the_run_resumes_exactly(tmp_path):
     second_rows = second.run(4 * 40, progress=False)
 
     def without_wall_time(rows):
-        return [{k: v for k, v in row.items() if k != "wall_time"} for row in rows]
+        return [{k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in rows]
 
     assert without_wall_time(second_rows) == without_wall_time(full_rows)
     for a, b in zip(full.baseline.net.parameters(), second.baseline.net.parameters()):
@@ -63,7 +64,7 @@ def test_critic_state_survives_save_load_and_the_run_resumes_exactly(tmp_path):
 
 def test_checkpoint_written_before_the_critic_fields_existed_still_loads(tmp_path):
     algo = TRPO(LinearPolicy(), make_vec_env(lambda: PointReach(), 2), TRPOConfig(steps_per_iter=40), seed=1)
-    algo.iteration()
+    algo.iterate()
     algo.save(tmp_path / "ckpt.pt")
     state = torch.load(tmp_path / "ckpt.pt", weights_only=True)
     for key in ("baseline", "critic_hidden", "critic_lr", "critic_epochs", "critic_batch_size", "bootstrap_time_limits"):

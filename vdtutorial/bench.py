@@ -225,29 +225,16 @@ def bench_finetune(iterations: int | None = None) -> list[dict]:
                       else make_policy(env.single_observation_space, 6, variational=True))
             policy.prune_()
             algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fisher=fisher)
-            runs.append({"algo": algo, "collect": 0.0, "update": 0.0, "cpu": 0.0, "stats": []})
+            runs.append((algo, []))
         for i in range(iterations + 1):
-            for run in runs:  # every case collects from the shared env, reset with its own seeds
-                algo = run["algo"]
-                cpu, start = time.process_time(), time.perf_counter()
-                batch = algo.collect()
-                middle = time.perf_counter()
-                step = algo.update(batch)
-                end = time.perf_counter()
-                algo.iteration_index += 1
+            for algo, timed in runs:  # every case collects from the shared env, reset with its own seeds
+                cpu = time.process_time()
+                row = algo.iterate()
                 if i > 0:  # the first iteration warms up
-                    run["collect"] += middle - start
-                    run["update"] += end - middle
-                    run["cpu"] += time.process_time() - cpu
-                    run["stats"].append(step)
-        for (label, fisher, fvp_subsample), run in zip(FINETUNE_CASES, runs):
-            steps = iterations * run["algo"].config.steps_per_iter
-            stats = run["stats"]
-            fractions = [0.0 if s["line_search"] == "rejected" else s["line_search"] for s in stats]
+                    timed.append((row, time.process_time() - cpu))
+        for (label, fisher, fvp_subsample), (algo, timed) in zip(FINETUNE_CASES, runs):
             row = {"obs_mode": obs_mode, "fisher": fisher, "fvp_subsample": fvp_subsample, "policy": source,
-                   "collect_s": run["collect"] / iterations, "update_s": run["update"] / iterations,
-                   "steps_per_s": steps / (run["collect"] + run["update"]), "steps_per_cpu_s": steps / run["cpu"],
-                   "mean_kl": float(np.mean([s["mean_kl"] for s in stats])), "step_fraction": float(np.mean(fractions))}
+                   **_finetune_summary(timed, algo.config.steps_per_iter)}
             rows.append(row)
             print(f"{obs_mode:6} {label:16} {fvp_subsample:>13g} {row['collect_s']:>10.3f} {row['update_s']:>9.3f} "
                   f"{row['steps_per_s']:>8.1f} {row['steps_per_cpu_s']:>11.1f} {row['mean_kl']:>8.4f} "
@@ -261,6 +248,18 @@ def bench_finetune(iterations: int | None = None) -> list[dict]:
     torch.set_num_threads(threads)
     return rows
 
+
+def _finetune_summary(timed: list[tuple[dict, float]], steps_per_iter: int) -> dict:
+    """One fine-tuning case's columns from its timed iterations, (TRPO log row, CPU seconds) each: the mean
+    seconds collecting and updating per iteration, env steps per second of both together and per CPU
+    second, the mean KL of the steps and the mean accepted fraction of the full step (0 when rejected)."""
+    rows = [row for row, _ in timed]
+    collect, update = sum(r["collect_s"] for r in rows), sum(r["update_s"] for r in rows)
+    steps = len(rows) * steps_per_iter
+    fractions = [0.0 if r["line_search"] == "rejected" else r["line_search"] for r in rows]
+    return {"collect_s": collect / len(rows), "update_s": update / len(rows), "steps_per_s": steps / (collect + update),
+            "steps_per_cpu_s": steps / sum(cpu for _, cpu in timed),
+            "mean_kl": float(np.mean([r["mean_kl"] for r in rows])), "step_fraction": float(np.mean(fractions))}
 
 
 # ----------------------------------------------------------------------------------------------

@@ -2,7 +2,7 @@ r"""The exact Fisher-vector product of the Gaussian policy, computed in Gauss-Ne
 
 TRPO's conjugate gradient needs F v about a dozen times per update, where F is the Hessian of the mean
 KL(pi_old || pi_theta) at theta = theta_old (:mod:`vdtutorial.trpo`, step 4). The generic way
-(:func:`vdtutorial.trpo.fisher_vector_product`, the one chapter 06 teaches) differentiates the KL
+(:func:`vdtutorial.trust_region.fisher_vector_product`, the one chapter 06 teaches) differentiates the KL
 twice with autograd. For the paper's policy pi(a | s) = N(mu(s), diag(sigma(s)^2)) the same matrix has
 a closed form (chapter 06 derives it): with J the Jacobian of the network outputs (mu, sigma) with
 respect to theta, on N states,
@@ -224,7 +224,7 @@ class GaussNewtonFisher:
     def __init__(self, policy: GaussianPolicy, obs, old: Normal, params: list[nn.Parameter]):
         if not supports(policy):
             raise TypeError("GaussNewtonFisher needs a GaussianPolicy of Linear/Conv2d/ReLU/Tanh/Flatten layers "
-                            "with its sparse-VD layers pruned or in eval mode; use trpo.fisher_vector_product")
+                            "with its sparse-VD layers pruned or in eval mode; use trust_region.fisher_vector_product")
         self.params = params
         with torch.no_grad():
             mu_inputs, sigma_inputs = policy.mu._stream_inputs(obs), policy.sigma._stream_inputs(obs)

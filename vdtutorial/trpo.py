@@ -1,52 +1,26 @@
-r"""Trust Region Policy Optimization (Schulman et al., 2015), written out in one file.
+r"""Trust Region Policy Optimization (Schulman et al., 2015): the reinforcement-learning stage, in which the
+paper fine-tunes its pre-trained policy with rllab's TRPO, 200 environment steps per iteration over 25-step
+horizons (the defaults of :class:`TRPOConfig`). Chapter 06 assembles it from its pieces; chapter 07 runs it.
 
-This is the reinforcement-learning stage of the paper: a policy pre-trained by behavioural cloning
-(with sparse variational dropout or L2) is fine-tuned with TRPO. The paper used rllab's TRPO with
-200 environment steps per iteration and a horizon of 25 steps; the defaults below follow that.
+One iteration (:meth:`TRPO.iterate`), as pseudocode::
 
-One iteration, as pseudocode::
-
-    1. collect   run pi_old for `steps_per_iter` steps in the vector environment (one policy
-                 forward per vector step); episodes that end are reset in the same step; the
-                 trajectories still running when the batch is full are cut off there
-    2. advantage V(s, t) = the baseline fitted on the previous batch (rllab's linear one, or
-                 optionally a value network);
-                 A = GAE(gamma, lambda) of the rewards against V, bootstrapped with V where a
-                 trajectory was cut off by the batch end (and, optionally, where an episode hit its
-                 time limit); then normalise A to mean 0, std 1
+    1. collect   run pi_old for `steps_per_iter` steps in the vector environment          (rollout)
+    2. advantage A = GAE(gamma, lambda) of the rewards against the baseline V fitted on the previous
+                 batch (:mod:`vdtutorial.baselines`), bootstrapped with V where the batch end cut a
+                 trajectory off; then normalised to mean 0, std 1                (advantages_and_returns)
     3. gradient  g = grad of the surrogate L(theta) = mean[ pi_theta(a|s) / pi_old(a|s) * A ]
-    4. direction s ~= F^-1 g by conjugate gradient, where F v is a Fisher-vector product: the
-                 Hessian of the mean KL(pi_old || pi_theta) times v, plus damping * v; the mean
-                 KL of this step may be taken over a random subset of the batch (``fvp_subsample``);
-                 for the paper's Gaussian policy F v is computed in its cheaper Gauss-Newton form
-                 J^T M J v (:mod:`vdtutorial.fisher`), for any other policy by a double backward
-    5. step      beta = sqrt(2 delta / s^T F s), so the full step beta * s has a quadratic-model
-                 KL of exactly delta
-    6. search    try theta_old + beta s, then halve the step; accept the first one whose mean
-                 KL is <= delta AND whose surrogate improved; if none, keep theta_old
-    7. baseline  refit the baseline on this batch: the linear one on the discounted returns, the
-                 value network on the lambda-returns A + V (before normalising A)
+    4. direction s ~= F^-1 g by conjugate gradient on Fisher-vector products F v (F: the Hessian of the
+                 mean KL(pi_old || pi_theta), plus damping), in Gauss-Newton form for the paper's
+                 Gaussian policy (:mod:`vdtutorial.fisher`), by double backward for any other
+    5. step      beta = sqrt(2 delta / s^T F s): the full step beta * s has a quadratic-model KL of delta
+    6. search    halve the step until its mean KL is <= delta and the surrogate improved, else keep
+                 theta_old (the numerics of steps 3-6: :mod:`vdtutorial.trust_region`)
+    7. baseline  refit V on this batch
 
-What is optimised is exactly ``[p for p in policy.parameters() if p.requires_grad]``. Frozen
-parameters (variational dropout's log sigma^2 in the RL stage) therefore never move, and a weight
-that the forward pass multiplies by a 0/1 pruning mask gets a gradient of exactly 0, a Fisher-vector
-product of exactly 0, and so a step of exactly 0: pruned weights stay pruned.
-
-Policy protocol (see ``vdtutorial.policy``): an ``nn.Module`` whose ``distribution(obs)`` returns a
-diagonal ``torch.distributions.Normal`` for a float32 tensor of shape (B, d) or a dict of such
-tensors; log-probabilities are summed over the last dimension. It must be a deterministic function
-of (obs, parameters): the KL at the old parameters must be 0.
-
-Reproducibility: every iteration is a pure function of (seed, iteration index, parameters and
-baseline at its start). At the start of an iteration the vector environment is reset with seeds
-derived from (seed, iteration) and the action noise comes from a ``torch.Generator`` seeded from the
-same pair. A checkpoint (policy, baseline, iteration index, log rows) therefore resumes a run
-exactly.
-
-Vector environments: gymnasium >= 1.0 autoresets a finished sub-environment either on the same step
-(its final observation and info go into ``info["final_obs"]`` / ``info["final_info"]``) or on the
-next step (which then ignores the action). We require ``AutoresetMode.SAME_STEP`` so that every
-step in the batch is a real transition; :func:`make_vec_env` builds such a vector environment.
+Only ``[p for p in policy.parameters() if p.requires_grad]`` moves: frozen parameters (VD's log sigma^2)
+never do, and a weight that the forward pass multiplies by a 0/1 pruning mask gets a gradient, a Fisher
+product and so a step of exactly 0: pruned weights stay pruned. Every iteration is a pure function of
+(seed, iteration index, parameters and baseline at its start), so a checkpoint resumes a run exactly.
 """
 from __future__ import annotations
 
@@ -64,23 +38,22 @@ from torch import nn
 from torch.distributions import Normal, kl_divergence
 from tqdm.auto import tqdm
 
+from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, MLPBaseline, Obs, default_baseline_features
 from vdtutorial.fisher import GaussNewtonFisher
 from vdtutorial.fisher import supports as supports_gauss_newton
 from vdtutorial.policy import obs_to_tensor
+from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search
 
-Obs = np.ndarray | dict[str, np.ndarray]
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
 #: The ways :class:`TRPO` can compute Fisher-vector products (its ``fisher`` argument).
 FISHER_PRODUCTS = ("auto", "gauss_newton", "double_backward")
+#: The columns of a log row that measure time, so differ between two runs of the same iterations.
+TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
 
 
 # ----------------------------------------------------------------------------------------------
 # Hyperparameters
 # ----------------------------------------------------------------------------------------------
-#: The baselines TRPOConfig.baseline can name: rllab's linear one and a value network.
-BASELINES = ("linear", "mlp")
-
-
 @dataclass
 class TRPOConfig:
     """TRPO hyperparameters. ``steps_per_iter`` is the paper's; the paper reports no others, so
@@ -163,8 +136,9 @@ class TRPOConfig:
         self.critic_hidden = tuple(self.critic_hidden)
 
 
+
 # ----------------------------------------------------------------------------------------------
-# The pieces of TRPO, as pure functions
+# Advantages
 # ----------------------------------------------------------------------------------------------
 def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones: np.ndarray,
         gamma: float, lam: float) -> np.ndarray:
@@ -191,199 +165,6 @@ def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones:
     return advantages
 
 
-def flat_grad(y: torch.Tensor, params: list[nn.Parameter], create_graph: bool = False,
-              retain_graph: bool | None = None) -> torch.Tensor:
-    """Gradient of the scalar ``y`` with respect to ``params``, concatenated into one vector
-    (zeros for parameters that ``y`` does not depend on)."""
-    grads = torch.autograd.grad(y, params, create_graph=create_graph, retain_graph=retain_graph,
-                                allow_unused=True)
-    return torch.cat([(torch.zeros_like(p) if g is None else g).reshape(-1) for p, g in zip(params, grads)])
-
-
-def fisher_vector_product(kl_grad: torch.Tensor, params: list[nn.Parameter], v: torch.Tensor,
-                          damping: float) -> torch.Tensor:
-    """(F + damping * I) v without building F.
-
-    F is the Hessian of the mean KL(pi_old || pi_theta) at theta = theta_old, which equals the
-    Fisher information matrix of the policy. ``kl_grad`` is the gradient of the mean KL, computed
-    once with ``create_graph=True``; differentiating ``kl_grad . v`` once more gives F v (keeping
-    the graph of ``kl_grad``, which conjugate gradient differentiates again for the next v). This
-    needs nothing but the policy protocol; for the paper's Gaussian policy :mod:`vdtutorial.fisher`
-    computes the same product several times faster.
-    """
-    return flat_grad(kl_grad @ v, params, retain_graph=True) + damping * v
-
-
-def conjugate_gradient(Avp: Callable[[torch.Tensor], torch.Tensor], b: torch.Tensor, iters: int = 10,
-                       residual_tol: float = 1e-10) -> torch.Tensor:
-    """Approximately solve A x = b for a symmetric positive-definite A, given only v -> A v.
-
-    Starts at x = 0; each iteration moves along a search direction that is A-conjugate to all the
-    previous ones. Stops after ``iters`` iterations or when the squared residual is below
-    ``residual_tol``. In exact arithmetic it is exact after dim(b) iterations.
-    """
-    x = torch.zeros_like(b)
-    r = b.clone()  # residual b - A x
-    p = b.clone()  # search direction
-    r_dot_r = r @ r
-    for _ in range(iters):
-        if r_dot_r < residual_tol:
-            break
-        Ap = Avp(p)
-        alpha = r_dot_r / (p @ Ap)
-        x += alpha * p
-        r -= alpha * Ap
-        new_r_dot_r = r @ r
-        p = r + (new_r_dot_r / r_dot_r) * p
-        r_dot_r = new_r_dot_r
-    return x
-
-
-@torch.no_grad()
-def set_flat_params(params: list[nn.Parameter], flat: torch.Tensor) -> None:
-    """Copy the vector ``flat`` into ``params`` (in place, in order)."""
-    start = 0
-    for p in params:
-        p.copy_(flat[start:start + p.numel()].view_as(p))
-        start += p.numel()
-
-
-def line_search(params: list[nn.Parameter], full_step: torch.Tensor,
-                surrogate_and_kl: Callable[[], tuple[torch.Tensor, torch.Tensor]], max_kl: float,
-                backtrack_iters: int = 10, backtrack_coeff: float = 0.5,
-                surrogate_old: float | None = None) -> tuple[float | None, float, float]:
-    """Backtracking line search along ``full_step`` from the current parameters.
-
-    ``surrogate_and_kl()`` evaluates the surrogate and the mean KL(old || current) at the current
-    parameters (one policy forward for both). Tries the fractions 1, c, c^2, ... (c =
-    ``backtrack_coeff``) of the full step and accepts the first one whose mean KL is at most
-    ``max_kl`` and whose surrogate is larger than at the start. Returns (accepted fraction,
-    surrogate improvement, mean KL), leaving the parameters at the accepted point; or
-    (None, 0.0, 0.0) with the parameters restored when no step passes. ``surrogate_old``, the
-    surrogate at the current parameters, saves one evaluation when the caller already has it.
-    """
-    with torch.no_grad():
-        theta_old = torch.cat([p.reshape(-1) for p in params]).clone()
-        if surrogate_old is None:
-            surrogate_old = surrogate_and_kl()[0].item()
-        for i in range(backtrack_iters):
-            fraction = backtrack_coeff ** i
-            set_flat_params(params, theta_old + fraction * full_step)
-            surrogate, kl = (x.item() for x in surrogate_and_kl())
-            improvement = surrogate - surrogate_old
-            if kl <= max_kl and improvement > 0:
-                return fraction, improvement, kl
-        set_flat_params(params, theta_old)
-    return None, 0.0, 0.0
-
-
-# ----------------------------------------------------------------------------------------------
-# Baseline
-# ----------------------------------------------------------------------------------------------
-def default_baseline_features(obs: Obs) -> np.ndarray:
-    """Low-dimensional baseline features of a batch of observations: the flattened observation,
-    or, for dict observations (image + joints), the ``"joints"`` entry."""
-    if isinstance(obs, dict):
-        if "joints" not in obs:
-            raise KeyError("dict observation without a 'joints' entry: pass baseline_features= to TRPO")
-        obs = obs["joints"]
-    return np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
-
-
-class LinearFeatureBaseline:
-    """State-value estimate V(s, t) = w . phi(s, t), fitted by ridge regression (as in rllab).
-
-    phi = [f, f^2, t, t^2, t^3, 1] with f = features(s) clipped to [-10, 10] and t the time step
-    within the episode divided by 100. Why a linear baseline rather than a value network: with
-    200-sample batches a network would have little to learn from and would need its own optimiser
-    and hyperparameters, whereas a least-squares fit is closed-form, instant and has no state but
-    its weights; the time features capture how the remaining return shrinks towards the horizon;
-    and image policies still get a baseline from their low-dimensional features (the joints).
-    """
-
-    def __init__(self, reg: float = 1e-5):
-        self.reg = reg
-        self.weights: np.ndarray | None = None  # None until the first fit: V = 0
-
-    @staticmethod
-    def design(features: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
-        f = np.clip(features, -10.0, 10.0)
-        t = np.asarray(timesteps, dtype=np.float64).reshape(-1, 1) / 100.0
-        return np.concatenate([f, f ** 2, t, t ** 2, t ** 3, np.ones_like(t)], axis=1)
-
-    def predict(self, features: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
-        if self.weights is None:
-            return np.zeros(len(features))
-        return self.design(features, timesteps) @ self.weights
-
-    def fit(self, features: np.ndarray, timesteps: np.ndarray, returns: np.ndarray) -> None:
-        X = self.design(features, timesteps)
-        reg = self.reg
-        for _ in range(5):
-            weights = np.linalg.solve(X.T @ X + reg * np.eye(X.shape[1]), X.T @ returns)
-            if np.all(np.isfinite(weights)):
-                break
-            reg *= 10
-        self.weights = weights
-
-    def state_dict(self) -> dict:
-        return {"weights": None if self.weights is None else torch.from_numpy(self.weights)}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.weights = None if state["weights"] is None else state["weights"].numpy().copy()
-
-
-class MLPBaseline:
-    """State-value network V(s) = MLP(features(s)), fitted by minibatch Adam on each batch.
-
-    The alternative to :class:`LinearFeatureBaseline` that sb3-contrib and Spinning Up use: a tanh
-    MLP regressed (mean squared error) on the batch's value targets for ``epochs`` shuffled passes,
-    with one Adam optimiser kept over the whole run. It sees the features only, not the time step:
-    it is meant to go with ``bootstrap_time_limits``, under which the value of a state does not
-    depend on the time left. Its initial weights and the order of its minibatches come from
-    ``seed`` (and the number of fits so far), so a run that saves and reloads it (``state_dict``:
-    the weights, Adam's moments and the fit count) continues exactly.
-    """
-
-    def __init__(self, num_features: int, hidden: tuple[int, ...] = (64, 64), lr: float = 1e-3,
-                 epochs: int = 10, batch_size: int = 128, seed: int = 0):
-        with torch.random.fork_rng(devices=[]):  # the global generator (policy init, ...) is untouched
-            torch.manual_seed(seed)
-            layers, width = [], num_features
-            for h in hidden:
-                layers += [nn.Linear(width, h), nn.Tanh()]
-                width = h
-            self.net = nn.Sequential(*layers, nn.Linear(width, 1))
-        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=lr)
-        self.epochs, self.batch_size, self.seed = epochs, batch_size, seed
-        self.fits = 0
-
-    def predict(self, features: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.net(torch.as_tensor(features, dtype=torch.float32)).squeeze(-1).double().numpy()
-
-    def fit(self, features: np.ndarray, timesteps: np.ndarray, returns: np.ndarray) -> None:
-        x = torch.as_tensor(features, dtype=torch.float32)
-        y = torch.as_tensor(returns, dtype=torch.float32)
-        order_seed = np.random.SeedSequence([self.seed, self.fits], spawn_key=(1,)).generate_state(1)[0]
-        generator = torch.Generator().manual_seed(int(order_seed))
-        for _ in range(self.epochs):
-            for index in torch.randperm(len(x), generator=generator).split(self.batch_size):
-                loss = nn.functional.mse_loss(self.net(x[index]).squeeze(-1), y[index])
-                self.optimizer.zero_grad()
-                loss.backward()
-                self.optimizer.step()
-        self.fits += 1
-
-    def state_dict(self) -> dict:
-        return {"net": self.net.state_dict(), "optimizer": self.optimizer.state_dict(), "fits": self.fits}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.net.load_state_dict(state["net"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.fits = state["fits"]
-
-
 # ----------------------------------------------------------------------------------------------
 # Environment and data plumbing
 # ----------------------------------------------------------------------------------------------
@@ -393,10 +174,30 @@ def make_vec_env(env: str | Callable[[], gymnasium.Env], num_envs: int = 1, asyn
 
     ``env`` is a registered id (made with ``gymnasium.make(env, **make_kwargs)``) or a function
     returning an environment. ``asynchronous=True`` runs each copy in its own process.
+
+    Why same-step: gymnasium >= 1.0 autoresets a finished sub-environment either on the same step (its
+    final observation and info go into ``info["final_obs"]`` / ``info["final_info"]``) or on the next
+    step (which then ignores the action). With ``AutoresetMode.SAME_STEP`` every step of a batch is a
+    real transition.
     """
     make = (lambda: gymnasium.make(env, **make_kwargs)) if isinstance(env, str) else env
     vector_cls = gymnasium.vector.AsyncVectorEnv if asynchronous else gymnasium.vector.SyncVectorEnv
     return vector_cls([make] * num_envs, autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+
+
+def _subset(obs: TensorObs, index: torch.Tensor) -> TensorObs:
+    """The observations at ``index`` of a batch (a tensor or a dict of tensors)."""
+    return {key: x[index] for key, x in obs.items()} if isinstance(obs, dict) else obs[index]
+
+
+def _check_vec_env(env: gymnasium.vector.VectorEnv, steps_per_iter: int) -> None:
+    mode = env.metadata.get("autoreset_mode")
+    if mode != gymnasium.vector.AutoresetMode.SAME_STEP:
+        raise ValueError(f"TRPO needs a vector env with autoreset_mode=AutoresetMode.SAME_STEP, got {mode}: "
+                         "with NEXT_STEP the step after an episode end is a reset, not a transition "
+                         "(use vdtutorial.trpo.make_vec_env)")
+    if steps_per_iter % env.num_envs:
+        raise ValueError(f"steps_per_iter={steps_per_iter} is not a multiple of num_envs={env.num_envs}")
 
 
 def _stack(steps: list[Obs]) -> Obs:
@@ -414,10 +215,105 @@ def _batch_of(observations: list[Obs]) -> Obs:
     return np.stack(observations)
 
 
+
 def _iteration_seeds(seed: int, iteration: int, num_envs: int) -> tuple[list[int], int]:
-    """Environment reset seeds and the action-noise seed of one iteration."""
+    """Environment reset seeds and the action-noise seed of one iteration. Every iteration starts by
+    resetting the vector environment with the first and drawing its action noise (and its Fisher
+    subsample) from a generator seeded with the second, so no generator state outlives an iteration."""
     state = np.random.SeedSequence([seed, iteration]).generate_state(num_envs + 1)
     return [int(s) for s in state[:-1]], int(state[-1])
+
+
+# ----------------------------------------------------------------------------------------------
+# 1. collect and 2. advantages: the parts of TRPO.collect
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class Rollout:
+    """What running the policy for one batch gave, before any baseline: T steps of N sub-environments."""
+
+    observations: Obs             # (T * N, ...) the observations acted on, time-major
+    actions: torch.Tensor         # (T * N, action_dim) the sampled (unclipped) actions
+    timesteps: np.ndarray         # (T * N,) step index within the episode
+    rewards: np.ndarray           # (T, N)
+    dones: np.ndarray             # (T, N) True where an episode ended with the step
+    last_obs: Obs                 # (N, ...) the observations after the last step (where the batch cut off)
+    last_timesteps: np.ndarray    # (N,) their steps within the episode
+    episode_returns: list[float]  # undiscounted returns of the episodes that ended in the batch
+    successes: int                # how many of those ended with info["is_success"] True
+    time_limit_ends: list[tuple]  # (step, env, final observation, its time step) where a time limit struck
+
+
+def rollout(policy: nn.Module, env: gymnasium.vector.VectorEnv, steps_per_env: int, env_seeds: list[int],
+            generator: torch.Generator, keep_time_limit_ends: bool = False) -> Rollout:
+    """Step 1: reset ``env`` with ``env_seeds`` and run ``policy`` for ``steps_per_env`` vector steps, one
+    policy forward per step, the action noise drawn from ``generator`` and the actions clipped to the
+    action space. An episode that ends is reset in the same step; the trajectories still running at the
+    end are cut off there. ``keep_time_limit_ends`` records the episodes that a time limit ended, with
+    their final observations (for ``TRPOConfig.bootstrap_time_limits``)."""
+    n, space = env.num_envs, env.single_action_space
+    obs, _ = env.reset(seed=env_seeds)
+    t = np.zeros(n, dtype=np.int64)        # step within the current episode, per env
+    running_return = np.zeros(n)
+    observations, actions, timesteps = [], [], []
+    rewards, dones = np.zeros((steps_per_env, n)), np.zeros((steps_per_env, n))
+    episode_returns, successes, time_limit_ends = [], 0, []
+    for k in range(steps_per_env):
+        with torch.no_grad():  # one policy forward for all sub-environments
+            dist = policy.distribution(obs_to_tensor(obs))
+            action = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=generator,
+                                                          dtype=dist.mean.dtype)
+        next_obs, reward, terminated, truncated, info = env.step(np.clip(action.numpy(), space.low, space.high))
+        done = terminated | truncated
+        observations.append(obs)
+        actions.append(action)
+        timesteps.append(t)
+        rewards[k], dones[k] = reward, done
+        running_return += reward
+        if done.any():
+            successes += _successes(info["final_info"], done)
+            episode_returns.extend(running_return[done].tolist())
+            running_return[done] = 0.0
+            if keep_time_limit_ends:
+                time_limit_ends += [(k, i, info["final_obs"][i], t[i] + 1)
+                                    for i in np.flatnonzero(truncated & ~terminated)]
+        t = np.where(done, 0, t + 1)
+        obs = next_obs  # after an episode end this is already the next episode's first obs
+    return Rollout(_stack(observations), torch.cat(actions), np.concatenate(timesteps), rewards, dones, obs, t,
+                   episode_returns, successes, time_limit_ends)
+
+
+def _successes(final_info: dict, done: np.ndarray) -> int:
+    """How many of the episodes that ended in this vector step reported ``info["is_success"]`` True."""
+    if "is_success" not in final_info:
+        return 0
+    reported = np.flatnonzero(final_info["_is_success"] & done)
+    return sum(bool(final_info["is_success"][i]) for i in reported)
+
+
+def advantages_and_returns(run: Rollout, features: np.ndarray, baseline, baseline_features: Callable[[Obs], np.ndarray],
+                           config: TRPOConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Step 2: the advantages of ``run`` against ``baseline`` (fitted on the previous batch), normalised
+    to mean 0 and std 1, and the targets the baseline is fitted to next (see ``TRPOConfig.baseline``);
+    both flat, time-major. ``features``: the baseline features of ``run.observations``.
+
+    Trajectories cut off by the batch end are bootstrapped with V of the observation after them. A
+    time-limit end counts as the end of the (finite-horizon) task, value 0 after it, as in rllab; with
+    ``bootstrap_time_limits``, gamma * V(final observation) is added to the reward of its last step (the
+    episode still ends there: GAE stops at it)."""
+    values = baseline.predict(features, run.timesteps).reshape(run.rewards.shape)
+    last_values = baseline.predict(baseline_features(run.last_obs), run.last_timesteps)
+    rewards = run.rewards.copy()
+    if run.time_limit_ends:
+        steps, envs, final_obs, final_t = zip(*run.time_limit_ends)
+        final_values = baseline.predict(baseline_features(_batch_of(final_obs)), np.array(final_t))
+        rewards[steps, envs] += config.gamma * final_values
+    advantages = gae(rewards, values, last_values, run.dones, config.gamma, config.gae_lambda)
+    if config.baseline == "linear":  # rllab: regress on the discounted returns
+        returns = gae(rewards, values, last_values, run.dones, config.gamma, 1.0) + values
+    else:  # sb3-contrib: regress on the lambda-returns, less noisy targets for a network
+        returns = advantages + values
+    advantages, returns = advantages.reshape(-1), returns.reshape(-1)
+    return (advantages - advantages.mean()) / (advantages.std() + 1e-8), returns
 
 
 @dataclass
@@ -435,13 +331,57 @@ class Batch:
     fvp_index: torch.Tensor | None = None  # (m,) the samples of the Fisher-vector products; None = all
 
 
+
+# ----------------------------------------------------------------------------------------------
+# 4. Fisher-vector products
+# ----------------------------------------------------------------------------------------------
+def fisher_product(policy: nn.Module, params: list[nn.Parameter], obs: TensorObs, old: Normal, damping: float,
+                   fisher: str = "auto", dist: Normal | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
+    """v -> (F + damping * I) v, F the Hessian of the mean KL(old || pi_theta) over ``obs`` at the policy's
+    current parameters (step 4). ``old`` is the policy's distribution on ``obs`` now; ``dist``, when given,
+    is the same with its autograd graph (the double backward reuses it).
+
+    Both forms are exact and agree to float rounding. The Gauss-Newton form
+    (:class:`vdtutorial.fisher.GaussNewtonFisher`) is several times cheaper for the image policy but needs
+    to know the policy's networks; the double backward (:func:`vdtutorial.trust_region.fisher_vector_product`,
+    the teaching version of chapter 06) needs only the policy protocol. ``fisher`` chooses, as in :class:`TRPO`."""
+    if fisher == "gauss_newton" or (fisher == "auto" and supports_gauss_newton(policy)):
+        gauss_newton = GaussNewtonFisher(policy, obs, old, params)
+        return lambda v: gauss_newton(v) + damping * v
+    dist = dist if dist is not None else policy.distribution(obs)
+    kl_grad = flat_grad(kl_divergence(old, dist).sum(-1).mean(), params, create_graph=True)
+    return lambda v: fisher_vector_product(kl_grad, params, v, damping)
+
+
+def _check_fisher(fisher: str, policy: nn.Module) -> None:
+    if fisher not in FISHER_PRODUCTS:
+        raise ValueError(f"fisher must be one of {FISHER_PRODUCTS}, got {fisher!r}")
+    if fisher == "gauss_newton" and not supports_gauss_newton(policy):
+        raise ValueError("fisher='gauss_newton' needs a GaussianPolicy of Linear/Conv2d/ReLU/Tanh/Flatten "
+                         "layers (sparse-VD layers pruned or in eval mode); use 'auto' or 'double_backward'")
+
+
+def _make_baseline(config: TRPOConfig, env: gymnasium.vector.VectorEnv, features: Callable[[Obs], np.ndarray],
+                   seed: int) -> LinearFeatureBaseline | MLPBaseline:
+    """The baseline ``config.baseline`` names; a network's input width comes from a sample of the (batched)
+    observation space."""
+    if config.baseline == "linear":
+        return LinearFeatureBaseline(config.baseline_reg)
+    num_features = features(env.observation_space.sample()).shape[1]
+    return MLPBaseline(num_features, config.critic_hidden, config.critic_lr, config.critic_epochs,
+                       config.critic_batch_size, seed=seed)
+
+
 # ----------------------------------------------------------------------------------------------
 # The algorithm
 # ----------------------------------------------------------------------------------------------
 class TRPO:
     """TRPO on a gymnasium vector environment.
 
-    policy: the nn.Module to train (see the module docstring for its protocol).
+    policy: the nn.Module to train. Its ``distribution(obs)`` returns a diagonal
+        ``torch.distributions.Normal`` for a float32 tensor of shape (B, d) or a dict of such tensors
+        (log-probabilities are summed over the last dimension), and is a deterministic function of
+        (obs, parameters): the KL at the old parameters must be 0 (see :mod:`vdtutorial.policy`).
     env: a vector environment with ``AutoresetMode.SAME_STEP`` (see :func:`make_vec_env`) that
         returns fresh observation arrays each step (gymnasium's default ``copy=True``), or a
         zero-argument function that builds one.
@@ -449,13 +389,11 @@ class TRPO:
     seed: the run's seed; with the parameters it determines every iteration.
     baseline_features: maps a batch of observations (array or dict of arrays, batch first) to a
         float array (batch, k) of low-dimensional features for the baseline (linear or network);
-        by default :func:`default_baseline_features`.
-    fisher: how the Fisher-vector products of step 4 are computed; both ways are exact and agree to
-        float rounding, so this changes the cost, not the algorithm. ``"gauss_newton"``:
-        :class:`vdtutorial.fisher.GaussNewtonFisher`, only for a
+        by default :func:`vdtutorial.baselines.default_baseline_features`.
+    fisher: how the Fisher-vector products of step 4 are computed (:func:`fisher_product`); both ways
+        are exact, so this changes the cost, not the algorithm. ``"gauss_newton"`` only for a
         :class:`vdtutorial.policy.GaussianPolicy` (:func:`vdtutorial.fisher.supports`);
-        ``"double_backward"``: :func:`fisher_vector_product`, for any policy; ``"auto"`` (default):
-        the first when the policy supports it, else the second.
+        ``"double_backward"`` for any policy; ``"auto"`` (default): the first when the policy supports it.
 
     With small policies, ``torch.set_num_threads(1)`` is much faster on a busy 2-core machine:
     extra threads only contend for the cores.
@@ -465,129 +403,39 @@ class TRPO:
                  config: TRPOConfig | None = None, seed: int = 0,
                  baseline_features: Callable[[Obs], np.ndarray] | None = None,
                  fisher: str = "auto"):
-        if fisher not in FISHER_PRODUCTS:
-            raise ValueError(f"fisher must be one of {FISHER_PRODUCTS}, got {fisher!r}")
-        if fisher == "gauss_newton" and not supports_gauss_newton(policy):
-            raise ValueError("fisher='gauss_newton' needs a GaussianPolicy of Linear/Conv2d/ReLU/Tanh/Flatten "
-                             "layers (sparse-VD layers pruned or in eval mode); use 'auto' or 'double_backward'")
+        _check_fisher(fisher, policy)
         self.fisher = fisher
         self.policy = policy
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
         self.config = config or TRPOConfig()
         self.seed = seed
         self.baseline_features = baseline_features or default_baseline_features
-        cfg = self.config
-        if cfg.baseline == "linear":
-            self.baseline = LinearFeatureBaseline(cfg.baseline_reg)
-        else:  # the network's input width, from a sample of the (batched) observation space
-            num_features = self.baseline_features(self.env.observation_space.sample()).shape[1]
-            self.baseline = MLPBaseline(num_features, cfg.critic_hidden, cfg.critic_lr, cfg.critic_epochs,
-                                        cfg.critic_batch_size, seed=seed)
+        self.baseline = _make_baseline(self.config, self.env, self.baseline_features, seed)
         self.params = [p for p in policy.parameters() if p.requires_grad]
         self.iteration_index = 0
         self.rows: list[dict] = []
-
-        mode = self.env.metadata.get("autoreset_mode")
-        if mode != gymnasium.vector.AutoresetMode.SAME_STEP:
-            raise ValueError(f"TRPO needs a vector env with autoreset_mode=AutoresetMode.SAME_STEP, got {mode}: "
-                             "with NEXT_STEP the step after an episode end is a reset, not a transition "
-                             "(use vdtutorial.trpo.make_vec_env)")
-        if self.config.steps_per_iter % self.env.num_envs:
-            raise ValueError(f"steps_per_iter={self.config.steps_per_iter} is not a multiple of "
-                             f"num_envs={self.env.num_envs}")
-        space = self.env.single_action_space
-        self.action_low, self.action_high = space.low, space.high
+        _check_vec_env(self.env, self.config.steps_per_iter)
 
     # -- 1. collect, 2. advantages ----------------------------------------------------------------
     def collect(self) -> Batch:
-        """Run the current policy for one batch and compute its advantages (steps 1-2)."""
+        """Run the current policy for one batch (:func:`rollout`) and compute its advantages
+        (:func:`advantages_and_returns`), with the seeds of (seed, iteration_index)."""
         cfg, n = self.config, self.env.num_envs
-        steps_per_env = cfg.steps_per_iter // n
         env_seeds, noise_seed = _iteration_seeds(self.seed, self.iteration_index, n)
         generator = torch.Generator().manual_seed(noise_seed)
-
-        obs, _ = self.env.reset(seed=env_seeds)
-        t = np.zeros(n, dtype=np.int64)        # step within the current episode, per env
-        running_return = np.zeros(n)
-        observations, actions, timesteps = [], [], []
-        rewards, dones = np.zeros((steps_per_env, n)), np.zeros((steps_per_env, n))
-        episode_returns, successes = [], 0
-        time_limit_ends = []  # (step, env, final observation, its time step) where a time limit struck
-
-        for k in range(steps_per_env):
-            with torch.no_grad():  # one policy forward for all sub-environments
-                dist = self.policy.distribution(obs_to_tensor(obs))
-                action = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=generator,
-                                                              dtype=dist.mean.dtype)
-            next_obs, reward, terminated, truncated, info = self.env.step(
-                np.clip(action.numpy(), self.action_low, self.action_high))
-            done = terminated | truncated
-            observations.append(obs)
-            actions.append(action)
-            timesteps.append(t)
-            rewards[k], dones[k] = reward, done
-            running_return += reward
-            if done.any():
-                final = info["final_info"]
-                if "is_success" in final:
-                    reported = np.flatnonzero(final["_is_success"] & done)
-                    successes += sum(bool(final["is_success"][i]) for i in reported)
-                episode_returns.extend(running_return[done].tolist())
-                running_return[done] = 0.0
-                if cfg.bootstrap_time_limits:
-                    time_limit_ends += [(k, i, info["final_obs"][i], t[i] + 1)
-                                        for i in np.flatnonzero(truncated & ~terminated)]
-            t = np.where(done, 0, t + 1)
-            obs = next_obs  # after an episode end this is already the next episode's first obs
-
-        # By default a time-limit end counts as the end of the (finite-horizon) task: value 0 after
-        # it, as in rllab. With bootstrap_time_limits, gamma * V(final observation) is added to the
-        # reward of that last step (the episode still ends there: GAE stops at it). Trajectories cut
-        # off by the batch end are always bootstrapped with the baseline.
-        flat_obs = _stack(observations)
-        features = self.baseline_features(flat_obs)
-        flat_t = np.concatenate(timesteps)
-        values = self.baseline.predict(features, flat_t).reshape(steps_per_env, n)
-        last_values = self.baseline.predict(self.baseline_features(obs), t)
-        if time_limit_ends:
-            steps, envs, final_obs, final_t = zip(*time_limit_ends)
-            final_values = self.baseline.predict(self.baseline_features(_batch_of(final_obs)), np.array(final_t))
-            rewards[steps, envs] += cfg.gamma * final_values
-        advantages = gae(rewards, values, last_values, dones, cfg.gamma, cfg.gae_lambda)
-        if cfg.baseline == "linear":  # rllab: regress on the discounted returns
-            returns = gae(rewards, values, last_values, dones, cfg.gamma, 1.0) + values
-        else:  # sb3-contrib: regress on the lambda-returns, less noisy targets for a network
-            returns = advantages + values
-        advantages, returns = advantages.reshape(-1), returns.reshape(-1)
-        advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        run = rollout(self.policy, self.env, cfg.steps_per_iter // n, env_seeds, generator, cfg.bootstrap_time_limits)
+        features = self.baseline_features(run.observations)
+        advantages, returns = advantages_and_returns(run, features, self.baseline, self.baseline_features, cfg)
         fvp_index = None
         if cfg.fvp_subsample < 1.0:  # drawn after the actions, so the rollouts do not depend on it
             size = max(1, int(cfg.steps_per_iter * cfg.fvp_subsample))
             fvp_index = torch.randperm(cfg.steps_per_iter, generator=generator)[:size]
-        return Batch(obs=obs_to_tensor(flat_obs), actions=torch.cat(actions),
+        return Batch(obs=obs_to_tensor(run.observations), actions=run.actions,
                      advantages=torch.as_tensor(advantages, dtype=torch.float32), features=features,
-                     timesteps=flat_t, returns=returns, episode_returns=episode_returns,
-                     successes=successes, fvp_index=fvp_index)
+                     timesteps=run.timesteps, returns=returns, episode_returns=run.episode_returns,
+                     successes=run.successes, fvp_index=fvp_index)
 
     # -- 3-7. the update --------------------------------------------------------------------------
-    def _fisher_product(self, obs: TensorObs, old: Normal,
-                        dist: Normal | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
-        """v -> (F + damping * I) v, F the Hessian of the mean KL(old || pi_theta) over ``obs`` at the
-        current parameters (step 4). ``old`` is the policy's distribution on ``obs`` now; ``dist``,
-        when given, is the same with its autograd graph (the double backward reuses it).
-
-        Both forms are exact and agree to float rounding. The Gauss-Newton form
-        (:class:`vdtutorial.fisher.GaussNewtonFisher`) is several times cheaper for the image policy but
-        needs to know the policy's networks; the double backward (:func:`fisher_vector_product`, the
-        teaching version of chapter 06) needs only the policy protocol. ``self.fisher`` chooses."""
-        damping = self.config.cg_damping
-        if self.fisher == "gauss_newton" or (self.fisher == "auto" and supports_gauss_newton(self.policy)):
-            fisher = GaussNewtonFisher(self.policy, obs, old, self.params)
-            return lambda v: fisher(v) + damping * v
-        dist = dist if dist is not None else self.policy.distribution(obs)
-        kl_grad = flat_grad(kl_divergence(old, dist).sum(-1).mean(), self.params, create_graph=True)
-        return lambda v: fisher_vector_product(kl_grad, self.params, v, damping)
-
     def update(self, batch: Batch) -> dict:
         """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the
         step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
@@ -609,13 +457,12 @@ class TRPO:
         surrogate = surrogate_of(dist)
         if batch.fvp_index is None:
             g = flat_grad(surrogate, self.params, retain_graph=True)
-            Fvp = self._fisher_product(batch.obs, old, dist)
+            Fvp = fisher_product(self.policy, self.params, batch.obs, old, cfg.cg_damping, self.fisher, dist)
         else:
             g = flat_grad(surrogate, self.params)
             index = batch.fvp_index
-            sub_obs = ({k: x[index] for k, x in batch.obs.items()} if isinstance(batch.obs, dict)
-                       else batch.obs[index])
-            Fvp = self._fisher_product(sub_obs, Normal(old.mean[index], old.stddev[index]))
+            Fvp = fisher_product(self.policy, self.params, _subset(batch.obs, index),
+                                 Normal(old.mean[index], old.stddev[index]), cfg.cg_damping, self.fisher)
 
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
         sFs = (direction @ Fvp(direction)).item()
@@ -629,12 +476,17 @@ class TRPO:
                 "surrogate_improvement": improvement,
                 "line_search": "rejected" if fraction is None else fraction}
 
-    # -- one iteration, logging, the main loop ----------------------------------------------------
-    def iteration(self) -> dict:
-        """Collect, update, and return this iteration's log row."""
+    # -- one iteration, the main loop ---------------------------------------------------------------
+    def iterate(self) -> dict:
+        """One iteration: collect, update, advance ``iteration_index``. Returns the iteration's log row,
+        also appended to ``rows``; besides the counts and the update's statistics it holds the seconds
+        spent collecting (``collect_s``) and updating (``update_s``), and the run's seconds so far
+        (``wall_time``; these three are :data:`TIMING_COLUMNS`)."""
         start = time.perf_counter()
         batch = self.collect()
+        collected = time.perf_counter()
         stats = self.update(batch)
+        updated = time.perf_counter()
         previous_time = self.rows[-1]["wall_time"] if self.rows else 0.0
         row = {"iteration": self.iteration_index,
                "env_steps": (self.iteration_index + 1) * self.config.steps_per_iter,
@@ -642,7 +494,9 @@ class TRPO:
                "episodes": len(batch.episode_returns),
                "mean_return": float(np.mean(batch.episode_returns)) if batch.episode_returns else math.nan,
                **stats,
-               "wall_time": previous_time + time.perf_counter() - start}
+               "collect_s": collected - start,
+               "update_s": updated - collected,
+               "wall_time": previous_time + updated - start}
         self.rows.append(row)
         self.iteration_index += 1
         return row
@@ -656,7 +510,7 @@ class TRPO:
         total_iters = math.ceil(total_steps / self.config.steps_per_iter)
         with tqdm(total=total_iters, initial=self.iteration_index, disable=not progress, desc="TRPO") as bar:
             while self.iteration_index < total_iters:
-                row = self.iteration()
+                row = self.iterate()
                 if csv_path is not None:
                     _append_csv(csv_path, row)
                 if checkpoint_path is not None:

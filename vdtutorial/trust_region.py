@@ -1,0 +1,101 @@
+"""TRPO's step as numerical pieces that know nothing of environments: the gradient of a scalar as one
+vector, the Fisher-vector product by double backward, conjugate gradient, and the backtracking line
+search that enforces the KL bound (steps 3-6 of :mod:`vdtutorial.trpo`).
+
+Chapter 06 builds each piece on its own and checks it against a brute-force computation (sections 1, 2
+and 5) before :class:`vdtutorial.trpo.TRPO` puts them together; they live apart from the algorithm so that
+each can be read, taught and tested without a rollout. :mod:`vdtutorial.fisher` computes the same
+Fisher-vector product in a cheaper form for the paper's Gaussian policy.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+from torch import nn
+
+
+def flat_grad(y: torch.Tensor, params: list[nn.Parameter], create_graph: bool = False,
+              retain_graph: bool | None = None) -> torch.Tensor:
+    """Gradient of the scalar ``y`` with respect to ``params``, concatenated into one vector
+    (zeros for parameters that ``y`` does not depend on)."""
+    grads = torch.autograd.grad(y, params, create_graph=create_graph, retain_graph=retain_graph,
+                                allow_unused=True)
+    return torch.cat([(torch.zeros_like(p) if g is None else g).reshape(-1) for p, g in zip(params, grads)])
+
+
+def fisher_vector_product(kl_grad: torch.Tensor, params: list[nn.Parameter], v: torch.Tensor,
+                          damping: float) -> torch.Tensor:
+    """(F + damping * I) v without building F.
+
+    F is the Hessian of the mean KL(pi_old || pi_theta) at theta = theta_old, which equals the
+    Fisher information matrix of the policy. ``kl_grad`` is the gradient of the mean KL, computed
+    once with ``create_graph=True``; differentiating ``kl_grad . v`` once more gives F v (keeping
+    the graph of ``kl_grad``, which conjugate gradient differentiates again for the next v). This
+    needs nothing but the policy protocol; for the paper's Gaussian policy :mod:`vdtutorial.fisher`
+    computes the same product several times faster.
+    """
+    return flat_grad(kl_grad @ v, params, retain_graph=True) + damping * v
+
+
+def conjugate_gradient(Avp: Callable[[torch.Tensor], torch.Tensor], b: torch.Tensor, iters: int = 10,
+                       residual_tol: float = 1e-10) -> torch.Tensor:
+    """Approximately solve A x = b for a symmetric positive-definite A, given only v -> A v.
+
+    Starts at x = 0; each iteration moves along a search direction that is A-conjugate to all the
+    previous ones. Stops after ``iters`` iterations or when the squared residual is below
+    ``residual_tol``. In exact arithmetic it is exact after dim(b) iterations.
+    """
+    x = torch.zeros_like(b)
+    r = b.clone()  # residual b - A x
+    p = b.clone()  # search direction
+    r_dot_r = r @ r
+    for _ in range(iters):
+        if r_dot_r < residual_tol:
+            break
+        Ap = Avp(p)
+        alpha = r_dot_r / (p @ Ap)
+        x += alpha * p
+        r -= alpha * Ap
+        new_r_dot_r = r @ r
+        p = r + (new_r_dot_r / r_dot_r) * p
+        r_dot_r = new_r_dot_r
+    return x
+
+
+@torch.no_grad()
+def set_flat_params(params: list[nn.Parameter], flat: torch.Tensor) -> None:
+    """Copy the vector ``flat`` into ``params`` (in place, in order)."""
+    start = 0
+    for p in params:
+        p.copy_(flat[start:start + p.numel()].view_as(p))
+        start += p.numel()
+
+
+def line_search(params: list[nn.Parameter], full_step: torch.Tensor,
+                surrogate_and_kl: Callable[[], tuple[torch.Tensor, torch.Tensor]], max_kl: float,
+                backtrack_iters: int = 10, backtrack_coeff: float = 0.5,
+                surrogate_old: float | None = None) -> tuple[float | None, float, float]:
+    """Backtracking line search along ``full_step`` from the current parameters.
+
+    ``surrogate_and_kl()`` evaluates the surrogate and the mean KL(old || current) at the current
+    parameters (one policy forward for both). Tries the fractions 1, c, c^2, ... (c =
+    ``backtrack_coeff``) of the full step and accepts the first one whose mean KL is at most
+    ``max_kl`` and whose surrogate is larger than at the start. Returns (accepted fraction,
+    surrogate improvement, mean KL), leaving the parameters at the accepted point; or
+    (None, 0.0, 0.0) with the parameters restored when no step passes. ``surrogate_old``, the
+    surrogate at the current parameters, saves one evaluation when the caller already has it.
+    """
+    with torch.no_grad():
+        theta_old = torch.cat([p.reshape(-1) for p in params]).clone()
+        if surrogate_old is None:
+            surrogate_old = surrogate_and_kl()[0].item()
+        for i in range(backtrack_iters):
+            fraction = backtrack_coeff ** i
+            set_flat_params(params, theta_old + fraction * full_step)
+            surrogate, kl = (x.item() for x in surrogate_and_kl())
+            improvement = surrogate - surrogate_old
+            if kl <= max_kl and improvement > 0:
+                return fraction, improvement, kl
+        set_flat_params(params, theta_old)
+    return None, 0.0, 0.0
