@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from vdtutorial.settings import DATA_DIR, QUICK, RUNS_DIR
+from vdtutorial.settings import DATA_DIR, RUNS_DIR, is_quick
 
 #: Set this environment variable to see the full traceback of an expected error.
 TRACEBACK_VARIABLE = "VDTUTORIAL_TRACEBACK"
@@ -373,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    if QUICK:
+    if is_quick():
         print("[quick mode: small budgets]", file=sys.stderr)
     try:
         args.func(args)

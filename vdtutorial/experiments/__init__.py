@@ -42,7 +42,7 @@ Seeds
 
 Smoothing and bands
     Each seed's curve is smoothed with a trailing moving average over ``window`` iterations (default
-    ``SMOOTH_WINDOW`` = 25 iterations = 5000 env steps, 1.7% of the paper's 3e5; the first points average
+    ``smooth_window()`` = 25 iterations = 5000 env steps, 1.7% of the paper's 3e5; the first points average
     the iterations available so far). Trailing, so that a smoothed value at step x uses only what the run
     had seen by then, which keeps "the step at which VD first reaches L2's final level" honest. The band
     is a 95% Student-t confidence interval of the mean over seeds at each point:
@@ -68,8 +68,8 @@ Where files go
     summary).
 """
 
-from vdtutorial.experiments.curves import (CONFIDENCE, SMOOTH_WINDOW, Curve, curves_from_rows, mean_band,
-                                           moving_average, steps_to_reach, vd_reaches_l2_final)
+from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, mean_band, moving_average,
+                                           smooth_window, steps_to_reach, vd_reaches_l2_final)
 from vdtutorial.experiments.effects import CLAIMS, claim_effects, claim_table, write_claims
 from vdtutorial.experiments.figures import fig4, fig5, fig6, fig7
 from vdtutorial.experiments.backends import run_jobs
@@ -80,9 +80,9 @@ from vdtutorial.experiments.resume import ResumeError
 from vdtutorial.experiments.results import (ExperimentResult, experiment_command, format_summary, load_result,
                                            run_experiment)
 from vdtutorial.experiments.rows import read_rows, results_file, write_csv
-from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, METHOD_LABELS, METHODS,
-                                         METRIC, NUM_ENVS, RL_METHODS, RUNS_DIR, SEEDS, SUBSAMPLED_FISHER_CONFIG,
-                                         TOTAL_STEPS, default_trpo_config, expert_reference, finetune, finetune_steps,
-                                         load_demos, pretrained_policy)
+from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, METHODS, METRIC, NUM_ENVS, RL_METHODS,
+                                         RUNS_DIR, SUBSAMPLED_FISHER_CONFIG, default_expert_episodes, default_seeds,
+                                         default_total_steps, default_trpo_config, expert_reference, finetune,
+                                         finetune_steps, load_demos, pretrained_policy)
 from vdtutorial.experiments.sparsity_table import (KL_WEIGHTINGS, TABLE1, format_table1, seeds_with_trend,
                                                    sparsity_trends, table1, table_means)

@@ -35,7 +35,7 @@ import signal
 import torch
 
 from vdtutorial.kernels import NATIVE_ENV, PINNED
-from vdtutorial.settings import QUICK, QUICK_ENV
+from vdtutorial.settings import QUICK_ENV, is_quick
 
 BACKENDS = ("local", "ray")
 #: Seconds between two ticks of the listener while no report arrives.
@@ -227,7 +227,7 @@ def _run_ray(fn, jobs, workers, address, listener) -> list:
         # a Ray worker loads numpy before it runs a task, so the kernel pins must be in its environment from
         # the start (vdtutorial.kernels), as must the quick switch
         pins = {name: os.environ[name] for name in (*PINNED, NATIVE_ENV) if name in os.environ}
-        env = {"env_vars": {QUICK_ENV: "1" if QUICK else "0", **pins}}
+        env = {"env_vars": {QUICK_ENV: "1" if is_quick() else "0", **pins}}
         if address is None:  # a private local Ray, even if another one runs on this machine
             _start_local_ray(ray, workers, env)
         else:

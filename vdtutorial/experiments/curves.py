@@ -11,10 +11,14 @@ from scipy import stats
 from vdtutorial.experiments.runs import METHOD_LABELS
 from vdtutorial.settings import budget
 
-#: Trailing moving-average width, in TRPO iterations (200 env steps each).
-SMOOTH_WINDOW = budget(25, 3)
 #: Confidence level of the bands over seeds.
 CONFIDENCE = 0.95
+
+
+def smooth_window() -> int:
+    """The default trailing moving-average width, in TRPO iterations (200 env steps each): 25, or 3 for the
+    short runs of quick mode, looked up when curves are made."""
+    return budget(25, 3)
 
 
 def moving_average(values, window: int) -> np.ndarray:
@@ -66,10 +70,12 @@ class Curve:
     seeds: int
 
 
-def curves_from_rows(rows: list[dict], metric: str, window: int = SMOOTH_WINDOW) -> dict[str, Curve]:
-    """Group combined rows by label, smooth each seed's ``metric`` over iterations, and reduce over seeds
-    (:func:`mean_band`). Expert rows (one per measured episode) become a flat line: the mean over all
-    episodes of all seeds and its interval. Labels keep their order of first appearance."""
+def curves_from_rows(rows: list[dict], metric: str, window: int | None = None) -> dict[str, Curve]:
+    """Group combined rows by label, smooth each seed's ``metric`` over ``window`` iterations (default
+    :func:`smooth_window`), and reduce over seeds (:func:`mean_band`). Expert rows (one per measured episode)
+    become a flat line: the mean over all episodes of all seeds and its interval. Labels keep their order
+    of first appearance."""
+    window = smooth_window() if window is None else window
     groups: dict[str, dict] = {}
     for row in rows:
         group = groups.setdefault(row["label"], {"method": row["method"], "seeds": {}})

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from vdtutorial.experiments.curves import CONFIDENCE, SMOOTH_WINDOW, moving_average, record_window
+from vdtutorial.experiments.curves import CONFIDENCE, moving_average, record_window, smooth_window
 from vdtutorial.experiments.rows import read_rows, results_file
 
 #: Bootstrap resamples for the steps-to-reach interval.
@@ -164,10 +164,12 @@ def verdict(low: float, high: float, direction: int, threshold: float = 0.0) -> 
     return "confirmed" if high < threshold else "contradicted" if low > threshold else "not confirmed"
 
 
-def claim_effects(name: str, rows: list[dict], metric: str, window: int = SMOOTH_WINDOW,
+def claim_effects(name: str, rows: list[dict], metric: str, window: int | None = None,
                   confidence: float = CONFIDENCE) -> list[dict]:
-    """Every claim of experiment ``name`` whose curves are in ``rows``: estimate, interval, verdict.
+    """Every claim of experiment ``name`` whose curves are in ``rows``: estimate, interval, verdict, with
+    curves smoothed over ``window`` iterations (default :func:`~vdtutorial.experiments.curves.smooth_window`).
     Claims about curves the run did not make (e.g. no expert line) are left out."""
+    window = smooth_window() if window is None else window
     groups = per_run(rows, metric)
     results = []
     for claim in CLAIMS.get(name, ()):

@@ -5,7 +5,7 @@ from vdtutorial.demos import SHIPPED_NOISE
 from vdtutorial.experiments.curves import vd_reaches_l2_final
 from vdtutorial.experiments.grid import RunSpec
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
-from vdtutorial.experiments.runs import METHOD_LABELS, SEEDS, TOTAL_STEPS, default_trpo_config
+from vdtutorial.experiments.runs import METHOD_LABELS, default_seeds, default_total_steps, default_trpo_config
 
 
 #: Each figure's runs: (title, methods, task, data sets (samples, Sigma) of the pre-trained methods, the
@@ -24,10 +24,11 @@ FIGURES = {
 
 def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode: str = "state") -> list[RunSpec]:
     """The runs of a figure: each pre-training method on each data set, the other methods once, every one
-    for every seed (defaults: ``SEEDS``, ``TOTAL_STEPS``)."""
+    for every seed (defaults: :func:`~vdtutorial.experiments.runs.default_seeds`,
+    :func:`~vdtutorial.experiments.runs.default_total_steps`)."""
     _, methods, task, datasets, label = FIGURES[name]
-    seeds = tuple(SEEDS if seeds is None else seeds)
-    total_steps = TOTAL_STEPS if total_steps is None else total_steps
+    seeds = tuple(default_seeds() if seeds is None else seeds)
+    total_steps = default_total_steps() if total_steps is None else total_steps
     specs = []
     for method in methods:
         if method in ("vd", "l2"):

@@ -22,8 +22,9 @@ from vdtutorial.experiments.progress import GridProgress
 from vdtutorial.experiments.resume import ResumeError, check_resumable, read_run_state, save_finished_rows
 from vdtutorial.experiments.rows import write_csv
 from vdtutorial.experiments.run_lock import WAIT_S, RunLock, holder_alive, lock_path
-from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, EXPERT_EPISODES, METHODS, METRIC, NUM_ENVS, TOTAL_STEPS,
-                                         expert_reference, expert_settings, finetune_steps, run_settings)
+from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHODS, METRIC, NUM_ENVS, default_expert_episodes,
+                                         default_total_steps, expert_reference, expert_settings, finetune_steps,
+                                         run_settings)
 from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.trpo import TRPOConfig
 
@@ -31,7 +32,8 @@ from vdtutorial.trpo import TRPOConfig
 @dataclass(frozen=True)
 class RunSpec:
     """What one run is: a method, a data set (``samples``, ``noise``; None for "none" and "expert"), a
-    seed. ``label`` names the curve it belongs to."""
+    seed. ``label`` names the curve it belongs to. ``total_steps`` None: the RL budget of the mode the spec is
+    made in (:func:`~vdtutorial.experiments.runs.default_total_steps`)."""
 
     method: str
     task: str = "reach"
@@ -39,10 +41,12 @@ class RunSpec:
     noise: float | None = 0.5
     seed: int = 0
     obs_mode: str = "state"
-    total_steps: int = TOTAL_STEPS
+    total_steps: int | None = None
     label: str = ""
 
     def __post_init__(self):
+        if self.total_steps is None:
+            object.__setattr__(self, "total_steps", default_total_steps())  # frozen: set once, here
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
         if self.method in ("vd", "l2") and (self.samples is None or self.noise is None):
@@ -79,7 +83,7 @@ class Job:
         """What the run's saved state must match (:func:`~vdtutorial.experiments.runs.run_settings`)."""
         spec = self.spec
         if spec.method == "expert":
-            return expert_settings(spec.task, spec.seed, EXPERT_EPISODES)
+            return expert_settings(spec.task, spec.seed, default_expert_episodes())
         config = self.pretrain_config or default_config(spec.method if spec.method != "none" else "l2", spec.obs_mode)
         meta = None if spec.method == "none" else {"samples": spec.samples, "noise": spec.noise, "seed": 0}
         return run_settings(spec.method, spec.task, meta, spec.obs_mode, spec.seed, NUM_ENVS, config, self.trpo_config)
@@ -88,7 +92,7 @@ class Job:
     def rows_expected(self) -> int:
         """Log rows of the finished run: TRPO iterations, or the expert's episodes."""
         if self.spec.method == "expert":
-            return EXPERT_EPISODES
+            return default_expert_episodes()
         return math.ceil(self.spec.total_steps / self.trpo_config.steps_per_iter)
 
     @property
@@ -122,7 +126,7 @@ def run_job(job: Job):
     the job waits and then continues from the state that process left (finished, usually)."""
     spec, start = job.spec, time.perf_counter()
     if spec.method == "expert":
-        rows = expert_reference(spec.task, spec.seed, EXPERT_EPISODES)
+        rows = expert_reference(spec.task, spec.seed, default_expert_episodes())
         seconds = time.perf_counter() - start
         save_finished_rows(job.state_path, job.settings, rows, seconds)
         yield {"env_steps": job.env_steps}

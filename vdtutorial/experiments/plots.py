@@ -5,7 +5,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from vdtutorial.evaluation import EPISODE_STEPS
-from vdtutorial.experiments.curves import CONFIDENCE, SMOOTH_WINDOW, Curve
+from vdtutorial.experiments.curves import CONFIDENCE, Curve, smooth_window
 
 METRIC_LABELS = {"successes": "successful trajectories per 200-step episode",
                  "mean_return": "cumulative reward per trajectory"}
@@ -13,11 +13,13 @@ _COLOURS = {"vd": "tab:blue", "l2": "tab:orange", "none": "tab:gray", "expert": 
 _LINESTYLES = ("-", "--", ":", "-.")
 
 
-def plot_curves(curves: dict[str, Curve], metric: str, title: str, window: int = SMOOTH_WINDOW) -> Figure:
+def plot_curves(curves: dict[str, Curve], metric: str, title: str, window: int | None = None) -> Figure:
     """Mean (line) and 95% t-interval over seeds (shaded) of each smoothed curve against env steps; the
     expert as a horizontal dashed line with its interval. Curves of one method are told apart by line
-    style. Uses ``matplotlib.figure.Figure`` directly (no pyplot state), so it is safe in worker
-    processes and notebooks alike."""
+    style. ``window``: the curves' smoothing, for the axis label (default :func:`smooth_window`). Uses
+    ``matplotlib.figure.Figure`` directly (no pyplot state), so it is safe in worker processes and
+    notebooks alike."""
+    window = smooth_window() if window is None else window
     fig = Figure(figsize=(7, 4.5), layout="constrained")
     ax = fig.add_subplot()
     variants: dict[str, int] = {}

@@ -16,8 +16,8 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
-from vdtutorial.experiments.curves import (CONFIDENCE, SMOOTH_WINDOW, Curve, curves_from_rows, final_point,
-                                           record_window)
+from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, final_point, record_window,
+                                           smooth_window)
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.grid import Job, RunSpec, run_grid
 from vdtutorial.experiments.plots import plot_curves
@@ -25,7 +25,7 @@ from vdtutorial.experiments.rows import read_rows, results_file, write_csv
 from vdtutorial.kernels import kernel_settings
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, RUNS_DIR, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
-from vdtutorial.settings import DATA_DIR, QUICK, budget, recorded_path
+from vdtutorial.settings import DATA_DIR, budget, is_quick, recorded_path
 from vdtutorial.trpo import TRPOConfig
 
 @dataclass
@@ -43,7 +43,7 @@ class ExperimentResult:
     @property
     def window(self) -> int:
         """The smoothing window of the curves (the record's, for a result read back)."""
-        return record_window(self.record) if self.record else SMOOTH_WINDOW
+        return record_window(self.record) if self.record else smooth_window()
 
     @property
     def metric(self) -> str:
@@ -99,7 +99,7 @@ def default_out(name: str) -> Path:
 def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path | None = None, workers: int = 2,
                    demos_root: Path | None = None, checkpoints_root: Path | None = None,
                    pretrain_config: PretrainConfig | None = None, trpo_config: TRPOConfig | None = None,
-                   window: int = SMOOTH_WINDOW, command: str = "", summarise=None, *, backend: str = "local",
+                   window: int | None = None, command: str = "", summarise=None, *, backend: str = "local",
                    address: str | None = None, state_dir: str | Path | None = None, restart: bool = False,
                    checkpoint_every: int = CHECKPOINT_EVERY, progress: bool | None = None) -> ExperimentResult:
     """Run ``specs`` as a restartable grid (:func:`~vdtutorial.experiments.grid.run_grid`), then write
@@ -108,6 +108,8 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     whatever ``summarise(curves)`` returns.
 
     out: default :func:`default_out`.
+    window: the curves' smoothing, in iterations (default
+        :func:`~vdtutorial.experiments.curves.smooth_window`).
     demos_root: where the demonstrations are read (default ``data/``).
     checkpoints_root: where pre-trained checkpoints are made when the shipped ones do not match
         (default ``out``; see :func:`~vdtutorial.experiments.runs.pretrained_policy`).
@@ -118,6 +120,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     progress: the grid's live line and per-run lines (:mod:`~vdtutorial.experiments.progress`).
     """
     out = Path(out) if out is not None else default_out(name)
+    window = smooth_window() if window is None else window
     state_dir = Path(state_dir) if state_dir is not None else out / "runs"
     # absolute paths: a worker (a Ray task on another node, say) may start elsewhere
     demos_root = Path(demos_root or DATA_DIR).resolve()
@@ -140,7 +143,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
                "claims": claim_effects(name, rows, metric, window),
                **(summarise(curves) if summarise else {})}
     record = {
-        "experiment": name, "command": command, "argv": recorded_argv(), "quick": QUICK, "title": title,
+        "experiment": name, "command": command, "argv": recorded_argv(), "quick": is_quick(), "title": title,
         "metric": metric, "num_envs": NUM_ENVS, "steps_per_iteration": trpo_config.steps_per_iter,
         "window": window, "smoothing": f"trailing moving average over {window} iterations", "band": f"{CONFIDENCE:.0%} Student-t "
         "interval of the mean over seeds", "workers": workers, "backend": backend, "wall_time_s": wall,

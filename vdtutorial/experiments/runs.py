@@ -34,11 +34,6 @@ METHOD_LABELS = {"vd": "VD", "l2": "L2", "none": "no pre-training", "expert": "I
 NUM_ENVS = EPISODE_STEPS // HORIZON
 #: Row column plotted for each task: successes per 200-step episode (reach), cumulative reward (grasp).
 METRIC = {"reach": "successes", "grasp": "mean_return"}
-#: 200-step episodes measured per seed for the expert's reference line.
-EXPERT_EPISODES = budget(5, 1)
-#: The paper's RL budget, 3e5 env steps, and the quick one.
-TOTAL_STEPS = budget(300_000, 2_000)
-SEEDS = budget((0, 1, 2), (0, 1))
 #: The control of Fisher-vector products on 10% of each batch (``--fvp-subsample 0.1``): the value of
 #: rllab's first optimiser, later changed to the whole batch (``TRPOConfig.fvp_subsample``). Not a default.
 SUBSAMPLED_FISHER_CONFIG = TRPOConfig(fvp_subsample=0.1)
@@ -52,6 +47,21 @@ def default_trpo_config(obs_mode: str) -> TRPOConfig:
     products on the whole batch, as rllab (which the paper used) has computed them since 2016.
     :data:`SUBSAMPLED_FISHER_CONFIG` is the labelled 10% control."""
     return TRPOConfig()
+
+
+def default_total_steps() -> int:
+    """The RL budget of a run: the paper's 3e5 env steps (quick mode: 2000), looked up when the run starts."""
+    return budget(300_000, 2_000)
+
+
+def default_seeds() -> tuple[int, ...]:
+    """The seeds of an experiment: three (quick mode: two), looked up when the experiment starts."""
+    return budget((0, 1, 2), (0, 1))
+
+
+def default_expert_episodes() -> int:
+    """200-step episodes measured per seed for the expert's reference line (quick mode: one)."""
+    return budget(5, 1)
 
 
 def load_demos(task: str, demos: Demos | str | Path | None = None, root: Path | None = None) -> Demos:
@@ -158,7 +168,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     if method not in RL_METHODS:
         raise ValueError(f"method must be one of {RL_METHODS} (the expert is measured by expert_reference), "
                          f"got {method!r}")
-    total_steps = TOTAL_STEPS if total_steps is None else total_steps
+    total_steps = default_total_steps() if total_steps is None else total_steps
     cfg = pretrain_config or default_config(method if method != "none" else "l2", obs_mode)
     trpo_config = trpo_config or default_trpo_config(obs_mode)
     data = None if method == "none" else load_demos(task, demos)
@@ -244,7 +254,7 @@ def expert_reference(task: str = "reach", seed: int = 0, episodes: int | None = 
     from (seed, k)); trajectories still running at the end are not counted. One row per episode with
     ``successes``, ``failures``, ``episodes`` (trajectories that ended) and ``mean_return`` (their mean
     undiscounted return)."""
-    episodes = EXPERT_EPISODES if episodes is None else episodes
+    episodes = default_expert_episodes() if episodes is None else episodes
     env = RecordEpisodeStatistics(gym.make(ENV_IDS[task], obs_mode="state"), buffer_length=EPISODE_STEPS)
     controller = ExpertController(env)
     rows = []
