@@ -8,10 +8,20 @@ set it; other thread counts change the order of floating-point sums), the AVX2 v
 ``import vdtutorial`` pins, :mod:`vdtutorial.kernels`: conftest imports it before numpy; without the pins an
 AVX-512 CPU fails this test). Counts are compared exactly, floats to a relative 1e-6 (bit for bit on the
 machines measured; the tolerance leaves room for a last bit, far below any change of the code).
+
+The pins are not the whole story: on an Intel Xeon with AVX-512 (measured 2026-12-02, torch 2.13.0+cpu), with
+the pins in place, the first TRPO iteration differs from the shipped rows by up to 5.7e-4 relative (``mean_kl``
+of fig4_state_fvp0.1) and the 150-epoch checkpoint's weights by up to 2.5e-5 absolute: torch's BLAS rounds
+differently on that CPU. Such a machine is told apart by a probe (:func:`tolerance`): one epoch of the cheapest
+shipped pre-training, whose logged loss differs in the 8th digit there. On it the floats are compared within
+the stated cross-CPU tolerance and a warning says that this machine does not regenerate them bit for bit;
+a change of the code still fails, unless it moves the first iterations by less than that tolerance.
 """
 import json
 import math
 import shutil
+import warnings
+from dataclasses import dataclass, replace
 
 import pytest
 import torch
@@ -56,14 +66,51 @@ def _shipped(folder: str, method: str, seed: int):
     return record, run, rows
 
 
-def _close(a, b) -> bool:
+@dataclass(frozen=True)
+class Tolerance:
+    """How far a regenerated float (``rel``, ``abs``) or tensor (``rel``, ``tensor_abs``) may be from the shipped one."""
+    rel: float
+    abs: float
+    tensor_abs: float
+
+
+#: The machines whose BLAS rounds as the shipping machine's did: bit for bit, with room for a last bit.
+BIT_FOR_BIT = Tolerance(rel=1e-6, abs=1e-12, tensor_abs=1e-9)
+#: Other CPUs: about 3x the largest difference measured on one (5.7e-4 relative, 2.5e-5 absolute, above).
+ACROSS_CPUS = Tolerance(rel=2e-3, abs=1e-12, tensor_abs=1e-4)
+
+
+@pytest.fixture(scope="module")
+def tolerance() -> Tolerance:
+    """:data:`BIT_FOR_BIT` if one epoch of the 2000-sample L2 reach pre-training (about a second) logs exactly the
+    shipped checkpoint's first row, else :data:`ACROSS_CPUS` with a warning naming the probe's difference."""
+    from vdtutorial.demos import Demos
+    from vdtutorial.pretrain import load_checkpoint, pretrain
+
+    shipped = load_checkpoint(checkpoint_path({"task": "reach", "samples": 2000, "noise": 0.5}, "l2", "state", 0))
+    config = replace(PretrainConfig(**shipped.pretrain_info["config"]), epochs=1)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        _, history = pretrain(Demos.load(demo_path("reach", 2000, 0.5, 0)), config, seed=0, progress=False)
+    finally:
+        torch.set_num_threads(threads)
+    first = shipped.pretrain_info["history"][0]
+    if history[0] == first:
+        return BIT_FOR_BIT
+    warnings.warn(f"this CPU does not regenerate the shipped rows bit for bit (one epoch's train_loss "
+                  f"{history[0]['train_loss']!r}, shipped {first['train_loss']!r}): comparing within {ACROSS_CPUS}")
+    return ACROSS_CPUS
+
+
+def _close(a, b, tolerance: Tolerance) -> bool:
     if a is None or b is None or (isinstance(a, float) and math.isnan(a)):
         return a == b or (a is not None and b is not None and math.isnan(a) and math.isnan(b))
-    return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-12)
+    return math.isclose(a, b, rel_tol=tolerance.rel, abs_tol=tolerance.abs)
 
 
 @pytest.mark.parametrize("folder, method, seed", RUNS)
-def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_path):
+def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_path, tolerance):
     record, run, shipped = _shipped(folder, method, seed)
     pretrain = PretrainConfig(reg="l2" if method == "none" else method, obs_mode=run["obs_mode"],
                               **record["pretrain_config"])
@@ -87,20 +134,20 @@ def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_
         torch.set_num_threads(threads)
     for again, then in zip(rows, shipped[:ITERATIONS], strict=True):
         assert {k: again[k] for k in COUNTS if k in again} == {k: then[k] for k in COUNTS if k in again}
-        differ = {k: (again[k], then[k]) for k in FLOATS if k in again and not _close(again[k], then[k])}
+        differ = {k: (again[k], then[k]) for k in FLOATS if k in again and not _close(again[k], then[k], tolerance)}
         assert not differ, f"{folder} {method} seed {seed} iteration {again['iteration']}: {differ}"
 
 
 @pytest.mark.parametrize("folder", ["fig4", "fig7"])
-def test_the_shipped_expert_reference_regenerates(folder):
+def test_the_shipped_expert_reference_regenerates(folder, tolerance):
     record, run, shipped = _shipped(folder, "expert", 0)
     again = expert_reference(run["task"], 0, episodes=2)
     for a, b in zip(again, shipped[:2], strict=True):
         assert (a["successes"], a["failures"], a["episodes"]) == (b["successes"], b["failures"], b["episodes"])
-        assert _close(a["mean_return"], b["mean_return"])
+        assert _close(a["mean_return"], b["mean_return"], tolerance)
 
 
-def test_a_shipped_checkpoint_regenerates():
+def test_a_shipped_checkpoint_regenerates(tolerance):
     """The 2000-sample L2 reach checkpoint of seed 0 (the cheapest to make, ~10 s) pre-trained again with
     the configuration it records: every tensor equal."""
     from vdtutorial.demos import Demos
@@ -116,10 +163,10 @@ def test_a_shipped_checkpoint_regenerates():
     finally:
         torch.set_num_threads(threads)
     for (name, a), b in zip(again.state_dict().items(), shipped.state_dict().values(), strict=True):
-        assert torch.allclose(a, b, rtol=1e-6, atol=1e-9), name
+        assert torch.allclose(a, b, rtol=tolerance.rel, atol=tolerance.tensor_abs), name
 
 
-def test_a_shipped_image_checkpoint_regenerates_its_first_epoch():
+def test_a_shipped_image_checkpoint_regenerates_its_first_epoch(tolerance):
     """The image pipeline (camera, RGBD encoding, convolutional policy, pre-training) as shipped: the L2 rgbd
     checkpoint of seed 0 records its 40 epochs, and L2 pre-training has no schedule that depends on the
     number of epochs, so one epoch made now must log exactly its first row (~40 s: 8000 renders, one epoch)."""
@@ -138,5 +185,5 @@ def test_a_shipped_image_checkpoint_regenerates_its_first_epoch():
     finally:
         torch.set_num_threads(threads)
     first = shipped.pretrain_info["history"][0]
-    differ = {k: (history[0][k], first[k]) for k in first if not _close(history[0][k], first[k])}
+    differ = {k: (history[0][k], first[k]) for k in first if not _close(history[0][k], first[k], tolerance)}
     assert not differ, differ

@@ -5,7 +5,7 @@ Pipeline: IK expert -> noisy demonstrations -> behavioural cloning with sparse v
 (or L2) -> pruning (log alpha > 3) -> TRPO fine-tuning. Importing the package registers the
 gymnasium environments ``vdtutorial/JacoReach-v0`` and ``vdtutorial/JacoGrasp-v0``, after pinning
 torch's and numpy's CPU kernels to AVX2 (:mod:`vdtutorial.kernels`: the shipped results then regenerate
-bit for bit on any x86-64 CPU with AVX2), which must happen before numpy loads.
+bit for bit on the x86-64 CPUs measured, not all of them), which must happen before numpy loads.
 """
 __version__ = "0.1.0"
 

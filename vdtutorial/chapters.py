@@ -32,11 +32,22 @@ class WrittenBook:
     data_files: int
 
 
+#: What an experiment writes beside its results while it runs (its per-run logs, saved states, the checkpoints
+#: it made, locks): never shipped (.gitignore), so never copied out or packed.
+_SCRATCH = ("runs", "state", "checkpoints")
+
+
+def _shipped_data(path: Path, data: Path) -> bool:
+    parts = path.relative_to(data).parts
+    scratch = parts[0] == "results" and len(parts) > 3 and parts[2] in _SCRATCH
+    return path.is_file() and not scratch and path.suffix not in (".lock", ".tmp")
+
+
 def shipped_files(source: Path = SHIPPED_DIR) -> list[Path]:
     """What a learner's copy holds, relative to ``source``: the chapters and the teaching notes, and every
     shipped data file (demonstrations, checkpoints, results) they load."""
     chapters = sorted((source / "notebooks").glob("*.ipynb")) + sorted((source / "notebooks").glob("*.md"))
-    data = sorted(p for p in (source / "data").rglob("*") if p.is_file())
+    data = sorted(p for p in (source / "data").rglob("*") if _shipped_data(p, source / "data"))
     if not chapters or not data:
         raise FileNotFoundError(f"{source} holds no notebooks/ or data/: this installation carries no chapters")
     return [p.relative_to(source) for p in chapters + data]
