@@ -3,14 +3,16 @@ moment the result is made again, and a learner cannot tell which of the two is w
 
 The test collects every decimal number written in the chapters' markdown and fails when one of them equals,
 as written, a value of a shipped result's summary (``data/results/*/*.json``, key ``summary``: the final
-levels, the claims' estimates and bounds, the sigma study's per-option means), rounded to the same number of
-decimals. The rule is narrow on purpose, so that the paper's constants and the library's settings pass:
+levels, the claims' estimates and bounds, the sigma study's per-option means) or of a shipped table
+(``data/results/*/*.csv``: Table I's measured sparsities; columns named ``*_paper`` hold the paper's values
+and are left out), rounded to the same number of decimals. The rule is narrow on purpose, so that the paper's constants and the library's settings pass:
 
 * only numbers with a decimal point count (``3e5``, ``log alpha > 3``, ``25 iterations`` never do), and
   nothing in scientific notation;
 * only numbers with at least three significant digits count (``0.05``, ``0.3``, ``1.0`` are settings, not
   results; ``75.5`` or ``2.81`` are results).
 """
+import csv
 import json
 import math
 import re
@@ -42,11 +44,29 @@ def _floats(tree):
         yield tree
 
 
+def _table_floats(path: Path):
+    """The measured non-integer numbers of a shipped table (the paper's columns left out)."""
+    with path.open(newline="") as f:
+        for row in csv.DictReader(f):
+            for column, text in row.items():
+                try:
+                    value = float(text)
+                except (TypeError, ValueError):
+                    continue
+                if not column.endswith("_paper"):
+                    yield from _floats(value)
+
+
 def shipped_results() -> dict[float, str]:
-    """Each summary value of each shipped result, with the file it comes from."""
+    """Each summary value of each shipped result and each measured number of each shipped table, with the file
+    it comes from."""
     found = {}
-    for path in sorted((ROOT / "data" / "results").glob("*/*.json")):
+    results = ROOT / "data" / "results"
+    for path in sorted(results.glob("*/*.json")):
         for value in _floats(json.loads(path.read_text()).get("summary", {})):
+            found.setdefault(value, str(path.relative_to(ROOT)))
+    for path in sorted(results.glob("*/*.csv")):
+        for value in _table_floats(path):
             found.setdefault(value, str(path.relative_to(ROOT)))
     return found
 
