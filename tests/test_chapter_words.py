@@ -11,6 +11,8 @@ and are left out), rounded to the same number of decimals. The rule is narrow on
   nothing in scientific notation;
 * only numbers with at least three significant digits count (``0.05``, ``0.3``, ``1.0`` are settings, not
   results; ``75.5`` or ``2.81`` are results).
+
+It also checks that each chapter numbers its exercises in the order a learner meets them.
 """
 import csv
 import json
@@ -104,3 +106,11 @@ def test_no_markdown_cell_types_a_measured_result(notebook):
     typed = {cell.get("id"): hits for cell in nbformat.read(notebook, as_version=4).cells
              if cell.cell_type == "markdown" and (hits := typed_results(cell.source, results))}
     assert not typed, f"{notebook.name}: results typed into markdown (print them from a cell): {typed}"
+
+
+@pytest.mark.parametrize("notebook", NOTEBOOKS, ids=[nb.stem for nb in NOTEBOOKS])
+def test_exercises_are_numbered_in_the_order_they_come(notebook):
+    chapter = int(notebook.stem[:2])
+    numbers = [tuple(map(int, m)) for cell in nbformat.read(notebook, as_version=4).cells if cell.cell_type == "markdown"
+               for m in re.findall(r"^#+ Exercise (\d+)\.(\d+)\b", cell.source, flags=re.MULTILINE)]
+    assert numbers == [(chapter, k) for k in range(1, len(numbers) + 1)], f"{notebook.name}: exercises {numbers}"
