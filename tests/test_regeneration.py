@@ -170,7 +170,6 @@ def test_a_shipped_image_checkpoint_regenerates_its_first_epoch(tolerance):
     """The image pipeline (camera, RGBD encoding, convolutional policy, pre-training) as shipped: the L2 rgbd
     checkpoint of seed 0 records its 40 epochs, and L2 pre-training has no schedule that depends on the
     number of epochs, so one epoch made now must log exactly its first row (~40 s: 8000 renders, one epoch)."""
-    from dataclasses import replace
 
     from vdtutorial.demos import Demos
     from vdtutorial.pretrain import load_checkpoint, pretrain

@@ -33,6 +33,7 @@ from vdtutorial.evaluation import EPISODE_STEPS, PolicyController, successes_per
 from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, RUNS_DIR, curves_from_rows, finetune, load_demos,
                                     mean_band, pretrained_policy, read_rows, results_file, run_jobs,
                                     write_csv)
+from vdtutorial.experiments.plots import draw_band
 from vdtutorial.initial_sigma import InitialSigma
 from vdtutorial.pretrain import default_config
 from vdtutorial.settings import DATA_DIR
@@ -123,7 +124,8 @@ def summarise(rows: list[dict], pre_rl: list[dict]) -> dict:
 
 
 def plot(rows: list[dict], window: int) -> Figure:
-    """Learning curves per option (trailing mean over ``window`` iterations, 95% t-band over seeds)."""
+    """Learning curves per option (trailing mean over ``window`` iterations, 95% t-band over seeds, clipped to
+    the possible values)."""
     options = list(dict.fromkeys(r["option"] for r in rows))
     fig = Figure(figsize=(3.2 * len(options), 3.6), layout="constrained")
     axes = fig.subplots(1, len(options), sharey=True, squeeze=False)[0]
@@ -132,10 +134,11 @@ def plot(rows: list[dict], window: int) -> Figure:
         labelled = [{**r, "label": r["method"]} for r in rows if r["option"] == option]
         for method, curve in curves_from_rows(labelled, "successes", window).items():
             ax.plot(curve.steps, curve.mean, color=colours[method], label=f"{METHOD_LABELS[method]} (n={curve.seeds})")
-            ax.fill_between(curve.steps, curve.low, curve.high, color=colours[method], alpha=0.15, linewidth=0)
+            draw_band(ax, curve.steps, curve.low, curve.high, "successes", colours[method])
         spec = InitialSigma.parse(option)
         ax.set_title(f"sigma at start: {'fixed ' if spec.kind == 'fixed' else ''}{option}", fontsize=10)
         ax.set_xlabel("environment steps", fontsize=9)
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))   # 1e5 steps: plain ticks run into each other
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(f"successes per 200 steps\n(trailing mean of {window} iterations)", fontsize=9)
     axes[0].legend(fontsize=8)

@@ -1,0 +1,116 @@
+"""A chapter quotes our measured results only through its cells: a number typed into markdown goes stale the
+moment the result is made again, and a learner cannot tell which of the two is wrong.
+
+The test collects every decimal number written in the chapters' markdown and fails when one of them equals,
+as written, a value of a shipped result's summary (``data/results/*/*.json``, key ``summary``: the final
+levels, the claims' estimates and bounds, the sigma study's per-option means) or of a shipped table
+(``data/results/*/*.csv``: Table I's measured sparsities; columns named ``*_paper`` hold the paper's values
+and are left out), rounded to the same number of decimals. The rule is narrow on purpose, so that the paper's constants and the library's settings pass:
+
+* only numbers with a decimal point count (``3e5``, ``log alpha > 3``, ``25 iterations`` never do), and
+  nothing in scientific notation;
+* only numbers with at least three significant digits count (``0.05``, ``0.3``, ``1.0`` are settings, not
+  results; ``75.5`` or ``2.81`` are results).
+
+It also checks that each chapter numbers its exercises in the order a learner meets them.
+"""
+import csv
+import json
+import math
+import re
+from pathlib import Path
+
+import nbformat
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+#: A plain decimal such as 75.5 or -4.87, not part of a longer token (a version 2.13.0, 2.81e5, x1.5) nor the
+#: mantissa of a number in scientific notation written in TeX (1.25\mathrm{e}5, 2.81\cdot10^5, 3 \times 10^5).
+DECIMAL = re.compile(r"(?<![\w.])-?\d+\.\d+(?![\w.]|\s*\\(?:mathrm\{e\}|cdot|times))")
+
+
+def _significant_digits(text: str) -> int:
+    return len(text.lstrip("-").replace(".", "").lstrip("0"))
+
+
+def _floats(tree):
+    """Every non-integer number in a JSON tree (integers are counts: seeds, steps, iterations)."""
+    if isinstance(tree, dict):
+        for value in tree.values():
+            yield from _floats(value)
+    elif isinstance(tree, list):
+        for value in tree:
+            yield from _floats(value)
+    elif isinstance(tree, float) and math.isfinite(tree) and not tree.is_integer():
+        yield tree
+
+
+def _table_floats(path: Path):
+    """The measured non-integer numbers of a shipped table (the paper's columns left out)."""
+    with path.open(newline="") as f:
+        for row in csv.DictReader(f):
+            for column, text in row.items():
+                try:
+                    value = float(text)
+                except (TypeError, ValueError):
+                    continue
+                if not column.endswith("_paper"):
+                    yield from _floats(value)
+
+
+def shipped_results() -> dict[float, str]:
+    """Each summary value of each shipped result and each measured number of each shipped table, with the file
+    it comes from."""
+    found = {}
+    results = ROOT / "data" / "results"
+    for path in sorted(results.glob("*/*.json")):
+        for value in _floats(json.loads(path.read_text()).get("summary", {})):
+            found.setdefault(value, str(path.relative_to(ROOT)))
+    for path in sorted(results.glob("*/*.csv")):
+        for value in _table_floats(path):
+            found.setdefault(value, str(path.relative_to(ROOT)))
+    return found
+
+
+def typed_results(markdown: str, results: dict[float, str]) -> list[str]:
+    """The decimals in ``markdown`` that equal a result, rounded as written, each with the result's file."""
+    hits = []
+    for number in DECIMAL.findall(markdown):
+        if _significant_digits(number) < 3:
+            continue
+        decimals = len(number.split(".")[1])
+        for value, source in results.items():
+            if f"{value:.{decimals}f}" == number:
+                hits.append(f"{number} ({source}: {value})")
+                break
+    return hits
+
+
+def test_the_rule_catches_a_typed_result_and_passes_settings():
+    results = {75.48799999999999: "fig4.json", 0.0512: "x.json"}
+    assert typed_results("VD ends at 75.5 successes", results) == ["75.5 (fig4.json: 75.48799999999999)"]
+    assert typed_results("VD ends at 75.49", results) == ["75.49 (fig4.json: 75.48799999999999)"]
+    # settings and paper constants: too few significant digits, scientific notation, integers, versions
+    assert typed_results("sigma 0.05, 3e5 steps, 7.55e1, log alpha > 3, 75 successes, torch 2.75.5", results) == []
+    assert typed_results(r"$75.49\mathrm{e}5$, $75.49\cdot10^5$, $75.49 \times 10^5$", results) == []
+
+
+def test_the_shipped_results_have_summaries():
+    assert len(shipped_results()) > 100
+
+
+@pytest.mark.parametrize("notebook", NOTEBOOKS, ids=[nb.stem for nb in NOTEBOOKS])
+def test_no_markdown_cell_types_a_measured_result(notebook):
+    results = shipped_results()
+    typed = {cell.get("id"): hits for cell in nbformat.read(notebook, as_version=4).cells
+             if cell.cell_type == "markdown" and (hits := typed_results(cell.source, results))}
+    assert not typed, f"{notebook.name}: results typed into markdown (print them from a cell): {typed}"
+
+
+@pytest.mark.parametrize("notebook", NOTEBOOKS, ids=[nb.stem for nb in NOTEBOOKS])
+def test_exercises_are_numbered_in_the_order_they_come(notebook):
+    chapter = int(notebook.stem[:2])
+    numbers = [tuple(map(int, m)) for cell in nbformat.read(notebook, as_version=4).cells if cell.cell_type == "markdown"
+               for m in re.findall(r"^#+ Exercise (\d+)\.(\d+)\b", cell.source, flags=re.MULTILINE)]
+    assert numbers == [(chapter, k) for k in range(1, len(numbers) + 1)], f"{notebook.name}: exercises {numbers}"
