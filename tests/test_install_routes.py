@@ -118,3 +118,27 @@ def test_the_advice_for_a_missing_pybullet_follows_the_platform(monkeypatch, sys
     monkeypatch.setattr(install_check.platform, "machine", lambda: machine)
     monkeypatch.setattr(install_check.sys, "version_info", (*version, 0, "final", 0))
     assert advice in install_check.missing_pybullet()
+
+
+def test_an_image_env_without_numpy_support_warns_once(monkeypatch):
+    import warnings
+
+    import gymnasium as gym
+    import pybullet
+
+    from vdtutorial.envs import bullet
+
+    monkeypatch.setattr(pybullet, "isNumpyEnabled", lambda: 0)
+    bullet.warn_if_images_are_slow.cache_clear()
+    env = gym.make("vdtutorial/JacoReach-v0", obs_mode="rgbd", image_size=32)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            env.reset(seed=0)
+            env.step(env.action_space.sample())
+            env.unwrapped.scene.render_rgbd()
+    finally:
+        env.close()
+        bullet.warn_if_images_are_slow.cache_clear()
+    slow = [w for w in caught if "without numpy support" in str(w.message)]
+    assert len(slow) == 1 and "--no-build-isolation" in str(slow[0].message)
