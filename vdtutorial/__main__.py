@@ -261,6 +261,17 @@ def build_parser() -> argparse.ArgumentParser:
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
 
+    _add_pipeline_commands(sub)
+    _add_measurement_commands(sub)
+    _add_experiment_commands(sub)
+    from vdtutorial import classroom
+
+    classroom.add_parser(sub)
+    return parser
+
+
+def _add_pipeline_commands(sub) -> None:
+    """The pipeline's steps one at a time: demonstrations, the expert, pre-training, evaluation."""
     p = sub.add_parser("demos", help="generate expert demonstrations (eqs. 5-8)")
     p.add_argument("--task", choices=("reach", "grasp"), default="reach", help="which task's expert (default reach)")
     p.add_argument("--samples", type=positive_int, default=8000, help="state-action pairs in the data set (default 8000)")
@@ -309,6 +320,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=positive_int, default=None, help="200-step episodes per controller (default 5)")
     p.set_defaults(func=_cmd_evaluate)
 
+
+def _add_measurement_commands(sub) -> None:
+    """What measures this machine or a building block: the digits check and the benchmarks."""
     p = sub.add_parser("digits", help="validate sparse VD on scikit-learn's digits (dense vs VD MLP)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seeds the split and the training (default 0)")
     p.set_defaults(func=_cmd_digits)
@@ -321,6 +335,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive_int, default=None, help="trpo only: env steps per run (default: 100000)")
     p.set_defaults(func=_cmd_bench)
 
+
+def _add_experiment_commands(sub) -> None:
+    """The paper's experiments and what reads them, the main job, and the chapters written out."""
     p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1")
     p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1"), help="which figure or table")
     p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0)")
@@ -365,10 +382,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
     p.add_argument("--out", default=None, help="output folder (default: runs/reproduce_quick)")
     p.set_defaults(func=_cmd_reproduce)
-    from vdtutorial import classroom
-
-    classroom.add_parser(sub)
-    return parser
 
 
 def main(argv=None) -> int:
