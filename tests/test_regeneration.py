@@ -84,23 +84,30 @@ ACROSS_CPUS = Tolerance(rel=2e-3, abs=1e-12, tensor_abs=1e-4)
 def tolerance() -> Tolerance:
     """:data:`BIT_FOR_BIT` if one epoch of the 2000-sample L2 reach pre-training (about a second) logs exactly the
     shipped checkpoint's first row, else :data:`ACROSS_CPUS` with a warning naming the probe's difference."""
-    from vdtutorial.demos import Demos
-    from vdtutorial.pretrain import load_checkpoint, pretrain
-
-    shipped = load_checkpoint(checkpoint_path({"task": "reach", "samples": 2000, "noise": 0.5}, "l2", "state", 0))
-    config = replace(PretrainConfig(**shipped.pretrain_info["config"]), epochs=1)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        _, history = pretrain(Demos.load(demo_path("reach", 2000, 0.5, 0)), config, seed=0, progress=False)
-    finally:
-        torch.set_num_threads(threads)
-    first = shipped.pretrain_info["history"][0]
+    history, first = _first_epoch_again(2000, "state")
     if history[0] == first:
         return BIT_FOR_BIT
     warnings.warn(f"this CPU does not regenerate the shipped rows bit for bit (one epoch's train_loss "
                   f"{history[0]['train_loss']!r}, shipped {first['train_loss']!r}): comparing within {ACROSS_CPUS}")
     return ACROSS_CPUS
+
+
+def _first_epoch_again(samples: int, obs_mode: str) -> tuple[list[dict], dict]:
+    """One epoch of the pre-training that made the shipped L2 reach checkpoint (Sigma 0.5, seed 0) of ``samples``
+    and ``obs_mode``, on one thread: its logged rows, and the first row the checkpoint records. L2 pre-training
+    has no schedule that depends on the number of epochs, so the first rows must agree."""
+    from vdtutorial.demos import Demos
+    from vdtutorial.pretrain import load_checkpoint, pretrain
+
+    shipped = load_checkpoint(checkpoint_path({"task": "reach", "samples": samples, "noise": 0.5}, "l2", obs_mode, 0))
+    config = replace(PretrainConfig(**shipped.pretrain_info["config"]), epochs=1)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        _, history = pretrain(Demos.load(demo_path("reach", samples, 0.5, 0)), config, seed=0, progress=False)
+    finally:
+        torch.set_num_threads(threads)
+    return history, shipped.pretrain_info["history"][0]
 
 
 def _close(a, b, tolerance: Tolerance) -> bool:
@@ -170,19 +177,6 @@ def test_a_shipped_image_checkpoint_regenerates_its_first_epoch(tolerance):
     """The image pipeline (camera, RGBD encoding, convolutional policy, pre-training) as shipped: the L2 rgbd
     checkpoint of seed 0 records its 40 epochs, and L2 pre-training has no schedule that depends on the
     number of epochs, so one epoch made now must log exactly its first row (~40 s: 8000 renders, one epoch)."""
-
-    from vdtutorial.demos import Demos
-    from vdtutorial.pretrain import load_checkpoint, pretrain
-
-    path = checkpoint_path({"task": "reach", "samples": 8000, "noise": 0.5}, "l2", "rgbd", 0)
-    shipped = load_checkpoint(path)
-    config = replace(PretrainConfig(**shipped.pretrain_info["config"]), epochs=1)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        _, history = pretrain(Demos.load(demo_path("reach", 8000, 0.5, 0)), config, seed=0, progress=False)
-    finally:
-        torch.set_num_threads(threads)
-    first = shipped.pretrain_info["history"][0]
+    history, first = _first_epoch_again(8000, "rgbd")
     differ = {k: (history[0][k], first[k]) for k in first if not _close(history[0][k], first[k], tolerance)}
     assert not differ, differ
