@@ -55,7 +55,7 @@ def missing_pybullet() -> str:
     if system == "Linux" and machine == "x86_64" and minor <= (3, 11):
         return f"`pip install pybullet=={PYBULLET_RELEASE}` (a prebuilt wheel)"
     if system == "Linux":
-        return (f"build it once (about 4-7 minutes; it needs g++ and the Python headers, e.g. "
+        return (f"build it once (about 3-7 minutes on 2 cores; it needs g++ and the Python headers, e.g. "
                 f"`sudo apt install g++ python3-dev`): `{NUMPY_BUILD}`; or use conda-forge: "
                 "`conda install -c conda-forge pybullet`")
     return ("use conda-forge, which has builds for macOS and Windows: `conda env create -f environment.yml` "
