@@ -44,6 +44,8 @@ def budget(full, quick):
 #: The file that marks a folder written by ``python -m vdtutorial notebooks DEST`` (:mod:`vdtutorial.chapters`).
 BOOK_RECORD = "vdtutorial-book.json"
 _PACKAGE = Path(__file__).resolve().parent
+#: The copy of the chapters and data inside an installed package (the wheel carries them there).
+_INSTALLED_COPY = _PACKAGE / "book"
 
 
 def _shipped_dir() -> Path:
@@ -53,7 +55,7 @@ def _shipped_dir() -> Path:
     checkout = _PACKAGE.parent
     if (checkout / "pyproject.toml").is_file() and (checkout / "data").is_dir():
         return checkout
-    return _PACKAGE / "book"
+    return _INSTALLED_COPY
 
 
 #: The folder holding the shipped ``notebooks/`` and ``data/`` (read only: ``notebooks DEST`` copies them out).
@@ -78,7 +80,7 @@ DATA_DIR = Path(os.environ.get("VDTUTORIAL_DATA", PROJECT_DIR / "data"))
 #: replaced by accident. When the package's own copy is all there is (an installed wheel used outside a
 #: folder written by ``notebooks DEST``), nothing is written into the installation: ``runs/`` in the working
 #: directory.
-RUNS_DIR = Path(os.environ.get("VDTUTORIAL_RUNS", (Path.cwd() if PROJECT_DIR == _PACKAGE / "book" else PROJECT_DIR)
+RUNS_DIR = Path(os.environ.get("VDTUTORIAL_RUNS", (Path.cwd() if PROJECT_DIR == _INSTALLED_COPY else PROJECT_DIR)
                                / "runs"))
 
 
