@@ -48,7 +48,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from vdtutorial.policy import GaussianPolicy, TwoStreamNet
+from vdtutorial.policy import GaussianPolicy, TwoStreamNet, applied_weight, conv_geometry, joint_conv2d
 from vdtutorial.vd import SVDOLayer
 
 #: Layers whose parameters the products cover, and the parameter-free modules they may be mixed with.
@@ -71,14 +71,6 @@ def supports(policy: nn.Module) -> bool:
     return True
 
 
-def _weight_and_mask(layer: nn.Module) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """The weight the forward pass uses and the 0/1 mask it was multiplied by (None: no mask)."""
-    if isinstance(layer, SVDOLayer):
-        mask = layer.keep_mask().to(layer.weight.dtype)
-        return layer.weight * mask, mask
-    return layer.weight, None
-
-
 def _apply(layer: nn.Module, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
     """``layer``'s affine map with the given weight and bias (a tangent pass uses it with tangents)."""
     if isinstance(layer, SVDOLayer):
@@ -88,26 +80,12 @@ def _apply(layer: nn.Module, x: torch.Tensor, weight: torch.Tensor, bias: torch.
     return F.linear(x, weight, bias)
 
 
-def _conv_geometry(layer: nn.Module) -> tuple[tuple, tuple, tuple, int]:
-    """stride, padding, dilation, groups of a plain or sparse-VD convolution."""
-    if isinstance(layer, nn.Conv2d):
-        return layer.stride, layer.padding, layer.dilation, layer.groups
-    return layer.stride, layer.padding, (1, 1), 1
-
-
-def _affine_backward(layer: nn.Module, x: torch.Tensor, x_patches: torch.Tensor | None, weight: torch.Tensor,
-                     g: torch.Tensor, input_grad: bool):
+def _affine_backward(layer: nn.Module, x: torch.Tensor, weight: torch.Tensor, g: torch.Tensor, input_grad: bool):
     """Gradients of <g, layer(x)> with respect to the weight the layer applies, its bias and (when
-    ``input_grad``) its input x. ``x_patches``: x unfolded into the convolution's patches, (N, K, P),
-    which turns the weight gradient into one batched matrix product (see the module docstring); only
-    given for a layer whose input is data, so then there is no input gradient."""
+    ``input_grad``) its input x."""
     if weight.dim() == 2:  # fully connected
         return g.T @ x, g.sum(0), (g @ weight if input_grad else None)
-    if x_patches is not None:
-        n, c_out = g.shape[:2]
-        grad_w = torch.bmm(g.reshape(n, c_out, -1), x_patches.transpose(1, 2)).sum(0).view_as(weight)
-        return grad_w, g.sum((0, 2, 3)), None
-    stride, padding, dilation, groups = _conv_geometry(layer)
+    stride, padding, dilation, groups = conv_geometry(layer)
     grad_x, grad_w, grad_b = torch.ops.aten.convolution_backward(
         g, x, weight, [weight.shape[0]], stride, padding, dilation, False, [0, 0], groups, [input_grad, True, True])
     return grad_w, grad_b, grad_x
@@ -118,24 +96,14 @@ class _Trace:
     keeping what the tangent and backward passes need: each weight layer's input and applied weight,
     each activation's derivative at its input, each Flatten's input shape."""
 
-    def __init__(self, seq: nn.Sequential, x: torch.Tensor, input_is_data: bool,
-                 patch_cache: dict | None = None):
-        """``patch_cache``: unfolded inputs by (input, geometry), shared between traces of networks that
-        read the same image (mu and sigma), so that it is unfolded once."""
+    def __init__(self, seq, x: torch.Tensor, input_is_data: bool):
+        """``seq``: the modules in order; ``input_is_data``: ``x`` does not depend on any parameter."""
         self.input_is_data = input_is_data
         self.steps = []
         for module in seq:
             if isinstance(module, WEIGHT_LAYERS):
-                weight, mask = _weight_and_mask(module)
-                patches = None
-                if input_is_data and not self.steps and weight.dim() == 4 and _conv_geometry(module)[3] == 1:
-                    stride, padding, dilation, _ = _conv_geometry(module)  # the image network's first layer
-                    key = (id(x), weight.shape[2:], stride, padding, dilation)
-                    cache = {} if patch_cache is None else patch_cache
-                    if key not in cache:
-                        cache[key] = F.unfold(x, weight.shape[2:], dilation, padding, stride)
-                    patches = cache[key]
-                self.steps.append((module, x, weight, mask, patches))
+                weight, mask = applied_weight(module)
+                self.steps.append((module, x, weight, mask))
                 y = _apply(module, x, weight, module.bias)
             elif isinstance(module, nn.ReLU):
                 y = module(x)
@@ -154,7 +122,7 @@ class _Trace:
         is data and does not move). A parameter missing from ``tangents`` does not move."""
         for module, *cached in self.steps:
             if isinstance(module, WEIGHT_LAYERS):
-                x, weight, mask, _ = cached
+                x, weight, mask = cached
                 dw, db = tangents.get(module.weight), tangents.get(module.bias)
                 if dw is None:
                     dw = torch.zeros_like(weight)
@@ -174,9 +142,9 @@ class _Trace:
         for i in reversed(range(len(self.steps))):
             module, *cached = self.steps[i]
             if isinstance(module, WEIGHT_LAYERS):
-                x, weight, mask, patches = cached
+                x, weight, mask = cached
                 input_grad = i > 0 or not self.input_is_data
-                grad_w, grad_b, g = _affine_backward(module, x, patches, weight, g, input_grad)
+                grad_w, grad_b, g = _affine_backward(module, x, weight, g, input_grad)
                 grads[module.weight] = grad_w if mask is None else grad_w * mask
                 if module.bias is not None:
                     grads[module.bias] = grad_b
@@ -187,25 +155,69 @@ class _Trace:
         return g
 
 
+class _FirstConvolutions:
+    """mu's and sigma's first convolutions, which read the same image, traced as one
+    (:func:`vdtutorial.policy.joint_conv2d`). Their input is data, so the backward pass needs only the
+    weight gradient; with the image unfolded into patches once per update it is one batched matrix
+    product for the filters of both networks, which reads the patches once (see the module docstring)."""
+
+    def __init__(self, layers: list[nn.Module], image: torch.Tensor):
+        self.layers, self.image = layers, image
+        self.weights, self.masks = zip(*(applied_weight(layer) for layer in layers))
+        self.outputs = joint_conv2d(layers, image, self.weights, [layer.bias for layer in layers])
+        stride, padding, dilation, _ = conv_geometry(layers[0])
+        self.patches = F.unfold(image, self.weights[0].shape[2:], dilation, padding, stride)
+
+    def tangent(self, tangents: dict[nn.Parameter, torch.Tensor]) -> list[torch.Tensor]:
+        """d output of each layer along ``tangents`` (the image does not move)."""
+        dws = []
+        for layer, weight, mask in zip(self.layers, self.weights, self.masks):
+            dw = tangents.get(layer.weight)
+            dws.append(torch.zeros_like(weight) if dw is None else dw if mask is None else dw * mask)
+        dbs = [None if layer.bias is None else tangents.get(layer.bias) for layer in self.layers]
+        return joint_conv2d(self.layers, self.image, dws, dbs)
+
+    def backward(self, gs: list[torch.Tensor], grads: dict[nn.Parameter, torch.Tensor]) -> None:
+        """Add the gradients of sum_i <gs[i], output i> with respect to the layers' weights and biases."""
+        patches = self.patches.transpose(1, 2)
+        for layer, weight, mask, g in zip(self.layers, self.weights, self.masks, gs):
+            n, channels = g.shape[:2]
+            grad_weight = torch.bmm(g.reshape(n, channels, -1), patches).sum(0).view_as(weight)
+            grads[layer.weight] = grad_weight if mask is None else grad_weight * mask
+            if layer.bias is not None:
+                grads[layer.bias] = g.sum((0, 2, 3))
+
+
 class _NetTrace:
     """A :class:`TwoStreamNet`'s forward pass at the current parameters, traced for tangent and backward
     passes."""
 
-    def __init__(self, net: TwoStreamNet, inputs: list[torch.Tensor], patch_cache: dict):
-        """``inputs``: the network's stream inputs, ``net._stream_inputs(obs)``."""
-        self.streams = [_Trace(stream, x, True, patch_cache) for stream, x in zip(net.streams, inputs)]
+    def __init__(self, net: TwoStreamNet, inputs: list[torch.Tensor], first_output: torch.Tensor | None = None):
+        """``inputs``: the network's stream inputs (:meth:`vdtutorial.policy.GaussianPolicy.prepare`);
+        ``first_output``: the scene stream's first layer already applied (by :class:`_FirstConvolutions`),
+        or None to trace the scene stream whole."""
+        scene, *others = net.streams
+        if first_output is None:
+            self.streams = [_Trace(scene, inputs[0], True)]
+        else:
+            self.streams = [_Trace(list(scene)[1:], first_output, False)]
+        self.streams += [_Trace(stream, x, True) for stream, x in zip(others, inputs[1:])]
         self.head = _Trace(net.head, torch.cat([s.output for s in self.streams], dim=-1), False)
         self.widths = [s.output.shape[-1] for s in self.streams]
         self.output = self.head.output
 
-    def tangent(self, tangents: dict[nn.Parameter, torch.Tensor]) -> torch.Tensor:
-        features = torch.cat([s.tangent(tangents, None) for s in self.streams], dim=-1)
-        return self.head.tangent(tangents, features)
+    def tangent(self, tangents: dict[nn.Parameter, torch.Tensor], first_tangent: torch.Tensor | None = None) -> torch.Tensor:
+        """d output along ``tangents``; ``first_tangent``: that of the first layer traced apart, if any."""
+        features = [self.streams[0].tangent(tangents, first_tangent)]
+        features += [s.tangent(tangents, None) for s in self.streams[1:]]
+        return self.head.tangent(tangents, torch.cat(features, dim=-1))
 
-    def backward(self, g: torch.Tensor, grads: dict[nn.Parameter, torch.Tensor]) -> None:
+    def backward(self, g: torch.Tensor, grads: dict[nn.Parameter, torch.Tensor]) -> torch.Tensor | None:
+        """Add the gradients of <g, output> to ``grads``; return the gradient with respect to the output of
+        the first layer traced apart (None when the scene stream was traced whole)."""
         features = self.head.backward(g, grads)
-        for stream, part in zip(self.streams, torch.split(features, self.widths, dim=-1)):
-            stream.backward(part, grads)
+        parts = torch.split(features, self.widths, dim=-1)
+        return [stream.backward(part, grads) for stream, part in zip(self.streams, parts)][0]
 
 
 class GaussNewtonFisher:
@@ -227,12 +239,12 @@ class GaussNewtonFisher:
                             "with its sparse-VD layers pruned or in eval mode; use trust_region.fisher_vector_product")
         self.params = params
         with torch.no_grad():
-            mu_inputs, sigma_inputs = policy.mu._stream_inputs(obs), policy.sigma._stream_inputs(obs)
-            # The two networks normalise the observation alike: share the tensors (and their patches).
-            sigma_inputs = [m if torch.equal(m, s) else s for m, s in zip(mu_inputs, sigma_inputs)]
-            patch_cache = {}
-            self.mu = _NetTrace(policy.mu, mu_inputs, patch_cache)
-            self.sigma = _NetTrace(policy.sigma, sigma_inputs, patch_cache)
+            inputs = policy.prepare(obs)
+            firsts = policy.joint_first_layers(inputs)
+            self.first = None if firsts is None else _FirstConvolutions(firsts, inputs.mu[0])
+            first_outputs = [None, None] if self.first is None else self.first.outputs
+            self.mu = _NetTrace(policy.mu, inputs.mu, first_outputs[0])
+            self.sigma = _NetTrace(policy.sigma, inputs.sigma, first_outputs[1])
             std = policy.min_std + F.softplus(self.sigma.output)
         if not (torch.allclose(self.mu.output, old.mean, rtol=1e-4, atol=1e-6)
                 and torch.allclose(std, old.stddev, rtol=1e-4, atol=1e-6)):
@@ -249,6 +261,10 @@ class GaussNewtonFisher:
         pieces = torch.split(v, [p.numel() for p in self.params])
         tangents = {p: piece.view_as(p) for p, piece in zip(self.params, pieces)}
         grads = {}
-        self.mu.backward(self.m_mean * self.mu.tangent(tangents), grads)
-        self.sigma.backward(self.dstd * self.m_std * self.dstd * self.sigma.tangent(tangents), grads)
+        first_tangents = [None, None] if self.first is None else self.first.tangent(tangents)
+        g_mu = self.mu.backward(self.m_mean * self.mu.tangent(tangents, first_tangents[0]), grads)
+        g_sigma = self.sigma.backward(self.dstd * self.m_std * self.dstd * self.sigma.tangent(tangents, first_tangents[1]),
+                                      grads)
+        if self.first is not None:
+            self.first.backward([g_mu, g_sigma], grads)
         return torch.cat([grads[p].reshape(-1) if p in grads else v.new_zeros(p.numel()) for p in self.params])

@@ -441,8 +441,10 @@ class TRPO:
         step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
         outcome (accepted fraction of the full step, or "rejected")."""
         cfg = self.config
+        # The policy's inputs, made once for every evaluation below when the policy can (GaussianPolicy.prepare).
+        obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs
         # One forward with graph at theta_old gives pi_old (detached), the surrogate and g.
-        dist = self.policy.distribution(batch.obs)
+        dist = self.policy.distribution(obs)
         old = Normal(dist.mean.detach().clone(), dist.stddev.detach().clone())
         old_log_prob = old.log_prob(batch.actions).sum(-1)
 
@@ -451,13 +453,13 @@ class TRPO:
             return (ratio * batch.advantages).mean()
 
         def surrogate_and_kl() -> tuple[torch.Tensor, torch.Tensor]:
-            dist = self.policy.distribution(batch.obs)
+            dist = self.policy.distribution(obs)
             return surrogate_of(dist), kl_divergence(old, dist).sum(-1).mean()
 
         surrogate = surrogate_of(dist)
         if batch.fvp_index is None:
             g = flat_grad(surrogate, self.params, retain_graph=True)
-            Fvp = fisher_product(self.policy, self.params, batch.obs, old, cfg.cg_damping, self.fisher, dist)
+            Fvp = fisher_product(self.policy, self.params, obs, old, cfg.cg_damping, self.fisher, dist)
         else:
             g = flat_grad(surrogate, self.params)
             index = batch.fvp_index
