@@ -200,3 +200,12 @@ def test_state_fine_tuning_rows_are_the_same_with_either_product():
             assert a[key] == b[key]
         for key in ("mean_return", "mean_kl", "entropy", "surrogate_improvement"):
             assert b[key] == pytest.approx(a[key], rel=1e-4)
+
+
+@pytest.mark.parametrize("stride, padding, dilation", [((4, 4), (0, 0), (1, 1)), ((2, 3), (1, 2), (2, 1))])
+def test_unfold_copies_the_same_patches_as_torch(stride, padding, dilation):
+    from vdtutorial.fisher import _unfold
+
+    x = torch.randn(3, 4, 17, 19)
+    expected = torch.nn.functional.unfold(x, (3, 4), dilation, padding, stride)
+    assert torch.equal(_unfold(x, (3, 4), stride, padding, dilation), expected)
