@@ -161,8 +161,12 @@ def _cmd_digits(args) -> None:
 def _cmd_bench(args) -> None:
     from vdtutorial import bench
 
+    if args.profile and args.what != "finetune":
+        raise SystemExit("--profile is for bench finetune only")
     if args.what == "trpo":
         bench.bench_trpo_pendulum(seeds=args.seeds, total_steps=args.steps)
+    elif args.what == "finetune":
+        bench.bench_finetune(profile=args.profile)
     else:
         {"env": bench.bench_env, "policy": bench.bench_policy, "finetune": bench.bench_finetune}[args.what]()
 
@@ -333,6 +337,8 @@ def _add_measurement_commands(sub) -> None:
                         "end to end; trpo: our TRPO against sb3-contrib's on Pendulum-v1 (needs the bench extra)")
     p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="trpo only: seeds (default: 11 12 13)")
     p.add_argument("--steps", type=positive_int, default=None, help="trpo only: env steps per run (default: 100000)")
+    p.add_argument("--profile", action="store_true",
+                   help="finetune only: then profile the rgbd whole-batch case and print its top operators")
     p.set_defaults(func=_cmd_bench)
 
 

@@ -188,7 +188,7 @@ FINETUNE_CASES = (
 )
 
 
-def bench_finetune(iterations: int | None = None) -> list[dict]:
+def bench_finetune(iterations: int | None = None, profile: bool = False) -> list[dict]:
     """TRPO fine-tuning of the pruned VD reach policy (8000 demonstrations, Sigma = 0.5, seed 0), state
     and rgbd 128 x 128, in one process with one torch thread: seconds per 200-step iteration spent
     collecting (rendering + policy) and updating, env steps per second end to end (wall clock, and per
@@ -198,7 +198,12 @@ def bench_finetune(iterations: int | None = None) -> list[dict]:
     Gauss-Newton form on a 10% subsample. The cases of one observation mode take turns iteration by
     iteration (each with its own policy and the same seeds), so that a change in the machine's load
     affects them alike; the speed-up of the Gauss-Newton form on the whole batch is printed after
-    them. One warm-up iteration each, then ``iterations`` timed ones (default 10; quick mode 2)."""
+    them. One warm-up iteration each, then ``iterations`` timed ones (default 10; quick mode 2).
+
+    A second table splits each case's update into its parts, in CPU seconds per iteration
+    (``TRPO.update_split``): the surrogate gradient (with the forward pass at theta_old), the Fisher
+    setup, the CG products, the line search and the baseline fit. With ``profile``, the rgbd whole-batch
+    Gauss-Newton case then runs ``iterations`` more under the profilers (:func:`print_profile`)."""
     import torch
 
     from vdtutorial.demos import Demos, demo_path
@@ -231,7 +236,7 @@ def bench_finetune(iterations: int | None = None) -> list[dict]:
                 cpu = time.process_time()
                 row = algo.iterate()
                 if i > 0:  # the first iteration warms up
-                    timed.append((row, time.process_time() - cpu))
+                    timed.append((row, time.process_time() - cpu, algo.update_split))
         for (label, fisher, fvp_subsample), (algo, timed) in zip(FINETUNE_CASES, runs):
             row = {"obs_mode": obs_mode, "fisher": fisher, "fvp_subsample": fvp_subsample, "policy": source,
                    **_finetune_summary(timed, algo.config.steps_per_iter)}
@@ -239,6 +244,9 @@ def bench_finetune(iterations: int | None = None) -> list[dict]:
             print(f"{obs_mode:6} {label:16} {fvp_subsample:>13g} {row['collect_s']:>10.3f} {row['update_s']:>9.3f} "
                   f"{row['steps_per_s']:>8.1f} {row['steps_per_cpu_s']:>11.1f} {row['mean_kl']:>8.4f} "
                   f"{row['step_fraction']:>13.3f}", flush=True)
+        _print_update_split(rows[-len(FINETUNE_CASES):], [label for label, *_ in FINETUNE_CASES])
+        if profile and obs_mode == "rgbd":
+            print_profile(runs[FINETUNE_CASES.index(("Gauss-Newton", "gauss_newton", 1.0))][0], iterations)
         env.close()
         old, new = rows[-len(FINETUNE_CASES):][:2]
         print(f"       whole batch, Gauss-Newton / double backward: {new['steps_per_s'] / old['steps_per_s']:.2f}x env "
@@ -249,17 +257,52 @@ def bench_finetune(iterations: int | None = None) -> list[dict]:
     return rows
 
 
-def _finetune_summary(timed: list[tuple[dict, float]], steps_per_iter: int) -> dict:
-    """One fine-tuning case's columns from its timed iterations, (TRPO log row, CPU seconds) each: the mean
-    seconds collecting and updating per iteration, env steps per second of both together and per CPU
-    second, the mean KL of the steps and the mean accepted fraction of the full step (0 when rejected)."""
-    rows = [row for row, _ in timed]
+def _finetune_summary(timed: list[tuple[dict, float, dict]], steps_per_iter: int) -> dict:
+    """One fine-tuning case's columns from its timed iterations, (TRPO log row, CPU seconds, update split)
+    each: the mean seconds collecting and updating per iteration, env steps per second of both together and
+    per CPU second, the mean KL of the steps, the mean accepted fraction of the full step (0 when rejected),
+    and the mean CPU seconds of each part of the update (``split_cpu_s``)."""
+    rows = [row for row, *_ in timed]
     collect, update = sum(r["collect_s"] for r in rows), sum(r["update_s"] for r in rows)
     steps = len(rows) * steps_per_iter
     fractions = [0.0 if r["line_search"] == "rejected" else r["line_search"] for r in rows]
+    splits = [split for *_, split in timed]
     return {"collect_s": collect / len(rows), "update_s": update / len(rows), "steps_per_s": steps / (collect + update),
-            "steps_per_cpu_s": steps / sum(cpu for _, cpu in timed),
-            "mean_kl": float(np.mean([r["mean_kl"] for r in rows])), "step_fraction": float(np.mean(fractions))}
+            "steps_per_cpu_s": steps / sum(cpu for _, cpu, _ in timed),
+            "mean_kl": float(np.mean([r["mean_kl"] for r in rows])), "step_fraction": float(np.mean(fractions)),
+            "split_cpu_s": {part: float(np.mean([s[part] for s in splits])) for part in splits[0]}}
+
+
+def _print_update_split(rows: list[dict], labels: list[str]) -> None:
+    """The update's parts per case, CPU seconds per iteration (see :func:`bench_finetune`)."""
+    parts = list(rows[0]["split_cpu_s"])
+    print(f"       update split, CPU s per iteration: {'':16} {'':>13} " + " ".join(f"{p:>12}" for p in parts))
+    for label, row in zip(labels, rows):
+        print(f"{row['obs_mode']:6} {label:16} {row['fvp_subsample']:>13g} {'':>35}"
+              + " ".join(f"{row['split_cpu_s'][p]:>12.3f}" for p in parts))
+
+
+def print_profile(algo: TRPO, iterations: int, top: int = 15) -> None:
+    """Run ``iterations`` TRPO iterations of ``algo`` under torch's profiler and cProfile and print where
+    the time went: the ``top`` torch operators by self CPU time (convolutions, matrix products, copies),
+    then the ``top`` Python-level functions by their own time (the renderer, pybullet, the Python code)."""
+    import cProfile
+    import pstats
+
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as torch_profile:
+        for _ in range(iterations):
+            algo.iterate()
+    print(f"\nprofile: {iterations} iterations of the rgbd whole-batch Gauss-Newton case; torch operators")
+    print(torch_profile.key_averages().table(sort_by="self_cpu_time_total", row_limit=top))
+    python_profile = cProfile.Profile()
+    python_profile.enable()
+    for _ in range(iterations):
+        algo.iterate()
+    python_profile.disable()
+    print(f"the same, {iterations} more iterations; Python functions by their own time")
+    pstats.Stats(python_profile).sort_stats("tottime").print_stats(top)
 
 
 # ----------------------------------------------------------------------------------------------

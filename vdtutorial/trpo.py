@@ -372,6 +372,20 @@ def _make_baseline(config: TRPOConfig, env: gymnasium.vector.VectorEnv, features
                        config.critic_batch_size, seed=seed)
 
 
+class _CPUTimer:
+    """CPU seconds of consecutive parts of a computation: ``lap(name)`` closes the part since the last lap
+    (or the start). CPU time, not wall time: it depends less on what else runs on the machine."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+        self._last = time.process_time()
+
+    def lap(self, part: str) -> None:
+        now = time.process_time()
+        self.seconds[part] = now - self._last
+        self._last = now
+
+
 # ----------------------------------------------------------------------------------------------
 # The algorithm
 # ----------------------------------------------------------------------------------------------
@@ -414,6 +428,7 @@ class TRPO:
         self.params = [p for p in policy.parameters() if p.requires_grad]
         self.iteration_index = 0
         self.rows: list[dict] = []
+        self.update_split: dict[str, float] = {}  # CPU seconds of the last update's parts (see update)
         _check_vec_env(self.env, self.config.steps_per_iter)
 
     # -- 1. collect, 2. advantages ----------------------------------------------------------------
@@ -439,8 +454,9 @@ class TRPO:
     def update(self, batch: Batch) -> dict:
         """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the
         step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
-        outcome (accepted fraction of the full step, or "rejected")."""
-        cfg = self.config
+        outcome (accepted fraction of the full step, or "rejected"). The CPU seconds of its parts (gradient,
+        Fisher setup, CG products, line search, baseline) are left in ``update_split``, outside the log row."""
+        cfg, timer = self.config, _CPUTimer()
         # The policy's inputs, made once for every evaluation below when the policy can (GaussianPolicy.prepare).
         obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs
         # One forward with graph at theta_old gives pi_old (detached), the surrogate and g.
@@ -457,23 +473,29 @@ class TRPO:
             return surrogate_of(dist), kl_divergence(old, dist).sum(-1).mean()
 
         surrogate = surrogate_of(dist)
-        if batch.fvp_index is None:
-            g = flat_grad(surrogate, self.params, retain_graph=True)
+        whole_batch = batch.fvp_index is None
+        g = flat_grad(surrogate, self.params, retain_graph=whole_batch)  # the double backward reuses the graph
+        timer.lap("gradient")
+        if whole_batch:
             Fvp = fisher_product(self.policy, self.params, obs, old, cfg.cg_damping, self.fisher, dist)
         else:
-            g = flat_grad(surrogate, self.params)
             index = batch.fvp_index
             Fvp = fisher_product(self.policy, self.params, _subset(batch.obs, index),
                                  Normal(old.mean[index], old.stddev[index]), cfg.cg_damping, self.fisher)
+        timer.lap("fisher_setup")
 
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
         sFs = (direction @ Fvp(direction)).item()
+        timer.lap("cg_products")
         # Scale so that the quadratic model of the KL, 0.5 * step^T F step, equals max_kl. A zero
         # gradient gives a zero step, which the line search rejects (no improvement).
         full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction if sFs > 0 else torch.zeros_like(direction)
         fraction, improvement, kl = line_search(self.params, full_step, surrogate_and_kl, cfg.max_kl,
                                                 cfg.backtrack_iters, cfg.backtrack_coeff, surrogate.item())
+        timer.lap("line_search")
         self.baseline.fit(batch.features, batch.timesteps, batch.returns)
+        timer.lap("baseline")
+        self.update_split = timer.seconds
         return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(),
                 "surrogate_improvement": improvement,
                 "line_search": "rejected" if fraction is None else fraction}
