@@ -17,11 +17,15 @@ shipped pre-training, whose logged loss differs in the 8th digit there. On it th
 the stated cross-CPU tolerance and a warning says that this machine does not regenerate them bit for bit;
 a change of the code still fails, unless it moves the first iterations by less than that tolerance.
 """
+import vdtutorial  # noqa: F401  (first, as in conftest: the module also runs as a script, see IMAGE_REFERENCE_COMMAND)
 import json
 import math
 import shutil
+import sys
+import tempfile
 import warnings
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import pytest
 import torch
@@ -43,6 +47,13 @@ RUNS = [("fig4", "vd", 0), ("fig5", "vd", 0), ("fig6", "vd", 0), ("fig7", "vd", 
         ("fig4_state_fvp0.1", "l2", 0), ("fig4_rgbd", "none", 0), ("fig4_rgbd_fvp0.1", "none", 0)]
 COUNTS = ("iteration", "env_steps", "successes", "episodes", "failures")
 FLOATS = ("mean_return", "mean_kl", "entropy", "surrogate_improvement", "line_search")
+#: The image run whose first :data:`IMAGE_ITERATIONS` iterations pin the exact speed-ups of the image update
+#: (issue 31) to the numbers of the code before them, recorded in :data:`IMAGE_REFERENCE` on one machine.
+IMAGE_RUN, IMAGE_ITERATIONS = ("fig4_rgbd", "none", 0), 20
+IMAGE_REFERENCE = Path(__file__).parent / "reference" / "fig4_rgbd_none_seed0_20_iterations.json"
+#: Made with the code at 29355d1 (before issue 31's speed-ups), this test module run as a script.
+IMAGE_REFERENCE_COMMAND = ("git worktree add /tmp/before 29355d1 && VDTUTORIAL_QUICK=1 PYTHONPATH=/tmp/before "
+                           "python tests/test_regeneration.py")
 
 
 @pytest.fixture(autouse=True)
@@ -81,10 +92,18 @@ ACROSS_CPUS = Tolerance(rel=2e-3, abs=1e-12, tensor_abs=1e-4)
 
 
 @pytest.fixture(scope="module")
-def tolerance() -> Tolerance:
-    """:data:`BIT_FOR_BIT` if one epoch of the 2000-sample L2 reach pre-training (about a second) logs exactly the
-    shipped checkpoint's first row, else :data:`ACROSS_CPUS` with a warning naming the probe's difference."""
+def probe() -> tuple[dict, dict]:
+    """One epoch of the 2000-sample L2 reach pre-training (about a second): its first logged row here, and the
+    one the shipped checkpoint records. How this CPU rounds shows in their train_loss."""
     history, first = _first_epoch_again(2000, "state")
+    return history[0], first
+
+
+@pytest.fixture(scope="module")
+def tolerance(probe) -> Tolerance:
+    """:data:`BIT_FOR_BIT` if the :func:`probe` logs exactly the shipped checkpoint's first row, else
+    :data:`ACROSS_CPUS` with a warning naming the probe's difference."""
+    history, first = [probe[0]], probe[1]
     if history[0] == first:
         return BIT_FOR_BIT
     warnings.warn(f"this CPU does not regenerate the shipped rows bit for bit (one epoch's train_loss "
@@ -116,9 +135,10 @@ def _close(a, b, tolerance: Tolerance) -> bool:
     return math.isclose(a, b, rel_tol=tolerance.rel, abs_tol=tolerance.abs)
 
 
-@pytest.mark.parametrize("folder, method, seed", RUNS)
-def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_path, tolerance):
-    record, run, shipped = _shipped(folder, method, seed)
+def _run_again(folder: str, method: str, seed: int, iterations: int, root: Path) -> list[dict]:
+    """The log rows of the first ``iterations`` iterations of a shipped run, re-run on one thread with the
+    record's settings (its checkpoints and any new ones under ``root``)."""
+    record, run, _ = _shipped(folder, method, seed)
     pretrain = PretrainConfig(reg="l2" if method == "none" else method, obs_mode=run["obs_mode"],
                               **record["pretrain_config"])
     demos = None
@@ -127,22 +147,55 @@ def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_
         # the run's checkpoint, copied where this run looks for it (quick mode never reads data/checkpoints)
         meta = {"task": run["task"], "samples": run["samples"], "noise": run["noise"]}
         shipped_checkpoint = checkpoint_path(meta, method, run["obs_mode"], seed)
-        target = checkpoint_path(meta, method, run["obs_mode"], seed, root=tmp_path)
+        target = checkpoint_path(meta, method, run["obs_mode"], seed, root=root)
         target.parent.mkdir(parents=True)
         shutil.copy(shipped_checkpoint, target)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         _, rows = finetune(method, run["task"], demos, run["obs_mode"], seed,
-                           ITERATIONS * record["steps_per_iteration"], pretrain_config=pretrain,
+                           iterations * record["steps_per_iteration"], pretrain_config=pretrain,
                            trpo_config=TRPOConfig(**record["trpo_config"]), num_envs=record["num_envs"],
-                           checkpoints_root=tmp_path)
+                           checkpoints_root=root)
     finally:
         torch.set_num_threads(threads)
+    return rows
+
+
+@pytest.fixture(scope="module")
+def image_rows(tmp_path_factory) -> list[dict]:
+    """The :data:`IMAGE_RUN` re-run for :data:`IMAGE_ITERATIONS` iterations, once for the two tests that read it."""
+    return _run_again(*IMAGE_RUN, IMAGE_ITERATIONS, tmp_path_factory.mktemp("image_run"))
+
+
+@pytest.mark.parametrize("folder, method, seed", RUNS)
+def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_path, tolerance, request):
+    shipped = _shipped(folder, method, seed)[2]
+    if (folder, method, seed) == IMAGE_RUN:
+        rows = request.getfixturevalue("image_rows")[:ITERATIONS]
+    else:
+        rows = _run_again(folder, method, seed, ITERATIONS, tmp_path)
     for again, then in zip(rows, shipped[:ITERATIONS], strict=True):
         assert {k: again[k] for k in COUNTS if k in again} == {k: then[k] for k in COUNTS if k in again}
         differ = {k: (again[k], then[k]) for k in FLOATS if k in again and not _close(again[k], then[k], tolerance)}
         assert not differ, f"{folder} {method} seed {seed} iteration {again['iteration']}: {differ}"
+
+
+def test_image_updates_match_the_code_before_the_speed_ups(probe, image_rows):
+    """Issue 31's exactness: the image policy's update was made faster (inputs prepared once, mu's and sigma's
+    first convolutions run as one, the patches copied faster) without changing what it computes. Over
+    :data:`IMAGE_ITERATIONS` iterations of the whole-batch image run, the KL, the step size and the surrogate
+    improvement stay within 1e-5 relative of the code before (and the counts equal), where that code's numbers
+    were recorded: on a CPU that rounds like the recording one (the :func:`probe` logs the recorded loss)."""
+    reference = json.loads(IMAGE_REFERENCE.read_text())
+    if probe[0]["train_loss"] != reference["probe_train_loss"]:
+        pytest.skip(f"the reference was recorded on a CPU that rounds otherwise (probe train_loss "
+                    f"{reference['probe_train_loss']!r}, here {probe[0]['train_loss']!r})")
+    assert len(reference["rows"]) == len(image_rows) == IMAGE_ITERATIONS
+    for again, then in zip(image_rows, reference["rows"]):
+        assert {k: again[k] for k in COUNTS if k in then} == {k: then[k] for k in COUNTS if k in then}
+        for key in ("mean_kl", "line_search", "surrogate_improvement"):
+            assert math.isclose(again[key], then[key], rel_tol=1e-5, abs_tol=1e-12), (again["iteration"], key)
 
 
 @pytest.mark.parametrize("folder", ["fig4", "fig7"])
@@ -180,3 +233,19 @@ def test_a_shipped_image_checkpoint_regenerates_its_first_epoch(tolerance):
     history, first = _first_epoch_again(8000, "rgbd")
     differ = {k: (history[0][k], first[k]) for k in first if not _close(history[0][k], first[k], tolerance)}
     assert not differ, differ
+
+
+def write_image_reference(path: Path = IMAGE_REFERENCE) -> None:
+    """Record :data:`IMAGE_REFERENCE` with the code on the import path (see :data:`IMAGE_REFERENCE_COMMAND`)."""
+    with tempfile.TemporaryDirectory() as root:
+        rows = _run_again(*IMAGE_RUN, IMAGE_ITERATIONS, Path(root))
+    keep = COUNTS + ("mean_kl", "line_search", "surrogate_improvement")
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(json.dumps({
+        "command": IMAGE_REFERENCE_COMMAND, "code": str(Path(vdtutorial.__file__).parent),
+        "probe_train_loss": _first_epoch_again(2000, "state")[0][0]["train_loss"],
+        "rows": [{k: row[k] for k in keep if k in row} for row in rows]}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    write_image_reference(Path(sys.argv[1]) if len(sys.argv) > 1 else IMAGE_REFERENCE)

@@ -17,7 +17,8 @@ Input normalisation (inside the network, so checkpoints carry it)
     far plane), both in [0, 1], are stacked into one 4-channel image and shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and continuous
     across the +-pi wrap of continuous joints. Other vector inputs (the cup position, a generic Box) are
     mapped from the observation space's bounds to [-1, 1]; dimensions with infinite or zero-width bounds
-    pass through unchanged.
+    pass through unchanged. ``GaussianPolicy.prepare`` normalises a batch once for both networks, for
+    code that evaluates the policy on one batch many times (TRPO's update).
 
 Sizes (CPU budget: 2 shared cores)
     The paper does not give its layer sizes. The defaults are 8/16/16 channels with kernels 8/4/3 and
