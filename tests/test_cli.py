@@ -93,6 +93,7 @@ def _one_line_error(capsys, argv) -> str:
     (["experiment", "fig4", "--fvp-subsample", "1.5"], "--fvp-subsample: expected a number in (0, 1]"),
     (["pretrain", "--reg", "dropout", "--demos", "x.npz"], "invalid choice: 'dropout'"),
     (["bench", "gpu"], "invalid choice: 'gpu'"),
+    (["bench", "env", "--profile"], "--profile is an option of bench finetune only"),
     (["train"], "invalid choice: 'train'"),
     (["experiment", "table1", "--restart", "--state-dir", "x"], "table1 pre-trains only (no TRPO runs to resume): "
                                                                "--state-dir, --restart are options of the figures"),

@@ -162,13 +162,13 @@ def _cmd_bench(args) -> None:
     from vdtutorial import bench
 
     if args.profile and args.what != "finetune":
-        raise SystemExit("--profile is for bench finetune only")
+        raise CommandError("--profile is an option of bench finetune only")
     if args.what == "trpo":
         bench.bench_trpo_pendulum(seeds=args.seeds, total_steps=args.steps)
     elif args.what == "finetune":
         bench.bench_finetune(profile=args.profile)
     else:
-        {"env": bench.bench_env, "policy": bench.bench_policy, "finetune": bench.bench_finetune}[args.what]()
+        {"env": bench.bench_env, "policy": bench.bench_policy}[args.what]()
 
 
 def _cmd_reproduce(args) -> None:

@@ -181,8 +181,8 @@ def _unfold(x: torch.Tensor, kernel: tuple[int, int], stride, padding, dilation)
 class _FirstConvolutions:
     """mu's and sigma's first convolutions, which read the same image, traced as one
     (:func:`vdtutorial.policy.joint_conv2d`). Their input is data, so the backward pass needs only the
-    weight gradient; with the image unfolded into patches once per update it is one batched matrix
-    product for the filters of both networks, which reads the patches once (see the module docstring)."""
+    weight gradients: one batched matrix product per network with the image's patches, unfolded once
+    per update for both (see the module docstring for why not one product for both)."""
 
     def __init__(self, layers: list[nn.Module], image: torch.Tensor):
         self.layers, self.image = layers, image
