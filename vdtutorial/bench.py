@@ -245,14 +245,14 @@ def bench_finetune(iterations: int | None = None, profile: bool = False) -> list
                   f"{row['steps_per_s']:>8.1f} {row['steps_per_cpu_s']:>11.1f} {row['mean_kl']:>8.4f} "
                   f"{row['step_fraction']:>13.3f}", flush=True)
         _print_update_split(rows[-len(FINETUNE_CASES):], [label for label, *_ in FINETUNE_CASES])
-        if profile and obs_mode == "rgbd":
-            print_profile(runs[FINETUNE_CASES.index(("Gauss-Newton", "gauss_newton", 1.0))][0], iterations)
-        env.close()
         old, new = rows[-len(FINETUNE_CASES):][:2]
         print(f"       whole batch, Gauss-Newton / double backward: {new['steps_per_s'] / old['steps_per_s']:.2f}x env "
               f"steps/s ({new['steps_per_cpu_s'] / old['steps_per_cpu_s']:.2f}x per CPU second), update "
               f"{old['update_s'] / new['update_s']:.2f}x faster")
         print(f"       policy: {source}, pruned; {iterations} iterations of 200 steps after one warm-up, per case")
+        if profile and obs_mode == "rgbd":
+            print_profile(runs[FINETUNE_CASES.index(("Gauss-Newton", "gauss_newton", 1.0))][0], iterations)
+        env.close()
     torch.set_num_threads(threads)
     return rows
 
