@@ -207,6 +207,11 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
     profile = Path(tempfile.mkdtemp(prefix="vdtutorial-chromium-"))
     browser = Chromium(executable, profile)
     try:
+        browser.call("Page.navigate", url=book.index.as_uri())
+        browser.wait_for("document.readyState === 'complete'", "the index to load")
+        browser.wait_for(READY, "the index's titles typeset")
+        assert not RAW_TEX.findall(browser.evaluate("document.body.innerText")), "the index shows raw TeX"
+        assert not [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
         for k, chapter in enumerate(book.chapters):
             page = book.index.parent / chapter.page
             source = page.read_text()
@@ -229,9 +234,12 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
             scenes = browser.evaluate("document.querySelectorAll('iframe').length")
             for frame in range(scenes):
                 pixels = _scene_pixels(browser, frame)
-                arm = np.mean(pixels.max(axis=2) < 0.2)  # the arm's dark links; the sky and floor are lighter
-                cup = np.mean((pixels[..., 0] > 0.6) & (pixels[..., 1] < 0.35) & (pixels[..., 2] < 0.35))
-                assert arm > 0.02 and cup > 0.001, f"scene {frame} of {chapter.page}: arm {arm:.1%}, cup {cup:.2%}"
+                red, green, blue = np.moveaxis(pixels, 2, 0)
+                arm = np.mean(pixels.max(axis=2) < 0.2)  # the arm's dark links; the sky is lighter
+                cup = np.mean((red > 0.6) & (green < 0.35) & (blue < 0.35))
+                table = np.mean((red > 0.4) & (red - blue > 0.15) & (green > blue))  # lit tan, not the blue sky
+                assert arm > 0.005 and cup > 0.001 and table > 0.05, \
+                    f"scene {frame} of {chapter.page}: arm {arm:.1%}, cup {cup:.2%}, table {table:.1%} of the picture"
             if chapter.number in ("00", "07"):
                 assert scenes > 0, f"{chapter.page} shows a meshcat scene"
             if chapter.number == "07":

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import nbformat
 
-from vdtutorial.offline_assets import copy_assets, offline_animation_icons
+from vdtutorial.offline_assets import MATHJAX_SETTINGS, copy_assets, offline_animation_icons
 from vdtutorial.settings import QUICK_ENV, SHIPPED_DIR
 
 #: The nbconvert template of a chapter page (JupyterLab's, with the book's navigation).
@@ -186,14 +186,17 @@ def _exporter(urls: dict[str, str]):
     return HTMLExporter(extra_template_basedirs=[str(TEMPLATE_DIR)], template_name="vdbook", **urls)
 
 
-def _index_page(chapters: list[Chapter], goals: dict[str, str], quick: bool) -> str:
-    rows = "\n".join(f'<tr><td>{c.number}</td><td><a href="{html.escape(c.page)}">{html.escape(c.title)}</a></td>'
+def _index_page(chapters: list[Chapter], goals: dict[str, str], quick: bool, mathjax_url: str) -> str:
+    """The book's first page: what it is, and the chapters (their titles may hold TeX) with their goals."""
+    rows = "\n".join(f'<tr><td><a href="{html.escape(c.page)}">{html.escape(c.title)}</a></td>'
                      f'<td>{html.escape(goals.get(c.number, ""))}</td></tr>' for c in chapters)
     mode = ("quick mode (small budgets: the same code as the paper's runs, in seconds)" if quick
             else "the paper's budgets")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
 <title>vdtutorial: the book</title>
+{MATHJAX_SETTINGS}
+<script src="{html.escape(mathjax_url)}"></script>
 <style>
   body {{ font-family: sans-serif; max-width: 1000px; margin: 2em auto; padding: 0 1em; line-height: 1.45; }}
   table {{ border-collapse: collapse; width: 100%; }}
@@ -205,7 +208,7 @@ def _index_page(chapters: list[Chapter], goals: dict[str, str], quick: bool) -> 
 Pre-Training with Variational Dropout</em>, IROS 2018. Each page is a chapter as it ran in {mode}, with its
 outputs; to change and run the code, open the notebooks in Jupyter (<code>python -m vdtutorial notebooks DEST</code>).</p>
 <table>
-<thead><tr><th>chapter</th><th>title</th><th>after it, a student can</th></tr></thead>
+<thead><tr><th>chapter</th><th>after it, a student can</th></tr></thead>
 <tbody>
 {rows}
 </tbody></table>
@@ -223,7 +226,8 @@ def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, sourc
     chapters = find_chapters(numbers, source)
     goals = learning_goals(source / "notebooks" / "TEACHING.md")
     out.mkdir(parents=True, exist_ok=True)
-    exporter = _exporter(copy_assets(out / STATIC))
+    urls = copy_assets(out / STATIC)
+    exporter = _exporter(urls)
     seconds = {}
     for k, chapter in enumerate(chapters):
         start = time.perf_counter()
@@ -231,11 +235,12 @@ def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, sourc
         seconds[chapter.number] = time.perf_counter() - start
         marked = mark_kernel_controls(notebook)
         offline_outputs(notebook)
-        book = {"previous": chapters[k - 1] if k > 0 else None, "next": chapters[k + 1] if k + 1 < len(chapters) else None}
+        book = {"previous": chapters[k - 1] if k > 0 else None, "next": chapters[k + 1] if k + 1 < len(chapters) else None,
+                "mathjax_settings": MATHJAX_SETTINGS}
         body, _ = exporter.from_notebook_node(notebook, resources={"book": book})
         (out / chapter.page).write_text(body, encoding="utf-8")
         log(f"{chapter.page}: ran in {seconds[chapter.number]:.0f} s"
             + (f", {marked} widget(s) marked as needing a kernel" if marked else ""))
     index = out / "index.html"
-    index.write_text(_index_page(chapters, goals, quick), encoding="utf-8")
+    index.write_text(_index_page(chapters, goals, quick, urls["mathjax_url"]), encoding="utf-8")
     return BuiltBook(index, chapters, seconds)

@@ -25,6 +25,18 @@ HTML_MANAGER_DIR = Path(__file__).resolve().parent / "web" / "html-manager"
 MATHJAX_CONFIG = "TeX-AMS-MML_HTMLorMML-full,Safe"
 
 
+#: MathJax's settings for a book page, before MathJax starts: TeX between $...$ or \(...\) (and $$...$$ or
+#: \[...\] displayed), and the STIX web fonts, the only ones jupyter-server-mathjax ships (MathJax would
+#: otherwise look for its TeX fonts first).
+MATHJAX_SETTINGS = """<script type="text/x-mathjax-config">
+MathJax.Hub.Config({
+  tex2jax: {inlineMath: [["$", "$"], ["\\\\(", "\\\\)"]], displayMath: [["$$", "$$"], ["\\\\[", "\\\\]"]],
+            processEscapes: true},
+  "HTML-CSS": {availableFonts: [], webFont: "STIX-Web", imageFont: null}
+});
+</script>"""
+
+
 def mathjax_dir() -> Path:
     """MathJax's files as ``jupyter-server-mathjax`` ships them (``MathJax.js``, ``config/``, ``fonts/``...)."""
     try:
