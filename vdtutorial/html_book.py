@@ -16,6 +16,8 @@ Two things an exported notebook cannot do are said on the page instead of being 
 whose controls run Python callbacks (every slider in the chapters redraws a figure in the kernel) keeps
 the picture it was saved with, its controls are greyed out, and a note above it says that moving them
 needs a running kernel; the animation controls draw their icons as inline SVG.
+
+Not taught in a chapter: it renders the chapters themselves (README, "As a book that reads offline").
 """
 from __future__ import annotations
 

@@ -11,6 +11,8 @@ disk; :func:`offline_animation_icons` swaps the third for inline SVG, which need
   it ships.
 * The widget manager, ``@jupyter-widgets/html-manager``, is published on npm only, so its standalone bundle
   is kept in ``vdtutorial/web/html-manager`` (``SOURCE.md`` there says where it came from).
+
+Not taught in a chapter: part of the rendered book (vdtutorial/html_book.py).
 """
 from __future__ import annotations
 

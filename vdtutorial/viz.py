@@ -5,30 +5,16 @@ drawn as ghost arms, a rollout played back) explains *what the policy does*; the
 *what the policy sees*. Both have to show up inside a notebook that may run on a remote JupyterHub or
 headless under ``pytest --nbmake`` in CI, where no browser can reach a port on the kernel's machine.
 
-meshcat normally runs a tornado/ZMQ server in a subprocess and the browser talks to it over a
-websocket. Measured with meshcat 0.3.2 that is fragile here: ``Visualizer.close()`` raises
-``AttributeError`` (its window has no ``close``) and once the server process is gone every further
-call blocks forever on the ZMQ reply. So by default :class:`Recorder` never starts a server. It hands
-``meshcat.Visualizer`` a window object whose ``send`` stores each command in an in-memory
-``SceneTree``, exactly the bookkeeping the meshcat server does, and :meth:`Recorder.html` replays that
-tree into one self-contained page with the viewer's JavaScript inlined. The page needs no network,
-so it renders in an ``<iframe srcdoc=...>`` anywhere and can be saved next to a notebook.
+meshcat normally runs a tornado/ZMQ server that the browser reaches over a websocket; with meshcat 0.3.2
+that is fragile here (see :class:`Recorder`), so by default no server starts: the scene is recorded in
+memory and :meth:`Recorder.html` replays it into one self-contained page that needs no network.
 
 Mirroring is generic: it works from pybullet body ids and ``getVisualShapeData`` alone and never
 imports the environment modules, so the same code draws the arm, the table and the cup. The module
 only *reads* the simulation; the one place where the state moves is :func:`record_rollout`, and there
 it is the caller's ``set_state`` that moves it.
 
-Conventions checked numerically against pybullet 3.2.7 (see ``tests/test_viz.py``):
-
-* ``getVisualShapeData`` dimensions are the *full* box extents (twice ``halfExtents``);
-  ``(length, radius, 0)`` for cylinders and capsules, where a capsule's ``length`` is its cylindrical
-  part only (the half-spheres add ``radius`` at each end); ``(radius, 0, 0)`` for spheres; the mesh
-  scale for meshes.
-* The local visual frame is relative to the URDF link frame, for the base too. Link frames are
-  ``getLinkState(...)[4:6]``; ``[0:2]`` is the centre of mass. ``getBasePositionAndOrientation``
-  returns the base's *inertial* frame, so the base link frame is that pose times the inverse of the
-  local inertial frame from ``getDynamicsInfo(body, -1)[3:5]``.
+Taught in chapter 01.
 """
 from __future__ import annotations
 
@@ -185,6 +171,13 @@ class Recorder:
     browser can reach the kernel's ports. meshcat's ``Visualizer.close()`` is broken in 0.3.2
     (``AttributeError``), and after the server dies the next command blocks forever; call
     :meth:`close` here instead, which stops the server and keeps recording in memory.
+
+    Why no server by default: meshcat normally runs a tornado/ZMQ server in a subprocess. Measured with
+    meshcat 0.3.2 that is fragile here: ``Visualizer.close()`` raises ``AttributeError`` (its window has
+    no ``close``) and once the server process is gone every further call blocks forever on the ZMQ reply.
+    So the recorder hands ``meshcat.Visualizer`` a window object whose ``send`` stores each command in an
+    in-memory ``SceneTree``, exactly the bookkeeping the meshcat server does, and replays that tree into a
+    page with the viewer's JavaScript inlined, which renders in an ``<iframe srcdoc=...>`` anywhere.
     """
 
     def __init__(self, live: bool = False):
@@ -392,6 +385,17 @@ def mirror_bodies(vis, client_id: int, bodies: Mapping[str, int]) -> None:
     .obj/.stl/.dae meshes; other meshes are skipped with a warning), so it works for any body: a
     URDF robot or a ``createMultiBody`` table or cup. Call it once, then :func:`update_poses` as
     the simulation moves.
+
+    Conventions checked numerically against pybullet 3.2.7 (see ``tests/test_viz.py``):
+
+    * ``getVisualShapeData`` dimensions are the *full* box extents (twice ``halfExtents``);
+      ``(length, radius, 0)`` for cylinders and capsules, where a capsule's ``length`` is its cylindrical
+      part only (the half-spheres add ``radius`` at each end); ``(radius, 0, 0)`` for spheres; the mesh
+      scale for meshes.
+    * The local visual frame is relative to the URDF link frame, for the base too. Link frames are
+      ``getLinkState(...)[4:6]``; ``[0:2]`` is the centre of mass. ``getBasePositionAndOrientation``
+      returns the base's *inertial* frame, so the base link frame is that pose times the inverse of the
+      local inertial frame from ``getDynamicsInfo(body, -1)[3:5]``.
     """
     for name, body in bodies.items():
         _mirror_body(_visualizer(vis)[name], client_id, body)
