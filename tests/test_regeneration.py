@@ -28,7 +28,7 @@ import torch
 from conftest import require_recorded_numerics
 
 from vdtutorial.demos import demo_path
-from vdtutorial.experiments import expert_reference, finetune, read_rows, results_file
+from vdtutorial.experiments import expert_reference, finetune, read_rows, rederive, results_file
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.settings import DATA_DIR
 from vdtutorial.trpo import TRPOConfig
@@ -180,3 +180,21 @@ def test_a_shipped_image_checkpoint_regenerates_its_first_epoch(tolerance):
     history, first = _first_epoch_again(8000, "rgbd")
     differ = {k: (history[0][k], first[k]) for k in first if not _close(history[0][k], first[k], tolerance)}
     assert not differ, differ
+
+
+#: Every shipped figure experiment: its figure and JSON summary are derived from its rows alone.
+DERIVED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig4_state_fvp0.1")
+
+
+@pytest.mark.parametrize("folder", DERIVED)
+def test_a_shipped_summary_is_rederived_from_its_rows(folder, tmp_path):
+    """``python -m vdtutorial rederive`` on a copy of the folder writes the shipped record again: final points on
+    every measure, the claims with their Holm verdicts and seeds needed, the title; and draws the figure."""
+    copy = tmp_path / folder
+    shutil.copytree(RESULTS / folder, copy)
+    (copy / f"{record_name(folder)}.png").unlink()
+    result = rederive(copy)
+    shipped = json.loads((RESULTS / folder / f"{record_name(folder)}.json").read_text())
+    again = json.loads((copy / f"{record_name(folder)}.json").read_text())
+    assert again == shipped
+    assert (copy / f"{record_name(folder)}.png").exists() and len(result.figure.axes) == len(shipped["measures"])

@@ -4,6 +4,7 @@ Modules, one idea each: :mod:`~vdtutorial.experiments.runs` (one run: pre-traine
 expert's reference), :mod:`~vdtutorial.experiments.resume` (a run's saved state), :mod:`~vdtutorial.experiments.run_lock`
 (one process at a time per run), :mod:`~vdtutorial.experiments.grid` (a restartable grid of runs), :mod:`~vdtutorial.experiments.backends` (local processes or Ray),
 :mod:`~vdtutorial.experiments.progress` (the grid's progress lines),
+:mod:`~vdtutorial.experiments.measures` (what a point of a curve measures),
 :mod:`~vdtutorial.experiments.curves` (smoothing, bands, "steps to reach"),
 :mod:`~vdtutorial.experiments.plots` (the figure), :mod:`~vdtutorial.experiments.rows` (CSV files),
 :mod:`~vdtutorial.experiments.results` (an experiment's files), :mod:`~vdtutorial.experiments.figures`
@@ -74,11 +75,12 @@ from vdtutorial.experiments.effects import CLAIMS, claim_effects, claim_table, w
 from vdtutorial.experiments.figures import fig4, fig5, fig6, fig7
 from vdtutorial.experiments.backends import run_jobs
 from vdtutorial.experiments.grid import RunSpec, run_grid
-from vdtutorial.experiments.plots import METRIC_LABELS, plot_curves
+from vdtutorial.experiments.plots import METRIC_LABELS, figure_title, plot_curves, plot_measures
 from vdtutorial.experiments.reproduce import reproduce_quick
 from vdtutorial.experiments.resume import ResumeError
-from vdtutorial.experiments.results import (ExperimentResult, experiment_command, format_summary, load_result,
-                                           run_experiment)
+from vdtutorial.experiments.measures import MEASURES, measures_of
+from vdtutorial.experiments.results import (ExperimentResult, derive, experiment_command, format_summary, load_result,
+                                           rederive, run_experiment)
 from vdtutorial.experiments.rows import read_rows, results_file, write_csv
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, METHODS, METRIC, NUM_ENVS, RL_METHODS,
                                          RUNS_DIR, SUBSAMPLED_FISHER_CONFIG, default_expert_episodes, default_seeds,
