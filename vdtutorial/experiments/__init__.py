@@ -80,7 +80,7 @@ from vdtutorial.experiments.reproduce import reproduce_quick
 from vdtutorial.experiments.resume import ResumeError
 from vdtutorial.experiments.measures import MEASURES, measures_of
 from vdtutorial.experiments.results import (ExperimentResult, derive, experiment_command, format_summary, load_result,
-                                           rederive, run_experiment)
+                                           merge_seeds, rederive, run_experiment)
 from vdtutorial.experiments.rows import read_rows, results_file, write_csv
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, METHODS, METRIC, NUM_ENVS, RL_METHODS,
                                          RUNS_DIR, SUBSAMPLED_FISHER_CONFIG, default_expert_episodes, default_seeds,

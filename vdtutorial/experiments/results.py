@@ -207,6 +207,49 @@ def rederive(folder: str | Path) -> ExperimentResult:
     return ExperimentResult(name, folder, rows, curves, figure, summary, record)
 
 
+#: What two records must agree on for their rows to be one experiment's (everything that shapes a run but its seed).
+SAME_EXPERIMENT = ("experiment", "metric", "num_envs", "steps_per_iteration", "window", "pretrain_config",
+                   "trpo_config", "quick", "versions", "kernels")
+
+
+def merge_seeds(folder: str | Path, other: str | Path) -> ExperimentResult:
+    """Add the runs of ``other`` (the same experiment run with other seeds) to the experiment in ``folder``, then
+    :func:`rederive` it: what ``python -m vdtutorial rederive FOLDER --add OTHER`` does. A run is a pure function
+    of its settings and seed (docs/results.md, "Regenerable results"), so the merged rows are those one command
+    with all the seeds would write, in its order (each curve's runs by seed), the ``wall_time`` column aside; the
+    record's command says so, and ``merged`` keeps each command that ran. Refuses records that differ in anything
+    but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed."""
+    folder, other = Path(folder), Path(other)
+    paths = [next(Path(f).glob("*.json")) for f in (folder, other)]
+    records = [json.loads(path.read_text()) for path in paths]
+    differ = [key for key in SAME_EXPERIMENT if records[0].get(key) != records[1].get(key)]
+    shape = [{(r["method"], r["obs_mode"], r["total_steps"]) for r in record["runs"]} for record in records]
+    if differ or shape[0] != shape[1]:
+        raise ValueError(f"{other} is not {folder}'s experiment with other seeds: it differs in "
+                         f"{', '.join(differ) or 'its runs (methods, observations or budgets)'}")
+    seeds = [{run["seed"] for run in record["runs"]} for record in records]
+    if seeds[0] & seeds[1]:
+        raise ValueError(f"{folder} and {other} share seeds {sorted(seeds[0] & seeds[1])}")
+    name = records[0]["experiment"]
+    rows = read_rows(results_file(folder, name)) + read_rows(results_file(other, name))
+    curves = list(dict.fromkeys((row["label"], row["method"]) for row in rows))
+    rows.sort(key=lambda row: (curves.index((row["label"], row["method"])), row["seed"]))
+    write_csv(results_file(folder, name), rows)
+    runs = records[0]["runs"] + records[1]["runs"]
+    order = list(dict.fromkeys((run["label"], run["method"]) for run in runs))
+    merged = [entry for record in records for entry in record.get("merged") or
+              [{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s")}]]
+    parts = shlex.split(records[0]["command"])
+    start = parts.index("--seeds") + 1
+    end = next((i for i in range(start, len(parts)) if parts[i].startswith("--")), len(parts))
+    records[0].update(command=shlex.join(parts[:start] + [str(seed) for seed in sorted(seeds[0] | seeds[1])]
+                                         + parts[end:]),
+                      runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
+                      merged=merged, wall_time_s=sum(entry["wall_time_s"] for entry in merged))
+    paths[0].write_text(json.dumps(records[0], indent=1, default=str))
+    return rederive(folder)
+
+
 def format_summary(result: ExperimentResult) -> str:
     """The final level of every curve with its band (or, with one seed, the words that there is none),
     the fig4-style "VD reaches L2" line if any, and where the files went."""
