@@ -48,7 +48,7 @@ from scipy import stats
 from vdtutorial.experiments.curves import (CONFIDENCE, PAPER_READINGS, moving_average, record_window,
                                            smooth_window)
 from vdtutorial.experiments.measures import MEASURES, measures_of, value
-from vdtutorial.experiments.rows import read_rows, results_file
+from vdtutorial.runner.rows import read_rows, results_file
 
 #: Bootstrap resamples for the steps-to-reach interval.
 BOOTSTRAP_SAMPLES = 2000
