@@ -190,6 +190,12 @@ def _bootstrap_steps_to_reach(a: dict, b: dict, window: int, better: int, sample
     return point, np.array([estimate(rng.integers(na, size=na), rng.integers(nb, size=nb)) for _ in range(samples)])
 
 
+def _percentile_interval(boot: np.ndarray, confidence: float) -> tuple[float, float]:
+    tail = (1 - confidence) / 2
+    low, high = np.quantile(boot, [tail, 1 - tail], method="inverted_cdf")
+    return float(low), float(high)
+
+
 def steps_to_reach_interval(a: dict, b: dict, window: int, confidence: float = CONFIDENCE,
                             samples: int = BOOTSTRAP_SAMPLES, seed: int = BOOTSTRAP_SEED,
                             better: int = 1) -> tuple[float, float, float]:
@@ -197,16 +203,12 @@ def steps_to_reach_interval(a: dict, b: dict, window: int, confidence: float = C
     smoothed end point; "reaches": at or above it, or at or below it for a measure where lower is
     ``better``), with a percentile bootstrap interval over seeds (``inf``: not reached)."""
     point, boot = _bootstrap_steps_to_reach(a, b, window, better, samples, seed)
-    tail = (1 - confidence) / 2
-    low, high = np.quantile(boot, [tail, 1 - tail], method="inverted_cdf")
-    return point, float(low), float(high)
+    return point, *_percentile_interval(boot, confidence)
 
 
-def bootstrap_p_value(a: dict, b: dict, window: int, limit: float, better: int = 1,
-                      samples: int = BOOTSTRAP_SAMPLES, seed: int = BOOTSTRAP_SEED) -> float:
-    """Two-sided p-value of "steps to reach = ``limit``": twice the smaller share of bootstrap resamples on
-    either side of it (at most 1), the test the percentile interval inverts."""
-    _, boot = _bootstrap_steps_to_reach(a, b, window, better, samples, seed)
+def bootstrap_p_value(boot: np.ndarray, limit: float) -> float:
+    """Two-sided p-value of "steps to reach = ``limit``" from the bootstrap resamples ``boot``: twice the
+    smaller share of resamples on either side of it (at most 1), the test the percentile interval inverts."""
     return float(min(1.0, 2 * min(np.mean(boot <= limit), np.mean(boot >= limit))))
 
 
@@ -261,8 +263,8 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     window = smooth_window() if window is None else window
     results = []
     for measure in measures_of(metric):
-        table = [_claim_effect(claim, groups, measure, window, confidence)
-                 for groups in [per_run(rows, measure)] for claim in CLAIMS.get(name, ())
+        groups = per_run(rows, measure)
+        table = [_claim_effect(claim, groups, measure, window, confidence) for claim in CLAIMS.get(name, ())
                  if claim.a in groups and claim.b in groups]
         for effect, rejected in zip(table, holm_rejections([e["p_value"] for e in table], 1 - confidence)):
             effect["holm_verdict"] = effect["verdict"] if rejected else "not confirmed"
@@ -276,11 +278,12 @@ def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confide
     better = MEASURES[measure].better
     if claim.measure == "steps_to_reach":
         budget_steps = float(a["steps"][-1])
-        estimate, low, high = steps_to_reach_interval(a, b, window, confidence, better=better)
+        estimate, boot = _bootstrap_steps_to_reach(a, b, window, better, BOOTSTRAP_SAMPLES, BOOTSTRAP_SEED)
+        low, high = _percentile_interval(boot, confidence)
         limit = claim.fraction * budget_steps
         # "within the fraction" means fewer steps than the limit: read as a < limit
         result_verdict = verdict(low - limit, high - limit, -1)
-        p_value = bootstrap_p_value(a, b, window, limit, better)
+        p_value = bootstrap_p_value(boot, limit)
         unit = "env steps"
         extra = {"budget_steps": budget_steps, "limit_steps": limit, "n_a": len(a["values"]),
                  "n_b": len(b["values"]), "seeds_needed": None}
