@@ -11,9 +11,9 @@ env steps of the iteration, so the count splits exactly into
 
 and successes = success rate x steps of the iteration / steps per trajectory. Steps per trajectory counts the
 steps of the trajectories still running when the iteration stops, which did not end and so are not in
-``episodes``; it is therefore an upper bound on the mean length of the finished trajectories, and, because a
-failed trajectory runs the full horizon, on the mean length of the successful ones. When nearly every
-trajectory succeeds it is the mean length of a successful trajectory plus that cut-off share.
+``episodes``; it is therefore an upper bound on the mean length of the trajectories that ended. When nearly
+every trajectory succeeds, as the pre-trained policies' do, it is the mean length of a successful trajectory
+plus that cut-off share (the rows do not hold the lengths of the successful trajectories alone).
 """
 from __future__ import annotations
 
