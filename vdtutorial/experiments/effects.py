@@ -322,7 +322,7 @@ def claim_table(effects: list[dict]) -> str:
     needed to find the observed difference (see the module's docstring)."""
     blocks = []
     for measure in dict.fromkeys(e.get("metric", "successes") for e in effects):
-        lines = [f"*{MEASURES[measure].label}*", "",
+        lines = [f"*{MEASURES[measure].label}*: {MEASURES[measure].question}", "",
                  "| claim | measure | effect (95% interval) | p | verdict | Holm | seeds | seeds needed |",
                  "|---|---|---|---|---|---|---|---|"]
         for e in (e for e in effects if e.get("metric", "successes") == measure):

@@ -39,13 +39,13 @@ class Measure:
 #: iteration; a trajectory lasts 1 to HORIZON steps; returns are not clipped (their bounds depend on the task).
 MEASURES = {
     "successes": Measure("successes", "successful trajectories per 200-step episode", 1, (0.0, float(EPISODE_STEPS)),
-                         "how many trajectories the policy completes in 200 steps (the paper's metric)"),
+                         "how many successful trajectories fit in 200 steps (the paper's metric)"),
     "mean_return": Measure("mean_return", "cumulative reward per trajectory", 1, (float("-inf"), float("inf")),
                            "the reward a trajectory collects (the paper's grasping metric)"),
     "success_rate": Measure("success_rate", "success rate (successes / trajectories)", 1, (0.0, 1.0),
                             "whether a trajectory gets there at all"),
     "steps_per_trajectory": Measure("steps_per_trajectory", "env steps per trajectory (200 / trajectories)", -1,
-                                    (1.0, float(HORIZON)), "how fast a trajectory ends: fewer steps is better"),
+                                    (1.0, float(HORIZON)), "how fast a trajectory ends (fewer steps is better)"),
 }
 #: The measures each experiment is judged on: its paper metric first, then the two the count is made of.
 DERIVED = ("success_rate", "steps_per_trajectory")
