@@ -217,7 +217,8 @@ def merge_seeds(folder: str | Path, other: str | Path) -> ExperimentResult:
     """Add the runs of ``other`` (the same experiment run with other seeds) to the experiment in ``folder``, then
     :func:`rederive` it: what ``python -m vdtutorial rederive FOLDER --add OTHER`` does. A run is a pure function
     of its settings and seed (docs/results.md, "Regenerable results"), so the merged rows are those one command
-    with all the seeds would write, in its order (each curve's runs by seed), the ``wall_time`` column aside; the
+    with all the seeds would write on a CPU that rounds alike, in its order (each curve's runs by seed), the
+    ``wall_time`` column aside; the
     record's command says so, and ``merged`` keeps each command that ran. Refuses records that differ in anything
     but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed."""
     folder, other = Path(folder), Path(other)
