@@ -217,6 +217,14 @@ def test_vd_reaches_l2_final_on_hand_made_curves():
     assert vd_reaches_l2_final(curves)["steps"] is None and "never" in vd_reaches_l2_final(curves)["text"]
 
 
+def test_vd_reaches_l2_final_says_what_each_reading_of_the_paper_gives():
+    # "around 1.25e5 of 3e5 steps" is 42% of the budget, "less than one quarter" 25%: at 40% only the first is met
+    curves = {c.label: c for c in (_curve("vd", [0, 4, 4, 4, 4]), _curve("l2", [0, 1, 2, 3, 4]))}
+    text = vd_reaches_l2_final(curves)["text"]
+    assert "40% of the budget" in text
+    assert "'around 1.25e5 of 3e5 steps' (42%): met" in text and "'less than one quarter' (25%): not met" in text
+
+
 def test_curves_from_rows_smooths_each_seed_then_averages():
     rows = [{"label": "VD", "method": "vd", "seed": s, "iteration": i, "env_steps": 200 * (i + 1), "successes": v}
             for s, values in ((0, [0, 2, 4]), (1, [2, 2, 2])) for i, v in enumerate(values)]

@@ -249,6 +249,21 @@ def _cmd_claims(args) -> None:
         print(f"{folder}:\n{write_claims(folder)}\n")
 
 
+def _cmd_rederive(args) -> None:
+    """An experiment's figure and JSON summary re-written from its rows (see experiments.results.rederive)."""
+    from vdtutorial.experiments import format_summary, merge_seeds, rederive
+
+    for folder in args.folders + args.add:
+        if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
+            raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
+    if args.add and len(args.folders) != 1:
+        raise CommandError("--add merges into one experiment folder: name one")
+    for other in args.add:
+        merge_seeds(args.folders[0], other)
+    for folder in args.folders:
+        print(format_summary(rederive(folder)))
+
+
 # -- the parser ------------------------------------------------------------------------------------------
 def _epochs_help() -> str:
     from vdtutorial.pretrain import default_config
@@ -394,6 +409,14 @@ def _add_experiment_commands(sub) -> None:
     p = sub.add_parser("claims", help="the paper's claims as effect sizes with 95%% intervals, from experiment folders")
     p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4); their JSON records are updated")
     p.set_defaults(func=_cmd_claims)
+
+    p = sub.add_parser("rederive", help="re-write experiment folders' figures and JSON summaries from their rows "
+                                        "(measures, claims, Holm verdicts, seeds needed), running nothing")
+    p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4)")
+    p.add_argument("--add", nargs="+", default=[], metavar="OTHER",
+                   help="first add the runs of these folders, the same experiment run with other seeds (e.g. "
+                        "python -m vdtutorial rederive data/results/fig4 --add runs/fig4_seeds5-9)")
+    p.set_defaults(func=_cmd_rederive)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")
     p.add_argument("--quick", action="store_true", help="accepted for clarity; reproduce always runs small")

@@ -3,7 +3,8 @@ their evidence: Figs. 4-6 and the sigma study in chapter 07, Table I in chapter 
 
 Modules, one idea each: :mod:`~vdtutorial.experiments.runs` (one run: the policy RL starts from, TRPO,
 the expert's reference), :mod:`~vdtutorial.experiments.jobs` (runs as jobs of the grid runner,
-:mod:`vdtutorial.runner`), :mod:`~vdtutorial.experiments.curves` (smoothing, bands, "steps to reach"),
+:mod:`vdtutorial.runner`), :mod:`~vdtutorial.experiments.measures` (what a point of a curve measures),
+:mod:`~vdtutorial.experiments.curves` (smoothing, bands, "steps to reach"),
 :mod:`~vdtutorial.experiments.effects` (claims as effect sizes), :mod:`~vdtutorial.experiments.plots`
 (the figure), :mod:`~vdtutorial.experiments.results` (an experiment's files),
 :mod:`~vdtutorial.experiments.figures` (Figs. 4-7), :mod:`~vdtutorial.experiments.estimate` (a grid's
@@ -21,10 +22,11 @@ from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, 
 from vdtutorial.experiments.effects import CLAIMS, claim_effects, claim_table, write_claims
 from vdtutorial.experiments.figures import fig4, fig5, fig6, fig7
 from vdtutorial.experiments.jobs import RunSpec
-from vdtutorial.experiments.plots import METRIC_LABELS, plot_curves
+from vdtutorial.experiments.measures import MEASURES, measures_of
+from vdtutorial.experiments.plots import METRIC_LABELS, figure_title, plot_curves, plot_measures
 from vdtutorial.experiments.reproduce import reproduce_quick
-from vdtutorial.experiments.results import (ExperimentResult, experiment_command, format_summary, load_result,
-                                           run_experiment)
+from vdtutorial.experiments.results import (ExperimentResult, derive, experiment_command, format_summary, load_result,
+                                           merge_seeds, rederive, run_experiment)
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, METHODS, METRIC, NUM_ENVS, RL_METHODS,
                                          RUNS_DIR, SUBSAMPLED_FISHER_CONFIG, default_expert_episodes, default_seeds,
                                          default_total_steps, default_trpo_config, expert_reference, finetune,

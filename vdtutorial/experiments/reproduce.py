@@ -54,6 +54,6 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
         return {"neuron_fraction": report.neuron_fraction, "weight_fraction": report.weight_fraction,
                 "vd_reaches_l2_final": vd_reaches_l2_final(curves)}
 
-    title = f"Quick reproduction: reaching, {samples} demos, {total_steps} steps"
+    title = f"Quick reproduction: reaching, {samples} demos"
     return run_experiment("reproduce_quick", specs, title, out, workers, demos_root=out, checkpoints_root=out,
                           pretrain_config=config, command=command, summarise=summarise, progress=progress)
