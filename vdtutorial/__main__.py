@@ -2,6 +2,8 @@
 
 Commands write what they make under runs/ unless --out says otherwise; they never replace a file in
 data/ (the shipped artefacts the notebooks and figures rely on) without --force.
+
+Taught in chapter 00.
 """
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """The paper's claims as effect sizes with 95% intervals over seeds, and a verdict for each.
 
-A curve's band says where one method's mean lies; a claim compares two methods. For every claim of
-Section V (Figs. 4-7) this module measures, from the per-run TRPO rows:
+A claim compares two methods; for every claim of Section V (Figs. 4-7) this module measures, per run:
 
 final level
     each run's mean metric over its last ``window`` iterations (the smoothed curve's end point);
@@ -20,20 +19,10 @@ interval is a percentile bootstrap over seeds (each method's seeds resampled wit
 counts as "not within the budget" (infinite), which widens the interval upwards as it should.
 
 Verdicts: **confirmed** when the interval lies wholly on the paper's side, **contradicted** when it lies
-wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds).
+wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds); beside
+each, the Holm-corrected verdict and the seeds a decision would need (:func:`claim_effects`).
 
-Every claim is tested on each measure of :mod:`~vdtutorial.experiments.measures` (the paper's metric, the
-success rate, the steps per trajectory), read in the measure's better direction ("VD ends above L2" means
-fewer steps per trajectory on that measure). One table, one experiment and one measure, tests several claims
-at 95% each, so by chance alone some would pass: beside each verdict stands the **Holm** verdict, the same
-claims tested with Holm's step-down correction over the table's claims (family-wise error 5%; the p-value of a
-difference of means is Welch's two-sided one, that of steps to reach the bootstrap's two-sided share of
-resamples on the far side of the limit). **Seeds needed** is the number of seeds per method at which a
-two-sided 5% Welch-type t-test would find the observed difference with 80% power, given the observed spread
-over seeds (against the expert, whose level is measured over many episodes, a one-sample test of the
-method's seeds). The paper prints no number for these differences (its figures show one curve per method,
-without seeds), so there is no "seeds needed for the paper's difference" beyond the steps-to-reach claims,
-which state the paper's number and are evaluated for both of its readings.
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -259,7 +248,21 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     with paper metric ``metric`` (:func:`~vdtutorial.experiments.measures.measures_of`): estimate,
     interval, p-value, verdict, Holm verdict (over the claims of one measure) and seeds needed, with curves
     smoothed over ``window`` iterations (default :func:`~vdtutorial.experiments.curves.smooth_window`).
-    Claims about curves the run did not make (e.g. no expert line) are left out."""
+    Claims about curves the run did not make (e.g. no expert line) are left out.
+
+    Every claim is tested on each measure of :mod:`~vdtutorial.experiments.measures` (the paper's metric, the
+    success rate, the steps per trajectory), read in the measure's better direction ("VD ends above L2" means
+    fewer steps per trajectory on that measure). One table, one experiment and one measure, tests several claims
+    at 95% each, so by chance alone some would pass: beside each verdict stands the **Holm** verdict, the same
+    claims tested with Holm's step-down correction over the table's claims (family-wise error 5%; the p-value of a
+    difference of means is Welch's two-sided one, that of steps to reach the bootstrap's two-sided share of
+    resamples on the far side of the limit). **Seeds needed** is the number of seeds per method at which a
+    two-sided 5% Welch-type t-test would find the observed difference with 80% power, given the observed spread
+    over seeds (against the expert, whose level is measured over many episodes, a one-sample test of the
+    method's seeds). The paper prints no number for these differences (its figures show one curve per method,
+    without seeds), so there is no "seeds needed for the paper's difference" beyond the steps-to-reach claims,
+    which state the paper's number and are evaluated for both of its readings.
+    """
     window = smooth_window() if window is None else window
     results = []
     for measure in measures_of(metric):

@@ -10,6 +10,8 @@ checkpoint, see :func:`run_seconds`). The expert's reference runs
 take seconds and are left out. The rate is a parameter, to be measured (``python -m vdtutorial bench finetune`` gives the rate of
 one process on one core); it is the rate of one run *per core*, so on a machine whose cores slow each
 other down (shared memory bandwidth) use the rate measured with all cores busy.
+
+Taught in chapter 07.
 """
 from __future__ import annotations
 

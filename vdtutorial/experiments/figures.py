@@ -1,4 +1,4 @@
-"""Figs. 4-7 as functions: the runs of each figure handed to :func:`run_experiment`."""
+"""Figs. 4-7 as functions: the runs of each figure handed to :func:`run_experiment`. Taught in chapter 07."""
 from __future__ import annotations
 
 from vdtutorial.demos import SHIPPED_NOISE

@@ -14,6 +14,8 @@ steps of the trajectories still running when the iteration stops, which did not 
 ``episodes``; it is therefore an upper bound on the mean length of the trajectories that ended. When nearly
 every trajectory succeeds, as the pre-trained policies' do, it is the mean length of a successful trajectory
 plus that cut-off share (the rows do not hold the lengths of the successful trajectories alone).
+
+Taught in chapter 07.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The whole pipeline, small: the package's main job (``python -m vdtutorial reproduce``)."""
+"""The whole pipeline, small: the package's main job (``python -m vdtutorial reproduce``). Taught in chapter 00."""
 from __future__ import annotations
 
 from pathlib import Path

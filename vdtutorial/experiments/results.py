@@ -1,4 +1,4 @@
-"""An experiment's files: run a grid, then write the combined CSV, the figure and the JSON record."""
+"""An experiment's files: run a grid, then write the combined CSV, the figure and the JSON record. Taught in chapter 07."""
 from __future__ import annotations
 
 import json
