@@ -100,11 +100,23 @@ def test_the_shipped_results_have_summaries():
     assert len(shipped_results()) > 100
 
 
+#: Numbers typed in markdown that are not results but coincide with one (the success rate and steps per
+#: trajectory of the shipped summaries lie near 1 and 3): (chapter, cell id) -> the numbers, each with why.
+NOT_RESULTS = {
+    ("00_start_here", "c003"): {"3.12", "3.13"},   # Python versions
+    ("04_sparse_variational_dropout", "c011"): {"0.9997"},  # the dropout rate at log alpha = 8, a constant
+}
+
+
 @pytest.mark.parametrize("notebook", NOTEBOOKS, ids=[nb.stem for nb in NOTEBOOKS])
 def test_no_markdown_cell_types_a_measured_result(notebook):
     results = shipped_results()
-    typed = {cell.get("id"): hits for cell in nbformat.read(notebook, as_version=4).cells
-             if cell.cell_type == "markdown" and (hits := typed_results(cell.source, results))}
+    typed = {}
+    for cell in nbformat.read(notebook, as_version=4).cells:
+        allowed = NOT_RESULTS.get((notebook.stem, cell.get("id")), set())
+        if cell.cell_type == "markdown" and (hits := [hit for hit in typed_results(cell.source, results)
+                                                      if hit.split(" ")[0] not in allowed]):
+            typed[cell.get("id")] = hits
     assert not typed, f"{notebook.name}: results typed into markdown (print them from a cell): {typed}"
 
 

@@ -18,7 +18,8 @@ from vdtutorial.settings import DATA_DIR, QUICK
 REPO = Path(__file__).resolve().parent.parent
 
 
-@pytest.mark.parametrize("command", ["demos", "expert", "pretrain", "evaluate", "digits", "bench", "experiment", "reproduce"])
+@pytest.mark.parametrize("command", ["demos", "expert", "pretrain", "evaluate", "digits", "bench", "experiment", "reproduce",
+                                     "rederive"])
 def test_every_subcommand_has_help(command, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main([command, "--help"])
@@ -95,6 +96,7 @@ def _one_line_error(capsys, argv) -> str:
     (["bench", "gpu"], "invalid choice: 'gpu'"),
     (["bench", "env", "--profile"], "--profile is an option of bench finetune only"),
     (["train"], "invalid choice: 'train'"),
+    (["rederive", "nowhere"], "nowhere is not an experiment folder"),
     (["experiment", "table1", "--restart", "--state-dir", "x"], "table1 pre-trains only (no TRPO runs to resume): "
                                                                "--state-dir, --restart are options of the figures"),
 ])

@@ -9,8 +9,9 @@ import pytest
 from scipy import stats
 
 from vdtutorial.experiments import read_rows, results_file
-from vdtutorial.experiments.effects import (CLAIMS, claim_effects, claim_table, steps_to_reach_interval, verdict,
-                                            welch_interval)
+from vdtutorial.experiments.effects import (CLAIMS, claim_effects, claim_table, claims_overview, holm_rejections,
+                                            seeds_needed,
+                                            steps_to_reach_interval, verdict, welch_interval, welch_p_value)
 from vdtutorial.settings import DATA_DIR
 
 
@@ -31,8 +32,10 @@ def test_verdicts(low, high, direction, expected):
     assert verdict(low, high, direction) == expected
 
 
-def _rows(label, method, values_per_seed, steps=200):
-    return [{"label": label, "method": method, "seed": s, "iteration": i, "env_steps": (i + 1) * steps, "successes": v}
+def _rows(label, method, values_per_seed, steps=200, episodes=None):
+    """Rows of a learning curve; every trajectory succeeds unless ``episodes`` (per iteration) says more ended."""
+    return [{"label": label, "method": method, "seed": s, "iteration": i, "env_steps": (i + 1) * steps, "successes": v,
+             "episodes": episodes or max(v, 1)}
             for s, values in enumerate(values_per_seed) for i, v in enumerate(values)]
 
 
@@ -53,14 +56,51 @@ def test_claim_effects_of_a_clear_and_an_unclear_comparison():
     rows = (_rows("VD", "vd", [40 + rng.normal(0, 1, 50) for _ in range(5)])
             + _rows("L2", "l2", [20 + rng.normal(0, 1, 50) for _ in range(5)])
             + _rows("no pre-training", "none", [40 + rng.normal(0, 30, 50) for _ in range(5)]))
-    effects = {(e["measure"], e["b"]): e for e in claim_effects("fig4", rows, "successes", window=5)}
+    effects = {(e["measure"], e["b"]): e for e in claim_effects("fig4", rows, "successes", window=5)
+               if e["metric"] == "successes"}
     assert effects[("final", "L2")]["verdict"] == "confirmed"
     assert effects[("final", "L2")]["estimate"] == pytest.approx(20, abs=1.5)
     assert effects[("final", "no pre-training")]["verdict"] == "not confirmed"
     assert effects[("steps_to_reach", "L2")]["verdict"] == "confirmed"  # VD is above L2's level from the start
     assert ("final", "IK expert") not in effects  # no expert rows: the claim is left out
     table = claim_table(list(effects.values()))
-    assert table.count("\n") == 1 + len(effects) and "**confirmed**" in table
+    assert table.count("\n") == 3 + len(effects) and "**confirmed**" in table
+
+
+def test_welch_p_value_matches_scipy():
+    rng = np.random.default_rng(2)
+    a, b = rng.normal(5, 2, 5), rng.normal(3, 4, 7)
+    assert welch_p_value(a, b) == pytest.approx(stats.ttest_ind(a, b, equal_var=False).pvalue)
+    assert math.isnan(welch_p_value([1.0], [2.0, 3.0]))
+
+
+def test_holm_steps_down_and_stops_at_the_first_kept_hypothesis():
+    # alpha 0.05 over 4: 0.01 < 0.0125 rejected, 0.02 < 0.0167 no -> stop, although 0.03 < 0.05 / 2 would not matter
+    assert holm_rejections([0.02, 0.01, 0.03, 0.04]) == [False, True, False, False]
+    assert holm_rejections([0.001, 0.012, 0.02, 0.04]) == [True, True, True, True]  # 0.04 < 0.05 / 1
+    assert holm_rejections([math.nan, 0.001]) == [False, True]
+
+
+def test_seeds_needed_matches_the_textbook_power_of_a_t_test():
+    # two-sided 5%, 80% power, effect of one standard deviation: 17 per group (two samples), 10 (one sample)
+    assert seeds_needed(1.0, 1.0, 1.0) == 17
+    assert seeds_needed(1.0, 1.0, None) == 10
+    assert seeds_needed(2.0, 1.0, 1.0) < seeds_needed(1.0, 1.0, 1.0) and seeds_needed(0.0, 1.0, 1.0) is None
+
+
+def test_claims_are_tested_on_every_measure_in_its_better_direction():
+    # VD succeeds in every trajectory but takes 8 steps; L2 fails half its trajectories but those that end take 4
+    rows = (_rows("VD", "vd", [[25] * 20 for _ in range(3)], episodes=25)
+            + _rows("L2", "l2", [[20] * 20 for _ in range(3)], episodes=40))
+    for row, noise in zip(rows, np.random.default_rng(3).normal(0, 0.5, len(rows))):
+        row["successes"] += round(noise)
+    final = {e["metric"]: e for e in claim_effects("fig4", rows, "successes", window=5)
+             if e["measure"] == "final" and e["b"] == "L2"}
+    assert set(final) == {"successes", "success_rate", "steps_per_trajectory"}
+    assert final["successes"]["verdict"] == "confirmed"            # more successes per iteration ...
+    assert final["success_rate"]["verdict"] == "confirmed"         # ... because more of its trajectories succeed,
+    assert final["steps_per_trajectory"]["verdict"] == "contradicted"  # although they take longer (8 > 5 steps)
+    assert final["steps_per_trajectory"]["estimate"] == pytest.approx(200 / 25 - 200 / 40)
 
 
 def test_every_figure_has_claims():
@@ -77,5 +117,20 @@ def test_results_page_claim_tables_are_generated_from_the_shipped_rows(folder):
     window = int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
     effects = claim_effects(record["experiment"], rows, record["metric"], window)
     assert claim_table(effects) in (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
-    stored = [(e["text"], e["verdict"]) for e in record["summary"]["claims"]]
-    assert stored == [(e["text"], e["verdict"]) for e in effects]  # NAME.json holds the same effects
+    stored = [(e["text"], e["metric"], e["verdict"], e["holm_verdict"]) for e in record["summary"]["claims"]]
+    assert stored == [(e["text"], e["metric"], e["verdict"], e["holm_verdict"]) for e in effects]  # NAME.json: the same
+
+
+#: The README's claims table: its headings and the shipped folders they stand for.
+README_CLAIMS = {"Fig. 4, state": "fig4", "Fig. 4, images": "fig4_rgbd", "Fig. 5, state": "fig5", "Fig. 6, state": "fig6",
+                 "Fig. 7, state": "fig7"}
+
+
+def test_readme_claims_table_is_generated_from_the_shipped_records():
+    records = {heading: json.loads(next((DATA_DIR / "results" / folder).glob("*.json")).read_text())
+               for heading, folder in README_CLAIMS.items()}
+    table = claims_overview(records)
+    assert table in (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert table.count("\n") - 1 == sum(
+        1 for r in records.values() for e in r["summary"]["claims"]
+        if e["metric"] == r["metric"] and e["measure"] in ("final", "steps_to_reach"))

@@ -18,7 +18,7 @@ from vdtutorial.experiments import (KL_WEIGHTINGS, METHOD_LABELS, TABLE1, Curve,
                                     results_file,
                                     run_experiment, seeds_with_trend, sparsity_trends, steps_to_reach, table1,
                                     table_means, vd_reaches_l2_final)
-from vdtutorial.experiments import backends
+from vdtutorial.runner import backends
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.trpo import TIMING_COLUMNS
 from vdtutorial.vd import svdo_layers
@@ -215,6 +215,14 @@ def test_vd_reaches_l2_final_on_hand_made_curves():
     assert summary["l2_final_level"] == 4 and summary["steps"] == 600 and summary["fraction_of_budget"] == 0.6
     curves = {c.label: c for c in (_curve("vd", [0, 1, 1, 1, 1]), _curve("l2", [0, 1, 2, 3, 4]))}
     assert vd_reaches_l2_final(curves)["steps"] is None and "never" in vd_reaches_l2_final(curves)["text"]
+
+
+def test_vd_reaches_l2_final_says_what_each_reading_of_the_paper_gives():
+    # "around 1.25e5 of 3e5 steps" is 42% of the budget, "less than one quarter" 25%: at 40% only the first is met
+    curves = {c.label: c for c in (_curve("vd", [0, 4, 4, 4, 4]), _curve("l2", [0, 1, 2, 3, 4]))}
+    text = vd_reaches_l2_final(curves)["text"]
+    assert "40% of the budget" in text
+    assert "'around 1.25e5 of 3e5 steps' (42%): met" in text and "'less than one quarter' (25%): not met" in text
 
 
 def test_curves_from_rows_smooths_each_seed_then_averages():

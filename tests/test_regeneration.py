@@ -17,7 +17,7 @@ shipped pre-training, whose logged loss differs in the 8th digit there. On it th
 the stated cross-CPU tolerance and a warning says that this machine does not regenerate them bit for bit;
 a change of the code still fails, unless it moves the first iterations by less than that tolerance.
 """
-import vdtutorial  # noqa: F401  (first, as in conftest: the module also runs as a script, see IMAGE_REFERENCE_COMMAND)
+import vdtutorial  # first, as in conftest: the module also runs as a script (see IMAGE_REFERENCE_COMMAND)
 import json
 import math
 import shutil
@@ -32,7 +32,8 @@ import torch
 from conftest import require_recorded_numerics
 
 from vdtutorial.demos import demo_path
-from vdtutorial.experiments import expert_reference, finetune, read_rows, results_file
+from vdtutorial.experiments import (expert_reference, finetune, merge_seeds, read_rows, rederive, results_file,
+                                    write_csv)
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.settings import DATA_DIR
 from vdtutorial.trpo import TRPOConfig
@@ -233,6 +234,52 @@ def test_a_shipped_image_checkpoint_regenerates_its_first_epoch(tolerance):
     history, first = _first_epoch_again(8000, "rgbd")
     differ = {k: (history[0][k], first[k]) for k in first if not _close(history[0][k], first[k], tolerance)}
     assert not differ, differ
+
+
+#: Every shipped figure experiment: its figure and JSON summary are derived from its rows alone.
+DERIVED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig4_state_fvp0.1")
+
+
+@pytest.mark.parametrize("folder", DERIVED)
+def test_a_shipped_summary_is_rederived_from_its_rows(folder, tmp_path):
+    """``python -m vdtutorial rederive`` on a copy of the folder writes the shipped record again: final points on
+    every measure, the claims with their Holm verdicts and seeds needed, the title; and draws the figure."""
+    copy = tmp_path / folder
+    shutil.copytree(RESULTS / folder, copy)
+    (copy / f"{record_name(folder)}.png").unlink()
+    result = rederive(copy)
+    shipped = json.loads((RESULTS / folder / f"{record_name(folder)}.json").read_text())
+    again = json.loads((copy / f"{record_name(folder)}.json").read_text())
+    assert again == shipped
+    assert (copy / f"{record_name(folder)}.png").exists() and len(result.figure.axes) == len(shipped["measures"])
+
+
+def _seeds_of(folder, seeds, dest):
+    """A copy of a shipped experiment folder holding only ``seeds``, as if run with ``--seeds`` those."""
+    record = json.loads((RESULTS / folder / f"{record_name(folder)}.json").read_text())
+    rows = read_rows(results_file(RESULTS / folder, record["experiment"]))
+    dest.mkdir()
+    write_csv(results_file(dest, record["experiment"]), [r for r in rows if r["seed"] in seeds])
+    parts = record["command"].split(" --seeds ")
+    rest = parts[1].split(" --", 1)[1]
+    record.update(runs=[run for run in record["runs"] if run["seed"] in seeds],
+                  command=f"{parts[0]} --seeds {' '.join(map(str, seeds))} --{rest}")
+    (dest / f"{record['experiment']}.json").write_text(json.dumps(record))
+    return dest
+
+
+def test_seeds_run_apart_merge_into_the_experiment_with_all_of_them(tmp_path):
+    shipped = json.loads((RESULTS / "fig4_state_fvp0.1" / "fig4.json").read_text())
+    first = _seeds_of("fig4_state_fvp0.1", (0, 2), tmp_path / "first")
+    merged = merge_seeds(first, _seeds_of("fig4_state_fvp0.1", (1,), tmp_path / "second"))
+    assert merged.rows == read_rows(results_file(RESULTS / "fig4_state_fvp0.1", "fig4"))
+    assert merged.record["command"] == shipped["command"] and merged.record["summary"] == shipped["summary"]
+    assert [run["name"] for run in merged.record["runs"]] == [run["name"] for run in shipped["runs"]]
+    assert len(merged.record["merged"]) == 2
+    with pytest.raises(ValueError, match="share seeds"):
+        merge_seeds(first, _seeds_of("fig4_state_fvp0.1", (2,), tmp_path / "again"))
+    with pytest.raises(ValueError, match="differs in"):
+        merge_seeds(first, _seeds_of("fig4", (7,), tmp_path / "other"))
 
 
 def write_image_reference(path: Path = IMAGE_REFERENCE) -> None:

@@ -2,6 +2,8 @@
 
 Commands write what they make under runs/ unless --out says otherwise; they never replace a file in
 data/ (the shipped artefacts the notebooks and figures rely on) without --force.
+
+Taught in chapter 00.
 """
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import dataclasses
 import math
 import os
 import sys
+import time
 from pathlib import Path
 
 from vdtutorial.settings import DATA_DIR, RUNS_DIR, is_quick
@@ -233,6 +236,15 @@ def _cmd_notebooks(args) -> None:
           f"jupyter lab {book.dest / 'notebooks' / '00_start_here.ipynb'}")
 
 
+def _cmd_book(args) -> None:
+    """The chapters executed and exported as a static HTML book that reads offline (see vdtutorial.html_book)."""
+    from vdtutorial.html_book import build_book
+
+    start = time.perf_counter()
+    book = build_book(args.out, numbers=args.chapters, quick=not args.full)
+    print(f"wrote {len(book.chapters)} chapters in {time.perf_counter() - start:.0f} s; open {book.index}")
+
+
 def _cmd_claims(args) -> None:
     """The paper's claims as effect sizes with 95% intervals, from an experiment's rows (see experiments.effects)."""
     from vdtutorial.experiments import write_claims
@@ -241,6 +253,21 @@ def _cmd_claims(args) -> None:
         if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
             raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
         print(f"{folder}:\n{write_claims(folder)}\n")
+
+
+def _cmd_rederive(args) -> None:
+    """An experiment's figure and JSON summary re-written from its rows (see experiments.results.rederive)."""
+    from vdtutorial.experiments import format_summary, merge_seeds, rederive
+
+    for folder in args.folders + args.add:
+        if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
+            raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
+    if args.add and len(args.folders) != 1:
+        raise CommandError("--add merges into one experiment folder: name one")
+    for other in args.add:
+        merge_seeds(args.folders[0], other)
+    for folder in args.folders:
+        print(format_summary(rederive(folder)))
 
 
 # -- the parser ------------------------------------------------------------------------------------------
@@ -379,9 +406,25 @@ def _add_experiment_commands(sub) -> None:
     p.add_argument("--force", action="store_true", help="overwrite files you have changed since they were written")
     p.set_defaults(func=_cmd_notebooks)
 
+    p = sub.add_parser("book", help="execute the chapters and write them as a static HTML book that reads offline")
+    p.add_argument("out", help="the folder to write (made if missing): OUT/index.html and one page per chapter")
+    p.add_argument("--full", action="store_true",
+                   help="run the chapters with the paper's budgets (default: quick mode, a few minutes in all)")
+    p.add_argument("--chapters", nargs="+", default=None, metavar="NN",
+                   help="only these chapters, by number (e.g. 00 04 07; default: all)")
+    p.set_defaults(func=_cmd_book)
+
     p = sub.add_parser("claims", help="the paper's claims as effect sizes with 95%% intervals, from experiment folders")
     p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4); their JSON records are updated")
     p.set_defaults(func=_cmd_claims)
+
+    p = sub.add_parser("rederive", help="re-write experiment folders' figures and JSON summaries from their rows "
+                                        "(measures, claims, Holm verdicts, seeds needed), running nothing")
+    p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4)")
+    p.add_argument("--add", nargs="+", default=[], metavar="OTHER",
+                   help="first add the runs of these folders, the same experiment run with other seeds (e.g. "
+                        "python -m vdtutorial rederive data/results/fig4 --add runs/fig4_seeds5-9)")
+    p.set_defaults(func=_cmd_rederive)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")
     p.add_argument("--quick", action="store_true", help="accepted for clarity; reproduce always runs small")

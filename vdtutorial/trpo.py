@@ -336,15 +336,19 @@ class Batch:
 # 4. Fisher-vector products
 # ----------------------------------------------------------------------------------------------
 def fisher_product(policy: nn.Module, params: list[nn.Parameter], obs: TensorObs, old: Normal, damping: float,
-                   fisher: str = "auto", dist: Normal | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
+                   fisher: str = "auto", dist: Normal | None = None,
+                   index: torch.Tensor | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
     """v -> (F + damping * I) v, F the Hessian of the mean KL(old || pi_theta) over ``obs`` at the policy's
     current parameters (step 4). ``old`` is the policy's distribution on ``obs`` now; ``dist``, when given,
-    is the same with its autograd graph (the double backward reuses it).
+    is the same with its autograd graph (the double backward reuses it). ``index``: the mean KL over these
+    samples of ``obs`` only (``TRPOConfig.fvp_subsample``; ``dist`` is then not used).
 
     Both forms are exact and agree to float rounding. The Gauss-Newton form
     (:class:`vdtutorial.fisher.GaussNewtonFisher`) is several times cheaper for the image policy but needs
     to know the policy's networks; the double backward (:func:`vdtutorial.trust_region.fisher_vector_product`,
     the teaching version of chapter 06) needs only the policy protocol. ``fisher`` chooses, as in :class:`TRPO`."""
+    if index is not None:
+        obs, old, dist = _subset(obs, index), Normal(old.mean[index], old.stddev[index]), None
     if fisher == "gauss_newton" or (fisher == "auto" and supports_gauss_newton(policy)):
         gauss_newton = GaussNewtonFisher(policy, obs, old, params)
         return lambda v: gauss_newton(v) + damping * v
@@ -454,11 +458,9 @@ class TRPO:
     def update(self, batch: Batch) -> dict:
         """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the
         step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
-        outcome (accepted fraction of the full step, or "rejected"). The CPU seconds of its parts (gradient,
-        Fisher setup, CG products, line search, baseline) are left in ``update_split``, outside the log row."""
+        outcome (accepted fraction of the full step, or "rejected"); the CPU seconds of its parts: ``update_split``."""
         cfg, timer = self.config, _CPUTimer()
-        # The policy's inputs, made once for every evaluation below when the policy can (GaussianPolicy.prepare).
-        obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs
+        obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs  # inputs made once
         # One forward with graph at theta_old gives pi_old (detached), the surrogate and g.
         dist = self.policy.distribution(obs)
         old = Normal(dist.mean.detach().clone(), dist.stddev.detach().clone())
@@ -476,19 +478,13 @@ class TRPO:
         whole_batch = batch.fvp_index is None
         g = flat_grad(surrogate, self.params, retain_graph=whole_batch)  # the double backward reuses the graph
         timer.lap("gradient")
-        if whole_batch:
-            Fvp = fisher_product(self.policy, self.params, obs, old, cfg.cg_damping, self.fisher, dist)
-        else:
-            index = batch.fvp_index
-            Fvp = fisher_product(self.policy, self.params, _subset(batch.obs, index),
-                                 Normal(old.mean[index], old.stddev[index]), cfg.cg_damping, self.fisher)
+        Fvp = fisher_product(self.policy, self.params, obs if whole_batch else batch.obs, old, cfg.cg_damping,
+                             self.fisher, dist, batch.fvp_index)
         timer.lap("fisher_setup")
-
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
         sFs = (direction @ Fvp(direction)).item()
         timer.lap("cg_products")
-        # Scale so that the quadratic model of the KL, 0.5 * step^T F step, equals max_kl. A zero
-        # gradient gives a zero step, which the line search rejects (no improvement).
+        # Scale so that the KL's quadratic model, 0.5 step^T F step, is max_kl (a zero gradient: a zero step, rejected).
         full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction if sFs > 0 else torch.zeros_like(direction)
         fraction, improvement, kl = line_search(self.params, full_step, surrogate_and_kl, cfg.max_kl,
                                                 cfg.backtrack_iters, cfg.backtrack_coeff, surrogate.item())

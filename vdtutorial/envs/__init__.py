@@ -3,6 +3,8 @@
 ``vdtutorial/JacoReach-v0``: put the gripper over a cup (eq. 11 reward).
 ``vdtutorial/JacoGrasp-v0``: put the open gripper around a cup that can be hit (sparse reward).
 Both take ``obs_mode`` ("rgbd" or "state"), ``image_size`` and ``render_mode`` keywords.
+
+Taught in chapter 01.
 """
 import gymnasium
 

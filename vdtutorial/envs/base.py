@@ -3,6 +3,8 @@
 A task subclass only says what the goal is (:meth:`JacoEnv._goal_status`) and what it is worth
 (:meth:`JacoEnv._reward`); everything else -- observation modes, action checks, joint limits,
 collision-checked motion, the horizon, rendering -- lives here once.
+
+Taught in chapter 01.
 """
 from __future__ import annotations
 

@@ -5,6 +5,8 @@ first imported. That line would otherwise open every command (``--help`` include
 process and every notebook that imports the package, so the first import happens here with file
 descriptor 2 pointed at ``/dev/null`` for the duration of the import only: warnings and errors after
 it are untouched. Importing pybullet anywhere later is free: Python hands back the module it has.
+
+Taught in chapter 01.
 """
 from __future__ import annotations
 

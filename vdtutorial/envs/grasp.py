@@ -21,6 +21,8 @@ and 6.5 cm below it):
   orientation, is collision-free, with a few millimetres to spare for a slightly turned hand; the
   tilt tolerance is 10 degrees for the same reason (tilting the hand swings the palm towards the table).
   ``tests/test_envs.py`` measures these clearances with pybullet.
+
+Taught in chapters 01 and 08.
 """
 from __future__ import annotations
 

@@ -7,6 +7,8 @@ variance", Section IV), so a kinematic world models the same MDP and runs severa
 second on a laptop core, which a dynamic simulation with position controllers would not.
 
 Units are metres and radians. The world origin is the arm's base on the table top (z = 0).
+
+Taught in chapter 01.
 """
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """The paper's claims as effect sizes with 95% intervals over seeds, and a verdict for each.
 
-A curve's band says where one method's mean lies; a claim compares two methods. For every claim of
-Section V (Figs. 4-7) this module measures, from the per-run TRPO rows:
+A claim compares two methods; for every claim of Section V (Figs. 4-7) this module measures, per run:
 
 final level
     each run's mean metric over its last ``window`` iterations (the smoothed curve's end point);
@@ -20,7 +19,10 @@ interval is a percentile bootstrap over seeds (each method's seeds resampled wit
 counts as "not within the budget" (infinite), which widens the interval upwards as it should.
 
 Verdicts: **confirmed** when the interval lies wholly on the paper's side, **contradicted** when it lies
-wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds).
+wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds); beside
+each, the Holm-corrected verdict and the seeds a decision would need (:func:`claim_effects`).
+
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -32,13 +34,17 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from vdtutorial.experiments.curves import CONFIDENCE, moving_average, record_window, smooth_window
-from vdtutorial.experiments.rows import read_rows, results_file
+from vdtutorial.experiments.curves import (CONFIDENCE, PAPER_READINGS, moving_average, record_window,
+                                           smooth_window)
+from vdtutorial.experiments.measures import MEASURES, measures_of, value
+from vdtutorial.runner.rows import read_rows, results_file
 
 #: Bootstrap resamples for the steps-to-reach interval.
 BOOTSTRAP_SAMPLES = 2000
 #: Seed of the bootstrap's generator: the same rows always give the same interval.
 BOOTSTRAP_SEED = 0
+#: Power at which "seeds needed" finds a difference, and the most seeds it looks for.
+POWER, MAX_SEEDS = 0.8, 1000
 
 
 @dataclass(frozen=True)
@@ -65,8 +71,8 @@ CLAIMS: dict[str, tuple[Claim, ...]] = {
         Claim("fig4", "VD ends above no pre-training", "final", "VD", "no pre-training"),
         Claim("fig4", "VD learns faster than no pre-training (area under the curve)", "auc", "VD", "no pre-training"),
         Claim("fig4", "VD ends above the IK expert", "final", "VD", "IK expert"),
-        Claim("fig4", "VD reaches L2's final level within a quarter of the budget", "steps_to_reach", "VD", "L2",
-              fraction=0.25),
+        *(Claim("fig4", f"VD reaches L2's final level within {limit:.0%} of the budget (paper: '{reading}')",
+                "steps_to_reach", "VD", "L2", fraction=limit) for reading, limit in PAPER_READINGS.items()),
     ),
     "fig5": tuple(
         claim for n in (2000, 4000, 8000) for claim in (
@@ -90,20 +96,22 @@ CLAIMS: dict[str, tuple[Claim, ...]] = {
 
 
 def per_run(rows: list[dict], metric: str) -> dict[str, dict]:
-    """Rows grouped by label: ``{"steps": (T,), "values": (seeds, T)}`` for learning curves, and for the
-    expert (one row per measured episode) ``{"values": (episodes,)}``."""
+    """Rows grouped by label, each row's ``metric`` (a column or a derived measure,
+    :func:`~vdtutorial.experiments.measures.value`): ``{"steps": (T,), "values": (seeds, T)}`` for learning
+    curves, and for the expert (one row per measured episode) ``{"values": (episodes,)}``."""
     groups: dict[str, dict] = {}
     for row in rows:
         groups.setdefault(row["label"], {"method": row["method"], "runs": {}})["runs"].setdefault(row["seed"], []).append(row)
     out = {}
     for label, group in groups.items():
         if group["method"] == "expert":
-            out[label] = {"values": np.array([r[metric] for run in group["runs"].values() for r in run], dtype=float)}
+            out[label] = {"values": np.array([value(r, metric) for run in group["runs"].values() for r in run],
+                                             dtype=float)}
             continue
         runs = [sorted(run, key=lambda r: r["iteration"]) for run in group["runs"].values()]
         length = min(len(run) for run in runs)
         out[label] = {"steps": np.array([r["env_steps"] for r in runs[0][:length]], dtype=float),
-                      "values": np.array([[r[metric] for r in run[:length]] for run in runs], dtype=float)}
+                      "values": np.array([[value(r, metric) for r in run[:length]] for run in runs], dtype=float)}
     return out
 
 
@@ -117,42 +125,112 @@ def run_summaries(group: dict, measure: str, window: int) -> np.ndarray:
     return values.mean(axis=1)
 
 
-def welch_interval(a, b, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
-    """mean(a) - mean(b) and its Welch t interval. NaN bounds when either side has fewer than two values."""
+def _welch(a, b) -> tuple[float, float, float]:
+    """mean(a) - mean(b), its standard error and the Welch-Satterthwaite degrees of freedom (NaN for the
+    last two when either side has fewer than two values)."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     diff = float(a.mean() - b.mean())
     if len(a) < 2 or len(b) < 2:
         return diff, math.nan, math.nan
     va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
-    se = math.sqrt(va + vb)
+    if va + vb == 0:
+        return diff, 0.0, math.nan
+    return diff, math.sqrt(va + vb), (va + vb) ** 2 / (va ** 2 / (len(a) - 1) + vb ** 2 / (len(b) - 1))
+
+
+def welch_interval(a, b, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+    """mean(a) - mean(b) and its Welch t interval. NaN bounds when either side has fewer than two values."""
+    diff, se, dof = _welch(a, b)
+    if math.isnan(se):
+        return diff, math.nan, math.nan
     if se == 0:
         return diff, diff, diff
-    dof = (va + vb) ** 2 / (va ** 2 / (len(a) - 1) + vb ** 2 / (len(b) - 1))
     half = stats.t.ppf((1 + confidence) / 2, dof) * se
     return diff, diff - half, diff + half
 
 
-def _first_reach(steps: np.ndarray, curve: np.ndarray, level: float) -> float:
-    hits = np.flatnonzero(curve >= level)
+def welch_p_value(a, b) -> float:
+    """Two-sided p-value of Welch's t-test of mean(a) = mean(b) (against the expert's episodes too). NaN when
+    either side has fewer than two values; 0 or 1 when neither side varies."""
+    diff, se, dof = _welch(a, b)
+    if math.isnan(se):
+        return math.nan
+    if se == 0:
+        return 1.0 if diff == 0 else 0.0
+    return float(2 * stats.t.sf(abs(diff) / se, dof))
+
+
+def _first_reach(steps: np.ndarray, curve: np.ndarray, level: float, better: int = 1) -> float:
+    hits = np.flatnonzero(better * (curve - level) >= 0)
     return float(steps[hits[0]]) if len(hits) else math.inf
 
 
-def steps_to_reach_interval(a: dict, b: dict, window: int, confidence: float = CONFIDENCE,
-                            samples: int = BOOTSTRAP_SAMPLES, seed: int = BOOTSTRAP_SEED) -> tuple[float, float, float]:
-    """First step at which ``a``'s seed-mean smoothed curve reaches ``b``'s final level (its seed-mean
-    smoothed end point), with a percentile bootstrap interval over seeds (``inf``: not reached)."""
+def _bootstrap_steps_to_reach(a: dict, b: dict, window: int, better: int, samples: int,
+                              seed: int) -> tuple[float, np.ndarray]:
+    """The steps-to-reach point estimate and its ``samples`` bootstrap resamples over seeds."""
     smooth_a, smooth_b = moving_average(a["values"], window), moving_average(b["values"], window)
 
     def estimate(ia, ib) -> float:
-        return _first_reach(a["steps"], smooth_a[ia].mean(axis=0), smooth_b[ib, -1].mean())
+        return _first_reach(a["steps"], smooth_a[ia].mean(axis=0), smooth_b[ib, -1].mean(), better)
 
     rng = np.random.default_rng(seed)
     na, nb = len(smooth_a), len(smooth_b)
     point = estimate(np.arange(na), np.arange(nb))
-    boot = np.array([estimate(rng.integers(na, size=na), rng.integers(nb, size=nb)) for _ in range(samples)])
+    return point, np.array([estimate(rng.integers(na, size=na), rng.integers(nb, size=nb)) for _ in range(samples)])
+
+
+def _percentile_interval(boot: np.ndarray, confidence: float) -> tuple[float, float]:
     tail = (1 - confidence) / 2
     low, high = np.quantile(boot, [tail, 1 - tail], method="inverted_cdf")
-    return point, float(low), float(high)
+    return float(low), float(high)
+
+
+def steps_to_reach_interval(a: dict, b: dict, window: int, confidence: float = CONFIDENCE,
+                            samples: int = BOOTSTRAP_SAMPLES, seed: int = BOOTSTRAP_SEED,
+                            better: int = 1) -> tuple[float, float, float]:
+    """First step at which ``a``'s seed-mean smoothed curve reaches ``b``'s final level (its seed-mean
+    smoothed end point; "reaches": at or above it, or at or below it for a measure where lower is
+    ``better``), with a percentile bootstrap interval over seeds (``inf``: not reached)."""
+    point, boot = _bootstrap_steps_to_reach(a, b, window, better, samples, seed)
+    return point, *_percentile_interval(boot, confidence)
+
+
+def bootstrap_p_value(boot: np.ndarray, limit: float) -> float:
+    """Two-sided p-value of "steps to reach = ``limit``" from the bootstrap resamples ``boot``: twice the
+    smaller share of resamples on either side of it (at most 1), the test the percentile interval inverts."""
+    return float(min(1.0, 2 * min(np.mean(boot <= limit), np.mean(boot >= limit))))
+
+
+def holm_rejections(p_values: list[float], alpha: float = 1 - CONFIDENCE) -> list[bool]:
+    """Holm's step-down procedure: sort the p-values, reject the k-th smallest while it is below
+    alpha / (m - k + 1), and stop at the first that is not. NaN p-values are never rejected."""
+    order = sorted(range(len(p_values)), key=lambda i: (math.isnan(p_values[i]), p_values[i]))
+    rejected = [False] * len(p_values)
+    for rank, i in enumerate(order):
+        if math.isnan(p_values[i]) or p_values[i] >= alpha / (len(p_values) - rank):
+            break
+        rejected[i] = True
+    return rejected
+
+
+def seeds_needed(difference: float, spread_a: float, spread_b: float | None, power: float = POWER,
+                 confidence: float = CONFIDENCE, most: int = MAX_SEEDS) -> int | None:
+    """Seeds per method at which a two-sided t-test at ``1 - confidence`` finds ``difference`` with ``power``,
+    from the noncentral t distribution: two samples of equal size with the pooled spread of ``spread_a`` and
+    ``spread_b`` (standard deviations over seeds), or, with ``spread_b`` None (a reference level known
+    from many episodes), one sample. None when no number of seeds up to ``most`` suffices (a zero or
+    NaN difference among them)."""
+    if not math.isfinite(difference) or difference == 0:
+        return None
+    spread = spread_a if spread_b is None else math.sqrt((spread_a ** 2 + spread_b ** 2) / 2)
+    if spread == 0:
+        return 2
+    for n in range(2, most + 1):
+        dof, scale = (n - 1, spread / math.sqrt(n)) if spread_b is None else (2 * n - 2, spread * math.sqrt(2 / n))
+        critical, shift = stats.t.ppf((1 + confidence) / 2, dof), abs(difference) / scale
+        if stats.nct.sf(critical, dof, shift) + stats.nct.cdf(-critical, dof, shift) >= power:
+            return n
+    return None
 
 
 def verdict(low: float, high: float, direction: int, threshold: float = 0.0) -> str:
@@ -166,32 +244,66 @@ def verdict(low: float, high: float, direction: int, threshold: float = 0.0) -> 
 
 def claim_effects(name: str, rows: list[dict], metric: str, window: int | None = None,
                   confidence: float = CONFIDENCE) -> list[dict]:
-    """Every claim of experiment ``name`` whose curves are in ``rows``: estimate, interval, verdict, with
-    curves smoothed over ``window`` iterations (default :func:`~vdtutorial.experiments.curves.smooth_window`).
-    Claims about curves the run did not make (e.g. no expert line) are left out."""
+    """Every claim of experiment ``name`` whose curves are in ``rows``, on every measure of an experiment
+    with paper metric ``metric`` (:func:`~vdtutorial.experiments.measures.measures_of`): estimate,
+    interval, p-value, verdict, Holm verdict (over the claims of one measure) and seeds needed, with curves
+    smoothed over ``window`` iterations (default :func:`~vdtutorial.experiments.curves.smooth_window`).
+    Claims about curves the run did not make (e.g. no expert line) are left out.
+
+    Every claim is tested on each measure of :mod:`~vdtutorial.experiments.measures` (the paper's metric, the
+    success rate, the steps per trajectory), read in the measure's better direction ("VD ends above L2" means
+    fewer steps per trajectory on that measure). One table, one experiment and one measure, tests several claims
+    at 95% each, so by chance alone some would pass: beside each verdict stands the **Holm** verdict, the same
+    claims tested with Holm's step-down correction over the table's claims (family-wise error 5%; the p-value of a
+    difference of means is Welch's two-sided one, that of steps to reach the bootstrap's two-sided share of
+    resamples on the far side of the limit). **Seeds needed** is the number of seeds per method at which a
+    two-sided 5% Welch-type t-test would find the observed difference with 80% power, given the observed spread
+    over seeds (against the expert, whose level is measured over many episodes, a one-sample test of the
+    method's seeds). The paper prints no number for these differences (its figures show one curve per method,
+    without seeds), so there is no "seeds needed for the paper's difference" beyond the steps-to-reach claims,
+    which state the paper's number and are evaluated for both of its readings.
+    """
     window = smooth_window() if window is None else window
-    groups = per_run(rows, metric)
     results = []
-    for claim in CLAIMS.get(name, ()):
-        if claim.a not in groups or claim.b not in groups:
-            continue
-        a, b = groups[claim.a], groups[claim.b]
-        if claim.measure == "steps_to_reach":
-            budget_steps = float(a["steps"][-1])
-            estimate, low, high = steps_to_reach_interval(a, b, window, confidence)
-            limit = claim.fraction * budget_steps
-            # "within the fraction" means fewer steps than the limit: read as a < limit
-            result_verdict = verdict(low - limit, high - limit, -1)
-            unit, extra = "env steps", {"budget_steps": budget_steps, "limit_steps": limit}
-        else:
-            sa, sb = run_summaries(a, claim.measure, window), run_summaries(b, claim.measure, window)
-            estimate, low, high = welch_interval(sa, sb, confidence)
-            result_verdict = verdict(low, high, claim.direction)
-            unit = f"{metric} per iteration ({'last %d iterations' % window if claim.measure == 'final' else 'mean over the run'})"
-            extra = {"mean_a": float(sa.mean()), "mean_b": float(sb.mean()), "n_a": len(sa), "n_b": len(sb)}
-        results.append({**asdict(claim), "estimate": estimate, "low": low, "high": high, "confidence": confidence,
-                        "unit": unit, "verdict": result_verdict, **extra})
+    for measure in measures_of(metric):
+        groups = per_run(rows, measure)
+        table = [_claim_effect(claim, groups, measure, window, confidence) for claim in CLAIMS.get(name, ())
+                 if claim.a in groups and claim.b in groups]
+        for effect, rejected in zip(table, holm_rejections([e["p_value"] for e in table], 1 - confidence)):
+            effect["holm_verdict"] = effect["verdict"] if rejected else "not confirmed"
+        results += table
     return results
+
+
+def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confidence: float) -> dict:
+    """One claim on one measure (see :func:`claim_effects`)."""
+    a, b = groups[claim.a], groups[claim.b]
+    better = MEASURES[measure].better
+    if claim.measure == "steps_to_reach":
+        budget_steps = float(a["steps"][-1])
+        estimate, boot = _bootstrap_steps_to_reach(a, b, window, better, BOOTSTRAP_SAMPLES, BOOTSTRAP_SEED)
+        low, high = _percentile_interval(boot, confidence)
+        limit = claim.fraction * budget_steps
+        # "within the fraction" means fewer steps than the limit: read as a < limit
+        result_verdict = verdict(low - limit, high - limit, -1)
+        p_value = bootstrap_p_value(boot, limit)
+        unit = "env steps"
+        extra = {"budget_steps": budget_steps, "limit_steps": limit, "n_a": len(a["values"]),
+                 "n_b": len(b["values"]), "seeds_needed": None}
+    else:
+        sa, sb = run_summaries(a, claim.measure, window), run_summaries(b, claim.measure, window)
+        estimate, low, high = welch_interval(sa, sb, confidence)
+        result_verdict = verdict(low, high, claim.direction * better)
+        p_value = welch_p_value(sa, sb)
+        unit = f"{measure} per iteration ({'last %d iterations' % window if claim.measure == 'final' else 'mean over the run'})"
+        spread_b = None if b["values"].ndim == 1 else (float(sb.std(ddof=1)) if len(sb) > 1 else math.nan)
+        spread_a = float(sa.std(ddof=1)) if len(sa) > 1 else math.nan
+        needed = None if math.isnan(spread_a) or (spread_b is not None and math.isnan(spread_b)) else \
+            seeds_needed(estimate, spread_a, spread_b, confidence=confidence)
+        extra = {"mean_a": float(sa.mean()), "mean_b": float(sb.mean()), "n_a": len(sa), "n_b": len(sb),
+                 "n_b_counts": "episodes" if spread_b is None else "seeds", "seeds_needed": needed}
+    return {**asdict(claim), "metric": measure, "estimate": estimate, "low": low, "high": high,
+            "confidence": confidence, "unit": unit, "p_value": p_value, "verdict": result_verdict, **extra}
 
 
 def _steps(x: float) -> str:
@@ -199,17 +311,53 @@ def _steps(x: float) -> str:
     return "not reached" if math.isinf(x) else f"{x:.3g}"
 
 
+def _seeds(e: dict) -> str:
+    """The seeds a claim rests on: "5" when both methods have the same, "5 / 10" otherwise, and the expert's
+    measured episodes named as such ("5 / 125 episodes")."""
+    if e.get("n_b_counts") == "episodes":
+        return f"{e['n_a']} / {e['n_b']} episodes"
+    return str(e["n_a"]) if e["n_a"] == e["n_b"] else f"{e['n_a']} / {e['n_b']}"
+
+
 def claim_table(effects: list[dict]) -> str:
-    """The claims as a Markdown table (the claim tables of docs/results.md are generated by this)."""
-    lines = ["| claim | measure | effect (95% interval) | verdict |", "|---|---|---|---|"]
-    for e in effects:
-        if e["measure"] == "steps_to_reach":
-            unit = "" if math.isinf(e["estimate"]) else " steps"
-            effect = (f"{_steps(e['estimate'])}{unit} ({_steps(e['low'])} to {_steps(e['high'])}); "
-                      f"limit {_steps(e['limit_steps'])}")
-        else:
-            effect = f"{e['estimate']:+.2f} ({e['low']:+.2f} to {e['high']:+.2f})"
-        lines.append(f"| {e['text']} | {e['measure']} | {effect} | **{e['verdict']}** |")
+    """The claims as Markdown, one table per measure (the claim tables of docs/results.md are generated by
+    this): effect and 95% interval, two-sided p, verdict, Holm verdict, the seeds behind it and the seeds
+    needed to find the observed difference (see the module's docstring)."""
+    blocks = []
+    for measure in dict.fromkeys(e.get("metric", "successes") for e in effects):
+        lines = [f"*{MEASURES[measure].label}*: {MEASURES[measure].question}", "",
+                 "| claim | measure | effect (95% interval) | p | verdict | Holm | seeds | seeds needed |",
+                 "|---|---|---|---|---|---|---|---|"]
+        for e in (e for e in effects if e.get("metric", "successes") == measure):
+            if e["measure"] == "steps_to_reach":
+                unit = "" if math.isinf(e["estimate"]) else " steps"
+                effect = (f"{_steps(e['estimate'])}{unit} ({_steps(e['low'])} to {_steps(e['high'])}); "
+                          f"limit {_steps(e['limit_steps'])}")
+            else:
+                effect = f"{e['estimate']:+.3g} ({e['low']:+.3g} to {e['high']:+.3g})"
+            needed = "-" if e["measure"] == "steps_to_reach" else (
+                f"> {MAX_SEEDS}" if e["seeds_needed"] is None else str(e["seeds_needed"]))
+            bootstrap_floor = e["p_value"] == 0 and e["measure"] == "steps_to_reach"
+            p_value = f"< {1 / BOOTSTRAP_SAMPLES:.0g}" if bootstrap_floor else f"{e['p_value']:.2g}"
+            lines.append(f"| {e['text']} | {e['measure']} | {effect} | {p_value} | **{e['verdict']}** | "
+                         f"{e['holm_verdict']} | {_seeds(e)} | {needed} |")
+        blocks.append("\n".join(lines))
+    return "\n\n".join(blocks)
+
+
+def claims_overview(records: dict[str, dict], measures: tuple[str, ...] = ("final", "steps_to_reach")) -> str:
+    """One Markdown row per claim (of the kinds in ``measures``) of each experiment record (``{"heading": record}``):
+    the verdict and the Holm verdict on the paper's metric, the Holm verdicts on the other measures, and the seeds
+    (the README's claims table is generated by this)."""
+    lines = ["| figure | claim | paper's metric: verdict / Holm | success rate: Holm | steps per trajectory: Holm | seeds |",
+             "|---|---|---|---|---|---|"]
+    for heading, record in records.items():
+        effects = [e for e in record["summary"]["claims"] if e["measure"] in measures]
+        by_metric = {(e["text"], e["metric"]): e for e in effects}
+        for e in (e for e in effects if e["metric"] == record["metric"]):
+            others = [by_metric[(e["text"], m)]["holm_verdict"] for m in measures_of(record["metric"])[1:]]
+            lines.append(f"| {heading} | {e['text']} | {e['verdict']} / **{e['holm_verdict']}** | "
+                         f"{' | '.join(others)} | {_seeds(e)} |")
     return "\n".join(lines)
 
 

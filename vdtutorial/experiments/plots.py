@@ -1,4 +1,4 @@
-"""The learning-curve figure of Figs. 4-7."""
+"""The learning-curve figure of Figs. 4-7: one panel per measure, each seed thin behind the mean. Taught in chapter 07."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,55 +6,89 @@ from matplotlib.figure import Figure
 
 from vdtutorial.evaluation import EPISODE_STEPS
 from vdtutorial.experiments.curves import CONFIDENCE, Curve, smooth_window
+from vdtutorial.experiments.measures import MEASURES
 
-METRIC_LABELS = {"successes": "successful trajectories per 200-step episode",
-                 "mean_return": "cumulative reward per trajectory"}
+METRIC_LABELS = {name: measure.label for name, measure in MEASURES.items()}
 _COLOURS = {"vd": "tab:blue", "l2": "tab:orange", "none": "tab:gray", "expert": "black"}
 _LINESTYLES = ("-", "--", ":", "-.")
-#: The values a metric can take, so that a band (a t-interval, which knows nothing of them) is drawn only where a
-#: mean could lie: successes are counts, at least 0 and at most one per env step of the 200-step episode (a
-#: trajectory succeeds after one step at the earliest). Returns are not clipped: their bounds depend on the task.
-FEASIBLE = {"successes": (0.0, float(EPISODE_STEPS))}
+
+
+def figure_title(base: str, obs_mode: str, total_steps: int, seeds: int, fvp_subsample: float = 1.0) -> str:
+    """A figure's title that tells its variants apart: the paper's figure (``base``), the observation, the
+    budget, the seeds, and, for the control with the subsampled Fisher, that it is that control."""
+    observation = {"state": "state input", "rgbd": "RGBD images"}[obs_mode]
+    control = "" if fvp_subsample == 1.0 else f"\ncontrol: Fisher-vector products on {fvp_subsample:.0%} of each batch"
+    budget = f"{total_steps:.2g}".replace("e+0", "e")
+    return f"{base}\n{observation}, {budget} env steps per run, {seeds} seeds{control}"
+
+
+def band_limits(low, high, metric: str) -> tuple[np.ndarray, np.ndarray]:
+    """A band clipped to the values ``metric`` can take (a t-interval knows nothing of them)."""
+    floor, ceiling = MEASURES[metric].feasible
+    return np.clip(low, floor, ceiling), np.clip(high, floor, ceiling)
 
 
 def draw_band(ax, steps, low, high, metric: str, colour: str) -> None:
-    """Shade a curve's band, clipped to the metric's :data:`FEASIBLE` range."""
-    floor, ceiling = FEASIBLE.get(metric, (-np.inf, np.inf))
-    ax.fill_between(steps, np.clip(low, floor, ceiling), np.clip(high, floor, ceiling), color=colour, alpha=0.15,
-                    linewidth=0)
+    """Shade a curve's band, clipped to the metric's feasible range (:func:`band_limits`)."""
+    ax.fill_between(steps, *band_limits(low, high, metric), color=colour, alpha=0.15, linewidth=0)
 
 
-def plot_curves(curves: dict[str, Curve], metric: str, title: str, window: int | None = None) -> Figure:
-    """Mean (line) and 95% t-interval over seeds (shaded) of each smoothed curve against env steps; the
-    expert as a horizontal dashed line with the interval of its mean over all its measured episodes (its seeds
-    pooled, see ``curves_from_rows``). Bands are clipped to the metric's :data:`FEASIBLE` range. Curves of one
-    method are told apart by line style. ``window``: the curves' smoothing, for the axis label (default
-    :func:`smooth_window`). Uses ``matplotlib.figure.Figure`` directly (no pyplot state), so it is safe in worker
-    processes and notebooks alike."""
-    window = smooth_window() if window is None else window
-    fig = Figure(figsize=(7, 4.5), layout="constrained")
-    ax = fig.add_subplot()
+def _draw_panel(ax, curves: dict[str, Curve], metric: str, legend: bool) -> None:
+    """One measure's curves on ``ax``: per seed thin, mean and clipped band over seeds, the expert flat."""
     variants: dict[str, int] = {}
     for curve in curves.values():
         colour = _COLOURS[curve.method]
         if curve.method == "expert":
             ax.axhline(curve.mean[0], color=colour, linestyle="--",
-                       label=f"{curve.label} ({curve.mean[0]:.1f}; band over its episodes, seeds pooled)")
+                       label=f"{curve.label} ({curve.mean[0]:.3g}; band: {CONFIDENCE:.0%} interval of its mean over "
+                             f"{curve.episodes} evaluation episodes, not seeds)")
             if np.isfinite(curve.low[0]):
-                ax.axhspan(*np.clip([curve.low[0], curve.high[0]], *FEASIBLE.get(metric, (-np.inf, np.inf))),
-                           color=colour, alpha=0.08)
+                ax.axhspan(*band_limits(curve.low[0], curve.high[0], metric), color=colour, alpha=0.08)
             continue
         style = _LINESTYLES[variants.get(curve.method, 0) % len(_LINESTYLES)]
         variants[curve.method] = variants.get(curve.method, 0) + 1
+        if len(curve.per_seed):
+            ax.plot(curve.steps, curve.per_seed.T, color=colour, linestyle=style, linewidth=0.5, alpha=0.35)
         ax.plot(curve.steps, curve.mean, color=colour, linestyle=style, label=f"{curve.label} (n={curve.seeds})")
         if np.isfinite(curve.low).any():
             draw_band(ax, curve.steps, curve.low, curve.high, metric, colour)
-    ax.set_xlabel(f"environment steps\n(trailing mean over {window} iterations = {window * EPISODE_STEPS} steps; "
-                  f"band: {CONFIDENCE:.0%} t-interval of the mean over seeds,\nclipped to the metric's possible values)", fontsize=9)
-    ax.set_ylabel(METRIC_LABELS[metric])
-    ax.set_title(title)
+    ax.set_ylabel(METRIC_LABELS[metric], fontsize=9)
     ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    if legend:
+        ax.legend(fontsize=7)
+
+
+def _smoothing_text(window: int) -> str:
+    return (f"(trailing mean over {window} iterations = {window * EPISODE_STEPS} steps; thin: each seed; band: "
+            f"{CONFIDENCE:.0%} t-interval of the mean over seeds,\nclipped to the measure's possible values)")
+
+
+def plot_curves(curves: dict[str, Curve], metric: str, title: str, window: int | None = None) -> Figure:
+    """Mean (line), each seed (thin lines behind it) and 95% t-interval over seeds (shaded) of each smoothed
+    curve of one measure against env steps; the expert as a horizontal dashed line with the interval of its
+    mean over all its measured episodes (its seeds pooled, see ``curves_from_rows``). Bands are clipped to the
+    measure's possible values. Curves of one method are told apart by line style. ``window``: the curves'
+    smoothing, for the axis label (default :func:`smooth_window`). Uses ``matplotlib.figure.Figure`` directly
+    (no pyplot state), so it is safe in worker processes and notebooks alike."""
+    window = smooth_window() if window is None else window
+    fig = Figure(figsize=(7, 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    _draw_panel(ax, curves, metric, legend=True)
+    ax.set_xlabel(f"environment steps\n{_smoothing_text(window)}", fontsize=9)
+    ax.set_title(title, fontsize=10)
     return fig
 
+
+def plot_measures(curves_by_measure: dict[str, dict[str, Curve]], title: str, window: int | None = None) -> Figure:
+    """:func:`plot_curves` for several measures side by side, one panel each (the paper's metric first), under
+    one title and one legend below them."""
+    window = smooth_window() if window is None else window
+    fig = Figure(figsize=(5.2 * len(curves_by_measure), 5.5), layout="constrained")
+    axes = fig.subplots(1, len(curves_by_measure), squeeze=False)[0]
+    for ax, (metric, curves) in zip(axes, curves_by_measure.items()):
+        _draw_panel(ax, curves, metric, legend=False)
+        ax.set_xlabel("environment steps", fontsize=9)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=8)
+    fig.suptitle(f"{title}\n{_smoothing_text(window)}", fontsize=10)
+    return fig

@@ -1,4 +1,4 @@
-"""An experiment's files: run a grid, then write the combined CSV, the figure and the JSON record."""
+"""An experiment's files: run a grid, then write the combined CSV, the figure and the JSON record. Taught in chapter 07."""
 from __future__ import annotations
 
 import json
@@ -17,11 +17,13 @@ from matplotlib.figure import Figure
 
 import vdtutorial
 from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, final_point, record_window,
-                                           smooth_window)
+                                           smooth_window, vd_reaches_l2_final)
 from vdtutorial.experiments.effects import claim_effects
-from vdtutorial.experiments.grid import Job, RunSpec, run_grid
-from vdtutorial.experiments.plots import plot_curves
-from vdtutorial.experiments.rows import read_rows, results_file, write_csv
+from vdtutorial.experiments.jobs import Job, RunSpec
+from vdtutorial.experiments.measures import measures_of
+from vdtutorial.experiments.plots import figure_title, plot_measures
+from vdtutorial.runner.grid import run_grid
+from vdtutorial.runner.rows import read_rows, results_file, write_csv
 from vdtutorial.kernels import kernel_settings
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, RUNS_DIR, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
@@ -102,10 +104,12 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
                    window: int | None = None, command: str = "", summarise=None, *, backend: str = "local",
                    address: str | None = None, state_dir: str | Path | None = None, restart: bool = False,
                    checkpoint_every: int = CHECKPOINT_EVERY, progress: bool | None = None) -> ExperimentResult:
-    """Run ``specs`` as a restartable grid (:func:`~vdtutorial.experiments.grid.run_grid`), then write
-    ``NAME.csv.gz`` (all rows), ``NAME.png`` (:func:`plot_curves`) and ``NAME.json`` (command, configuration,
-    per-run compute times, summary) into ``out``. The summary holds each curve's final point, plus
-    whatever ``summarise(curves)`` returns.
+    """Run ``specs`` as a restartable grid (:func:`~vdtutorial.runner.grid.run_grid`), then write
+    ``NAME.csv.gz`` (all rows), ``NAME.png`` (:func:`derive`: one panel per measure) and ``NAME.json``
+    (command, configuration, per-run compute times, summary) into ``out``. The summary holds each curve's
+    final point on every measure and the claims (:func:`derive`), plus whatever ``summarise(curves)`` returns.
+    ``title``: the paper's figure; the observation, budget, seeds and a control are added to it
+    (:func:`~vdtutorial.experiments.plots.figure_title`).
 
     out: default :func:`default_out`.
     window: the curves' smoothing, in iterations (default
@@ -113,11 +117,11 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     demos_root: where the demonstrations are read (default ``data/``).
     checkpoints_root: where pre-trained checkpoints are made when the shipped ones do not match
         (default ``out``; see :func:`~vdtutorial.experiments.runs.pretrained_policy`).
-    backend, address, workers: where the runs execute (:mod:`~vdtutorial.experiments.backends`).
+    backend, address, workers: where the runs execute (:mod:`~vdtutorial.runner.backends`).
     state_dir: the runs' saved states and CSVs (default ``out/runs``; on a cluster, shared storage).
     restart: discard the saved states of these runs instead of continuing them.
     checkpoint_every: TRPO iterations between two saved states of a run.
-    progress: the grid's live line and per-run lines (:mod:`~vdtutorial.experiments.progress`).
+    progress: the grid's live line and per-run lines (:mod:`~vdtutorial.runner.progress`).
     """
     out = Path(out) if out is not None else default_out(name)
     window = smooth_window() if window is None else window
@@ -136,15 +140,15 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     rows = [row for result in results for row in result["rows"]]
     out.mkdir(parents=True, exist_ok=True)
     write_csv(results_file(out, name), rows)
-    curves = curves_from_rows(rows, metric, window)
-    figure = plot_curves(curves, metric, title, window)
+    title = figure_title(title, specs[0].obs_mode, specs[0].total_steps, len({spec.seed for spec in specs}),
+                         trpo_config.fvp_subsample)
+    curves, figure, summary = derive(name, rows, metric, window, title)
     figure.savefig(out / f"{name}.png", dpi=120)
-    summary = {"final": {label: final_point(curve) for label, curve in curves.items()},
-               "claims": claim_effects(name, rows, metric, window),
-               **(summarise(curves) if summarise else {})}
+    summary.update(summarise(curves) if summarise else {})
     record = {
         "experiment": name, "command": command, "argv": recorded_argv(), "quick": is_quick(), "title": title,
-        "metric": metric, "num_envs": NUM_ENVS, "steps_per_iteration": trpo_config.steps_per_iter,
+        "metric": metric, "measures": list(measures_of(metric)), "seeds": sorted({spec.seed for spec in specs}),
+        "num_envs": NUM_ENVS, "steps_per_iteration": trpo_config.steps_per_iter,
         "window": window, "smoothing": f"trailing moving average over {window} iterations", "band": f"{CONFIDENCE:.0%} Student-t "
         "interval of the mean over seeds", "workers": workers, "backend": backend, "wall_time_s": wall,
         "pretrain_config": {k: v for k, v in asdict(pretrain_config or default_config("vd", specs[0].obs_mode)).items()
@@ -163,6 +167,89 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     }
     (out / f"{name}.json").write_text(json.dumps(record, indent=1, default=str))
     return ExperimentResult(name, out, rows, curves, figure, summary, record)
+
+
+def derive(name: str, rows: list[dict], metric: str, window: int, title: str) -> tuple[dict[str, Curve], Figure, dict]:
+    """What an experiment's rows say, all of it re-derivable from them: the curves of the paper's ``metric``,
+    the figure (one panel per measure, :func:`~vdtutorial.experiments.measures.measures_of`), and the summary:
+    each curve's final point on the paper's metric (``final``) and on every measure (``final_by_measure``),
+    and the claims on every measure (:func:`~vdtutorial.experiments.effects.claim_effects`)."""
+    by_measure = {measure: curves_from_rows(rows, measure, window) for measure in measures_of(metric)}
+    summary = {"final": {label: final_point(curve) for label, curve in by_measure[metric].items()},
+               "final_by_measure": {measure: {label: final_point(curve) for label, curve in curves.items()}
+                                    for measure, curves in by_measure.items()},
+               "claims": claim_effects(name, rows, metric, window)}
+    return by_measure[metric], plot_measures(by_measure, title, window), summary
+
+
+def rederive(folder: str | Path) -> ExperimentResult:
+    """Re-write an experiment folder's figure and the derived part of its JSON record (:func:`derive`; and
+    the "VD reaches L2's final level" summary where the record has one) from its rows, without running
+    anything: what ``python -m vdtutorial rederive FOLDER`` does after the analysis changed. The title is
+    rebuilt from the record (its first line is the paper's figure; observation, budget, seeds and control are
+    read from the runs and the TRPO configuration)."""
+    folder = Path(folder)
+    record_path = next(folder.glob("*.json"))
+    record = json.loads(record_path.read_text())
+    name, window = record["experiment"], record_window(record)
+    rows = read_rows(results_file(folder, name))
+    learners = [run for run in record["runs"] if run["method"] != "expert"]
+    seeds = sorted({row["seed"] for row in rows})
+    title = figure_title(record["title"].split("\n")[0], learners[0]["obs_mode"],
+                         max(run["total_steps"] for run in learners), len(seeds),
+                         record["trpo_config"].get("fvp_subsample", 1.0))
+    curves, figure, derived = derive(name, rows, record["metric"], window, title)
+    figure.savefig(folder / f"{name}.png", dpi=120)
+    summary = {**record.get("summary", {}), **derived}
+    if "vd_reaches_l2_final" in summary:
+        summary["vd_reaches_l2_final"] = vd_reaches_l2_final(curves)
+    record.update(title=title, measures=list(measures_of(record["metric"])), seeds=seeds, summary=summary)
+    record_path.write_text(json.dumps(record, indent=1, default=str))
+    return ExperimentResult(name, folder, rows, curves, figure, summary, record)
+
+
+#: What two records must agree on for their rows to be one experiment's (everything that shapes a run but its seed).
+SAME_EXPERIMENT = ("experiment", "metric", "num_envs", "steps_per_iteration", "window", "pretrain_config",
+                   "trpo_config", "quick", "versions", "kernels")
+
+
+def merge_seeds(folder: str | Path, other: str | Path) -> ExperimentResult:
+    """Add the runs of ``other`` (the same experiment run with other seeds) to the experiment in ``folder``, then
+    :func:`rederive` it: what ``python -m vdtutorial rederive FOLDER --add OTHER`` does. A run is a pure function
+    of its settings and seed (docs/results.md, "Regenerable results"), so the merged rows are those one command
+    with all the seeds would write on a CPU that rounds alike, in its order (each curve's runs by seed), the
+    ``wall_time`` column aside; the
+    record's command says so, and ``merged`` keeps each command that ran. Refuses records that differ in anything
+    but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed."""
+    folder, other = Path(folder), Path(other)
+    paths = [next(Path(f).glob("*.json")) for f in (folder, other)]
+    records = [json.loads(path.read_text()) for path in paths]
+    differ = [key for key in SAME_EXPERIMENT if records[0].get(key) != records[1].get(key)]
+    shape = [{(r["method"], r["obs_mode"], r["total_steps"]) for r in record["runs"]} for record in records]
+    if differ or shape[0] != shape[1]:
+        raise ValueError(f"{other} is not {folder}'s experiment with other seeds: it differs in "
+                         f"{', '.join(differ) or 'its runs (methods, observations or budgets)'}")
+    seeds = [{run["seed"] for run in record["runs"]} for record in records]
+    if seeds[0] & seeds[1]:
+        raise ValueError(f"{folder} and {other} share seeds {sorted(seeds[0] & seeds[1])}")
+    name = records[0]["experiment"]
+    rows = read_rows(results_file(folder, name)) + read_rows(results_file(other, name))
+    curves = list(dict.fromkeys((row["label"], row["method"]) for row in rows))
+    rows.sort(key=lambda row: (curves.index((row["label"], row["method"])), row["seed"]))
+    write_csv(results_file(folder, name), rows)
+    runs = records[0]["runs"] + records[1]["runs"]
+    order = list(dict.fromkeys((run["label"], run["method"]) for run in runs))
+    merged = [entry for record in records for entry in record.get("merged") or
+              [{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s")}]]
+    parts = shlex.split(records[0]["command"])
+    start = parts.index("--seeds") + 1
+    end = next((i for i in range(start, len(parts)) if parts[i].startswith("--")), len(parts))
+    records[0].update(command=shlex.join(parts[:start] + [str(seed) for seed in sorted(seeds[0] | seeds[1])]
+                                         + parts[end:]),
+                      runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
+                      merged=merged, wall_time_s=sum(entry["wall_time_s"] for entry in merged))
+    paths[0].write_text(json.dumps(records[0], indent=1, default=str))
+    return rederive(folder)
 
 
 def format_summary(result: ExperimentResult) -> str:

@@ -16,12 +16,9 @@ thread, so the results do not depend on the backend or on the number of workers 
     nodes need the same vdtutorial installation and must see the same paths (demonstrations,
     checkpoints, the output folder: a shared file system). Quick mode is passed on to the tasks.
 
-A job function is a generator function: it yields progress reports (any picklable value) and its
-``return`` value is the run's result. :func:`run_jobs` hands each report to ``listener.report(index,
-report)`` as it arrives and each result to ``listener.finished(index, result)`` as its run ends, calls
-``listener.tick()`` about twice a second while waiting (so that a live line can refresh its clock), and
-returns the results in the order of the jobs. A plain function works
-too (no reports).
+
+
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -68,7 +65,15 @@ def _drive(fn, job, report):
 def run_jobs(fn, jobs: list, workers: int = 2, backend: str = "local", address: str | None = None,
              listener=None) -> list:
     """``[result of fn(job) for job in jobs]`` on ``backend`` (see the module docstring); ``fn`` must be a
-    module-level function. ``listener`` receives the reports (see there)."""
+    module-level function. ``listener`` receives the reports (see below).
+
+    A job function is a generator function: it yields progress reports (any picklable value) and its
+    ``return`` value is the run's result. :func:`run_jobs` hands each report to ``listener.report(index,
+    report)`` as it arrives and each result to ``listener.finished(index, result)`` as its run ends, calls
+    ``listener.tick()`` about twice a second while waiting (so that a live line can refresh its clock), and
+    returns the results in the order of the jobs. A plain function works
+    too (no reports).
+    """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if address is not None and backend != "ray":

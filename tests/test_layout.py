@@ -1,0 +1,85 @@
+"""The library's layout, as issue 29 set it: the grid runner apart from the science, short functions and
+module docstrings, and every module pointing at the chapter that teaches it (d2l style)."""
+from __future__ import annotations
+
+import ast
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+import vdtutorial
+from vdtutorial.settings import SHIPPED_DIR
+
+PACKAGE = Path(vdtutorial.__file__).parent
+MODULES = sorted(p for p in PACKAGE.rglob("*.py") if "book" not in p.relative_to(PACKAGE).parts[:1])
+#: What the grid runner may import from the package: nothing that knows about VD, TRPO or policies.
+RUNNER_MAY_IMPORT = ("vdtutorial.runner", "vdtutorial.kernels", "vdtutorial.settings")
+#: "Taught in chapter 07" / "Taught in chapters 05 and 07" / "Not taught in a chapter: REASON".
+TAUGHT = re.compile(r"Taught in chapters? ((?:\d\d[a-z]?(?:, | and )?)+)|Not taught in a chapter: \S")
+
+
+def _tree(path: Path) -> ast.Module:
+    return ast.parse(path.read_text(), filename=str(path))
+
+
+def _dotted(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imported(tree: ast.Module) -> set[str]:
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+        elif isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+    return {name for name in names if name.split(".")[0] == "vdtutorial"}
+
+
+def test_the_runner_imports_nothing_of_the_science():
+    for path in sorted((PACKAGE / "runner").glob("*.py")):
+        for name in _imported(_tree(path)):
+            assert name.startswith(RUNNER_MAY_IMPORT), f"{path.name} imports {name}"
+
+
+def test_the_experiments_hold_no_grid_lock_backend_or_resume_code():
+    runner_names = {node.name for path in (PACKAGE / "runner").glob("*.py") for node in _tree(path).body
+                    if isinstance(node, (ast.FunctionDef, ast.ClassDef)) and not node.name.startswith("_")}
+    for path in sorted((PACKAGE / "experiments").glob("*.py")):
+        defined = {node.name for node in _tree(path).body if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
+        assert not defined & runner_names, f"{path.name} defines the runner's {sorted(defined & runner_names)}"
+    assert {"grid", "backends", "resume", "run_lock", "progress", "rows"}.isdisjoint(
+        p.stem for p in (PACKAGE / "experiments").glob("*.py"))
+
+
+def test_no_function_is_over_80_lines_and_trpo_is_under_180():
+    too_long = []
+    for path in MODULES:
+        for node in ast.walk(_tree(path)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno + 1 > 80:
+                too_long.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}")
+    assert not too_long
+    trpo = next(node for node in _tree(PACKAGE / "trpo.py").body if isinstance(node, ast.ClassDef) and node.name == "TRPO")
+    assert trpo.end_lineno - trpo.lineno + 1 < 180
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_a_module_docstring_is_short_and_names_the_chapter_that_teaches_it(path):
+    doc = ast.get_docstring(_tree(path))
+    assert doc, "no module docstring"
+    assert len(doc.splitlines()) <= 25, f"module docstring of {len(doc.splitlines())} lines"
+    match = TAUGHT.search(" ".join(doc.split()))
+    assert match, "the docstring names no chapter ('Taught in chapter NN' or 'Not taught in a chapter: why')"
+    if match.group(1) is None:
+        return
+    chapters = {p.name.split("_")[0]: p for p in (SHIPPED_DIR / "notebooks").glob("*.ipynb")}
+    relative = path.relative_to(PACKAGE.parent)
+    names = (_dotted(path), str(relative), *([f"{relative.parent}/"] if path.name == "__init__.py" else []))
+    for number in re.findall(r"\d\d[a-z]?", match.group(1)):
+        assert number in chapters, f"chapter {number} does not exist"
+        text = "".join("".join(cell["source"]) for cell in json.loads(chapters[number].read_text())["cells"])
+        assert any(re.search(re.escape(name) + r"\b", text) for name in names), \
+            f"chapter {chapters[number].name} does not mention {names[0]}"
