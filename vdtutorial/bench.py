@@ -207,28 +207,28 @@ def bench_finetune(iterations: int | None = None, profile: bool = False) -> list
     import torch
 
     from vdtutorial.demos import Demos, demo_path
-    from vdtutorial.experiments import NUM_ENVS
-    from vdtutorial.policy import make_policy
-    from vdtutorial.pretrain import checkpoint_path, load_checkpoint
+    from vdtutorial.experiments import NUM_ENVS, finetune_policy
+    from vdtutorial.pretrain import PretrainConfig, checkpoint_path, default_config, load_checkpoint
     from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 
     iterations = iterations or budget(10, 2)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
-    meta = Demos.load(demo_path("reach", 8000, 0.5, 0)).meta
+    demos = Demos.load(demo_path("reach", 8000, 0.5, 0))
     rows = []
     print(f"{'obs':6} {'Fisher product':16} {'fvp_subsample':>13} {'collect s':>10} {'update s':>9} {'steps/s':>8} "
           f"{'steps/cpu s':>11} {'mean KL':>8} {'step fraction':>13}")
     for obs_mode in ("state", "rgbd"):
         env = make_vec_env(ENV_IDS["reach"], NUM_ENVS, obs_mode=obs_mode, image_size=128)
-        ckpt = checkpoint_path(meta, "vd", obs_mode, 0)
-        source = f"shipped {ckpt.name}" if ckpt.exists() else "untrained VD net (no checkpoint)"
+        # the shipped checkpoint with its own settings (any mode), else one pre-trained now with the defaults
+        ckpt = checkpoint_path(demos.meta, "vd", obs_mode, 0)
+        config = (PretrainConfig(**load_checkpoint(ckpt).pretrain_info["config"]) if ckpt.exists()
+                  else default_config("vd", obs_mode))
+        source = f"shipped {ckpt.name}" if ckpt.exists() else "pre-trained now (no shipped checkpoint)"
         runs = []
         for label, fisher, fvp_subsample in FINETUNE_CASES:
             torch.manual_seed(0)
-            policy = (load_checkpoint(ckpt) if ckpt.exists()
-                      else make_policy(env.single_observation_space, 6, variational=True))
-            policy.prune_()
+            policy = finetune_policy("vd", env, demos, obs_mode, 0, config, checkpoints_root=ckpt.parent.parent)
             algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fisher=fisher)
             runs.append((algo, []))
         for i in range(iterations + 1):
