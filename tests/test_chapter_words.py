@@ -12,7 +12,8 @@ and are left out), rounded to the same number of decimals. The rule is narrow on
 * only numbers with at least three significant digits count (``0.05``, ``0.3``, ``1.0`` are settings, not
   results; ``75.5`` or ``2.81`` are results).
 
-It also checks that each chapter numbers its exercises in the order a learner meets them.
+It also checks that each chapter numbers its exercises in the order a learner meets them (across the
+notebooks of a chapter in parts, such as 06a and 06b).
 """
 import csv
 import json
@@ -108,9 +109,17 @@ def test_no_markdown_cell_types_a_measured_result(notebook):
     assert not typed, f"{notebook.name}: results typed into markdown (print them from a cell): {typed}"
 
 
-@pytest.mark.parametrize("notebook", NOTEBOOKS, ids=[nb.stem for nb in NOTEBOOKS])
-def test_exercises_are_numbered_in_the_order_they_come(notebook):
-    chapter = int(notebook.stem[:2])
-    numbers = [tuple(map(int, m)) for cell in nbformat.read(notebook, as_version=4).cells if cell.cell_type == "markdown"
+#: The chapters by number: a chapter in parts (06a_..., 06b_...) is its notebooks in the order they sort.
+CHAPTERS = {number: [nb for nb in NOTEBOOKS if nb.stem[:2] == number]
+            for number in sorted({nb.stem[:2] for nb in NOTEBOOKS})}
+
+
+@pytest.mark.parametrize("number", CHAPTERS)
+def test_exercises_are_numbered_in_the_order_they_come(number):
+    """N.1, N.2, ... in the order a learner meets them, continuing from one part of a chapter to the next."""
+    numbers = [tuple(map(int, m)) for notebook in CHAPTERS[number]
+               for cell in nbformat.read(notebook, as_version=4).cells if cell.cell_type == "markdown"
                for m in re.findall(r"^#+ Exercise (\d+)\.(\d+)\b", cell.source, flags=re.MULTILINE)]
-    assert numbers == [(chapter, k) for k in range(1, len(numbers) + 1)], f"{notebook.name}: exercises {numbers}"
+    expected = [(int(number), k) for k in range(1, len(numbers) + 1)]
+    parts = ", ".join(nb.name for nb in CHAPTERS[number])
+    assert numbers == expected, f"chapter {number} ({parts}): exercises {numbers}"

@@ -63,12 +63,13 @@ class ClassroomError(Exception):
 
 
 def chapters(source: Path = NOTEBOOKS_DIR) -> dict[str, Path]:
-    """The chapter notebooks of ``source`` by name (``"03_demonstrations"`` -> its path)."""
+    """The chapter notebooks of ``source`` by name (``"03_demonstrations"`` -> its path; a chapter in parts
+    is one notebook per part, ``"06a_trpo_pieces"``, ``"06b_trpo_assembled"``)."""
     if not source.is_dir():
         raise ClassroomError(f"no notebooks folder at {source}: pass --source with the teacher's notebooks")
-    found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]_*.ipynb"))}
+    found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]*_*.ipynb"))}   # a chapter in parts: 06a_..., 06b_...
     if not found:
-        raise ClassroomError(f"{source} holds no chapter notebooks (NN_name.ipynb)")
+        raise ClassroomError(f"{source} holds no chapter notebooks (NN_name.ipynb or NNa_name.ipynb)")
     return found
 
 
