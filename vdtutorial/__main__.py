@@ -376,7 +376,8 @@ def _add_experiment_commands(sub) -> None:
     p.add_argument("dest", help="the folder to write (made if missing); the chapters then run from DEST/notebooks")
     p.add_argument("--force", action="store_true", help="overwrite files you have changed since they were written")
     p.add_argument("--student", action="store_true",
-                   help="the student edition (nbgrader, as `classroom release`), the solutions apart in DEST/solutions")
+                   help="the student edition (made by nbgrader as classroom release makes it), the solutions "
+                        "apart in DEST/solutions")
     p.set_defaults(func=_cmd_notebooks)
 
     p = sub.add_parser("claims", help="the paper's claims as effect sizes with 95%% intervals, from experiment folders")
