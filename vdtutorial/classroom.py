@@ -205,8 +205,8 @@ def _bounded_kernels(scratch: Path, limits: Limits) -> dict[str, str]:
                            isolate=sandbox.isolation_available() if limits.isolate is None else limits.isolate)
     (spec / "kernel.json").write_text(json.dumps({"argv": argv, "display_name": "Python 3 (bounded grading)",
                                                   "language": "python"}))
-    return {"JUPYTER_PATH": os.pathsep.join([str(scratch), os.environ.get("JUPYTER_PATH", "")]),
-            "JUPYTER_RUNTIME_DIR": str(runtime)}
+    search = [str(scratch)] + [p for p in os.environ.get("JUPYTER_PATH", "").split(os.pathsep) if p]
+    return {"JUPYTER_PATH": os.pathsep.join(search), "JUPYTER_RUNTIME_DIR": str(runtime)}
 
 
 @contextlib.contextmanager
