@@ -169,3 +169,12 @@ def test_every_shipped_result_was_made_under_the_locked_versions():
         for name in ("numpy", "gymnasium"):  # the sigma study records torch and Python only
             assert versions.get(name, locked[name]) == locked[name], record
         assert versions["python"].startswith("3.11."), record
+
+
+def test_the_wheel_lists_every_subpackage():
+    """setuptools' explicit ``packages`` list must name every folder of the library with an ``__init__.py``,
+    or the wheel silently leaves it out (the installed package then fails on import)."""
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    source = Path(vdtutorial.__file__).parent
+    subpackages = {".".join(("vdtutorial", *init.parent.relative_to(source).parts)) for init in source.rglob("__init__.py")}
+    assert subpackages <= listed, f"missing from pyproject.toml's packages: {sorted(subpackages - listed)}"

@@ -302,8 +302,10 @@ def test_show_and_save(scene, tmp_path):
     viz.mirror_bodies(rec, cid, bodies)
     shown = rec.show(height=300)
     assert shown._repr_html_() == shown.data
-    match = re.fullmatch(r'<div style="[^"]*height: 300px;[^"]*"><iframe srcdoc="([^"]*)" [^>]*></iframe></div>',
-                         shown.data)
+    # 300 px high at most, in the shape frame_view frames the scene for
+    match = re.fullmatch(r'<div style="[^"]*max-width: 400px; aspect-ratio: 400 / 300;[^"]*"><iframe srcdoc="([^"]*)" '
+                         r'[^>]*></iframe></div>', shown.data)
+    assert viz.VIEW_ASPECT == 400 / 300
     assert match and html.unescape(match.group(1)) == rec.html()
     assert "<iframe srcdoc=" in rec._repr_html_()
     saved = rec.save(tmp_path / "scene.html")
@@ -342,24 +344,53 @@ def test_frames_animation_to_jshtml():
     assert len(page) < 100_000
 
 
-def test_camera_frames_the_arm_and_the_table(scene):
-    """The default camera sees every corner of the arm and the table, and they fill most of the view (meshcat's
-    own camera sits 3 m away and the scene filled 10-15 % of the frame). The viewer looks at the origin."""
+def _view_of(rec):
+    """The recorded camera position and the page's look-at point, both in the world frame (z up)."""
+    page = rec.html()
+    x, y_up, minus_y = [c for c in recorded_commands(page) if c["type"] == "set_property"
+                        and c["path"] == "/Cameras/default/rotated/<object>"][-1]["value"]
+    look_at = json.loads(re.search(r"const lookAt = (.*?);", page).group(1))
+    return np.array([x, -minus_y, y_up]), np.array([look_at[0], -look_at[2], look_at[1]])
+
+
+def _screen_fractions(camera, look_at, points):
+    """Where ``points`` fall in the view, as fractions of the half-width and half-height (|value| <= 1 in view)."""
+    forward = (look_at - camera) / np.linalg.norm(look_at - camera)
+    right = np.cross(forward, (0.0, 0.0, 1.0))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    rays = points - camera
+    depth = rays @ forward
+    tan_half = np.tan(np.radians(viz.CAMERA_FOV_DEG / 2))
+    return (rays @ right) / depth / (tan_half * viz.VIEW_ASPECT), (rays @ up) / depth / tan_half
+
+
+def test_camera_frames_the_arm_and_the_cup(scene):
+    """The camera looks at the arm and the cup and they fill most of the view (meshcat's own camera, 3 m away
+    and aimed at the origin, showed them in 10-15 % of a wide frame): every corner of their shapes is in view,
+    the picture touches the margins on both sides of one axis, and the table (the stage) is left out."""
     cid, bodies = scene
     rec = viz.Recorder()
     viz.mirror_bodies(rec, cid, bodies)
-    position = next(c for c in recorded_commands(rec.html())
-                    if c["type"] == "set_property" and c["path"] == "/Cameras/default/rotated/<object>")
-    x, y_up, minus_y = position["value"]
-    camera = np.array([x, -minus_y, y_up])
-    corners = []
-    for body in (bodies["arm"], bodies["table"]):
-        for link in range(-1, p.getNumJoints(body, physicsClientId=cid)):
-            low, high = p.getAABB(body, link, physicsClientId=cid)
-            corners += [np.where(np.array(bits, dtype=bool), high, low) for bits in np.ndindex(2, 2, 2)]
-    axis = -camera / np.linalg.norm(camera)
-    angles = [np.degrees(np.arccos(np.dot(axis, (c - camera) / np.linalg.norm(c - camera)))) for c in corners]
-    half_fov = viz.CAMERA_FOV_DEG / 2
-    assert max(angles) <= half_fov, "every corner of the arm and the table is in view"
-    assert max(angles) > 0.75 * half_fov, "and the scene is not a small patch in the middle"
-    assert camera[2] > 0.3 and np.linalg.norm(camera) < 3.0
+    camera, look_at = _view_of(rec)
+    subject = viz.subject_corners(cid, {"arm": bodies["arm"], "cup": bodies["cup"]})
+    assert np.allclose(viz.subject_corners(cid, bodies), subject), "the table is the stage, not framed"
+    across, along = _screen_fractions(camera, look_at, subject)
+    assert np.all(np.abs(across) <= 1) and np.all(np.abs(along) <= 1), "every corner is in view"
+    widest = max(np.ptp(across), np.ptp(along)) / 2
+    assert widest > 0.85, f"the arm and the cup span {widest:.0%} of the view"
+    assert camera[2] > look_at[2] and np.linalg.norm(camera - look_at) < 2.0
+
+
+def test_a_rollout_is_framed_over_all_its_states(scene):
+    """record_rollout frames the whole motion: a pose the arm reaches late in the rollout is in view too."""
+    cid, bodies = scene
+    arm = bodies["arm"]
+    start, stretched = np.zeros(6), np.array([1.2, 1.0, 0.5, 0.0, 0.0, 0.0])
+    rec = viz.record_rollout(cid, bodies, [start, stretched], lambda q: set_arm(cid, arm, q))
+    camera, look_at = _view_of(rec)
+    for q in (start, stretched):
+        set_arm(cid, arm, q)
+        across, along = _screen_fractions(camera, look_at, viz.subject_corners(cid, bodies))
+        assert np.all(np.abs(across) <= 1) and np.all(np.abs(along) <= 1)
+    set_arm(cid, arm, start)

@@ -10,6 +10,7 @@ import dataclasses
 import math
 import os
 import sys
+import time
 from pathlib import Path
 
 from vdtutorial.settings import DATA_DIR, RUNS_DIR, is_quick
@@ -233,6 +234,15 @@ def _cmd_notebooks(args) -> None:
               "open them when you have tried")
 
 
+def _cmd_book(args) -> None:
+    """The chapters executed and exported as a static HTML book that reads offline (see vdtutorial.html_book)."""
+    from vdtutorial.html_book import build_book
+
+    start = time.perf_counter()
+    book = build_book(args.out, numbers=args.chapters, quick=not args.full)
+    print(f"wrote {len(book.chapters)} chapters in {time.perf_counter() - start:.0f} s; open {book.index}")
+
+
 def _cmd_claims(args) -> None:
     """The paper's claims as effect sizes with 95% intervals, from an experiment's rows (see experiments.effects)."""
     from vdtutorial.experiments import write_claims
@@ -379,6 +389,14 @@ def _add_experiment_commands(sub) -> None:
                    help="the student edition (made by nbgrader as classroom release makes it), the solutions "
                         "apart in DEST/solutions")
     p.set_defaults(func=_cmd_notebooks)
+
+    p = sub.add_parser("book", help="execute the chapters and write them as a static HTML book that reads offline")
+    p.add_argument("out", help="the folder to write (made if missing): OUT/index.html and one page per chapter")
+    p.add_argument("--full", action="store_true",
+                   help="run the chapters with the paper's budgets (default: quick mode, a few minutes in all)")
+    p.add_argument("--chapters", nargs="+", default=None, metavar="NN",
+                   help="only these chapters, by number (e.g. 00 04 07; default: all)")
+    p.set_defaults(func=_cmd_book)
 
     p = sub.add_parser("claims", help="the paper's claims as effect sizes with 95%% intervals, from experiment folders")
     p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4); their JSON records are updated")

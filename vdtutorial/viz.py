@@ -58,6 +58,7 @@ __all__ = [
     "Recorder",
     "mirror_bodies",
     "frame_view",
+    "frame_points",
     "update_poses",
     "add_ghost",
     "record_rollout",
@@ -71,6 +72,12 @@ PLANE_SIZE = 4.0
 CAMERA_FOV_DEG = 75.0
 #: Direction from the scene's centre to the camera (x, y, z; z up): in front of the arm, to its right, above.
 VIEW_DIRECTION = (1.0, -1.1, 0.8)
+#: Width over height of an inline scene (:meth:`Recorder.show`), for which :func:`frame_view` frames the bodies.
+VIEW_ASPECT = 4 / 3
+#: A visual shape wider than this (m) in some direction is the stage (the table, a ground plane): drawn, not framed.
+STAGE_SIZE = 1.0
+#: Passes of :func:`frame_view` that move the look-at point to the middle of the picture (3 settle it to ~1 %).
+FRAMING_PASSES = 3
 #: Ghost colour: light blue, mostly transparent so the real arm stays readable behind the ghosts.
 GHOST_RGBA = (0.25, 0.6, 1.0, 0.3)
 
@@ -153,6 +160,12 @@ for (const encoded of {commands}) {{
   for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
   viewer.handle_command_bytearray(bytes);
 }}
+// The point the camera looks at and orbits about (frame_view), in three.js's frame (y up); null: the origin.
+const lookAt = {look_at};
+if (lookAt !== null) {{
+  viewer.controls.target.set(lookAt[0], lookAt[1], lookAt[2]);
+  viewer.controls.update();
+}}
 </script>
 </body>
 </html>
@@ -178,6 +191,9 @@ class Recorder:
         forward = ViewerWindow(zmq_url=None, start_server=True, server_args=[]) if live else None
         self._window = _SceneTreeWindow(forward)
         self.vis = meshcat.Visualizer(window=self._window)
+        #: The point (world frame, z up) the page's camera looks at and orbits about, set by
+        #: :func:`frame_view`; None: the world origin, as in meshcat's own viewer.
+        self.look_at: np.ndarray | None = None
 
     @property
     def tree(self) -> SceneTree:
@@ -205,19 +221,24 @@ class Recorder:
             for packed in (node.object, *node.properties, node.transform, node.animation):
                 if packed is not None:
                     commands.append(base64.b64encode(packed).decode("ascii"))
-        return _PAGE.format(viewer_js=_viewer_js(), commands=json.dumps(commands))
+        look_at = None if self.look_at is None else _three_frame(self.look_at)
+        return _PAGE.format(viewer_js=_viewer_js(), commands=json.dumps(commands), look_at=json.dumps(look_at))
 
     def _iframe(self, height: int) -> str:
-        # srcdoc carries the whole page, so Jupyter needs no server or file to display it. The
-        # wrapping div lets the reader drag the view taller.
+        # srcdoc carries the whole page, so Jupyter needs no server or file to display it. The wrapping div
+        # has the shape frame_view frames the scene for (VIEW_ASPECT), at most ``height`` pixels high and
+        # narrower on a narrow screen; the reader can drag it larger.
+        width = int(round(height * VIEW_ASPECT))
         return (
-            f'<div style="width: 100%; height: {int(height)}px; resize: vertical; overflow: hidden;">'
+            f'<div style="width: 100%; max-width: {width}px; aspect-ratio: {width} / {int(height)}; '
+            'resize: both; overflow: hidden;">'
             f'<iframe srcdoc="{html.escape(self.html(), quote=True)}" '
             'style="width: 100%; height: 100%; border: none;"></iframe></div>'
         )
 
     def show(self, height: int = 400):
-        """An IPython display object drawing the scene inline (an ``<iframe srcdoc=...>``)."""
+        """An IPython display object drawing the scene inline (an ``<iframe srcdoc=...>``), ``height`` pixels
+        high at most and :data:`VIEW_ASPECT` times as wide."""
         from IPython.display import HTML
 
         return HTML(self._iframe(height))
@@ -372,46 +393,108 @@ def mirror_bodies(vis, client_id: int, bodies: Mapping[str, int]) -> None:
     URDF robot or a ``createMultiBody`` table or cup. Call it once, then :func:`update_poses` as
     the simulation moves.
     """
-    vis = _visualizer(vis)
     for name, body in bodies.items():
-        _mirror_body(vis[name], client_id, body)
+        _mirror_body(_visualizer(vis)[name], client_id, body)
     update_poses(vis, client_id, bodies)
     frame_view(vis, client_id, bodies)
 
 
-def frame_view(vis, client_id: int, bodies: Mapping[str, int], margin: float = 1.1,
-               direction: Sequence[float] = VIEW_DIRECTION) -> np.ndarray:
-    """Move meshcat's default camera so that the bodies fill the view; returns the camera position.
+def _view_basis(direction: Sequence[float]) -> np.ndarray:
+    """Rows: the camera's right, up and forward axes (world frame, z up) when it looks along ``-direction``."""
+    forward = -np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+    right = np.cross(forward, (0.0, 0.0, 1.0))
+    right /= np.linalg.norm(right)
+    return np.array([right, np.cross(right, forward), forward])
 
-    meshcat's camera starts 3 m from the origin, where a 1 m table with an arm fills a small part of the
-    frame. The viewer's orbit controls always look at the world origin (here the arm's base), so the
-    camera is placed on the ray from the centre of the bodies' bounding box along ``direction`` (in
-    front of the arm, to its right, above), at the smallest distance from which every corner of the
-    box lies within the vertical field of view divided by ``margin``. Bodies larger than 3 m (a ground
-    plane) are left out of the box. The position is a property of the camera node
-    ``/Cameras/default/rotated/<object>``, whose frame is three.js's (y up): (x, y, z) -> (x, z, -y).
-    """
-    vis = _visualizer(vis)
-    corners = []
+
+def _fitting_distance(points: np.ndarray, basis: np.ndarray, tan_limit: np.ndarray) -> float:
+    """The smallest distance (1 cm steps) from which a camera on the ray ``-basis[2]`` from the origin, looking
+    at the origin, sees every point within ``tan_limit`` (tangents of the half-angles: horizontal, vertical)."""
+    for distance in np.arange(0.3, 10.0, 0.01):
+        right, up, depth = basis @ (points + distance * basis[2]).T
+        if np.all(depth > 0) and np.all(np.abs(np.stack([right, up])) / depth <= tan_limit[:, None]):
+            return float(distance)
+    raise ValueError("the bodies are too large to frame from 10 m")
+
+
+def _visual_half_extents(geom_type: int, dims) -> np.ndarray | None:
+    """Half extents of a visual shape's box in its own frame (pybullet's conventions above); None for a mesh
+    or a plane, whose size ``getVisualShapeData`` does not give."""
+    if geom_type == p.GEOM_BOX:
+        return np.asarray(dims[:3], dtype=float) / 2
+    if geom_type == p.GEOM_SPHERE:
+        return np.full(3, float(dims[0]))
+    if geom_type in (p.GEOM_CYLINDER, p.GEOM_CAPSULE):
+        length, radius = float(dims[0]), float(dims[1])
+        return np.array([radius, radius, length / 2 + (radius if geom_type == p.GEOM_CAPSULE else 0.0)])
+    return None
+
+
+def subject_corners(client_id: int, bodies: Mapping[str, int]) -> np.ndarray:
+    """The corners of the boxes around the bodies' visual shapes that a view should frame (n x 3, world
+    frame): those of the subject (the arm, the cup), not of the stage (a shape wider than
+    :data:`STAGE_SIZE`: the table, a ground plane), unless the stage is all there is. A mesh or a plane
+    counts with its link's bounding box (pybullet's, from the collision shapes)."""
+    signs = np.array(list(np.ndindex(2, 2, 2))) * 2 - 1
+    subject, stage = [], []
     for body in bodies.values():
-        for link in range(-1, p.getNumJoints(body, physicsClientId=client_id)):
-            low, high = np.array(p.getAABB(body, link, physicsClientId=client_id))
-            if np.all(high - low < 3.0):
-                corners += [np.where(np.array(bits, dtype=bool), high, low) for bits in np.ndindex(2, 2, 2)]
-    corners = np.array(corners)
-    centre = (corners.min(0) + corners.max(0)) / 2
-    unit = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
-    limit = np.radians(CAMERA_FOV_DEG / 2) / margin
-    camera = centre
-    for distance in np.arange(0.5, 10.0, 0.02):
-        camera = centre + distance * unit
-        axis = -camera / np.linalg.norm(camera)
-        rays = corners - camera
-        angles = np.arccos(np.clip(rays @ axis / np.linalg.norm(rays, axis=1), -1.0, 1.0))
-        if angles.max() <= limit:
-            break
-    vis["/Cameras/default/rotated/<object>"].set_property("position", [camera[0], camera[2], -camera[1]])
+        frames = _link_frames(client_id, body)
+        for shape in p.getVisualShapeData(body, physicsClientId=client_id):
+            link, geom_type, dims, _, position, orientation = shape[1:7]
+            half = _visual_half_extents(geom_type, dims)
+            if half is None:
+                low, high = np.array(p.getAABB(body, link, physicsClientId=client_id))
+                corners, size = (low + high) / 2 + signs * (high - low) / 2, np.max(high - low)
+            else:
+                pose = frames[link] @ _pose_matrix(position, orientation)
+                corners, size = (signs * half) @ pose[:3, :3].T + pose[:3, 3], 2 * np.max(half)
+            (stage if size > STAGE_SIZE else subject).extend(corners)
+    return np.array(subject or stage)
+
+
+def frame_view(vis, client_id: int, bodies: Mapping[str, int], margin: float = 1.1,
+               direction: Sequence[float] = VIEW_DIRECTION, aspect: float = VIEW_ASPECT) -> np.ndarray:
+    """Aim meshcat's default camera at the bodies and move it so that the arm and the cup fill the view;
+    returns the camera position (world frame). See :func:`frame_points`."""
+    return frame_points(vis, subject_corners(client_id, bodies), margin, direction, aspect)
+
+
+def frame_points(vis, points: np.ndarray, margin: float = 1.1, direction: Sequence[float] = VIEW_DIRECTION,
+                 aspect: float = VIEW_ASPECT) -> np.ndarray:
+    """Aim meshcat's default camera so that ``points`` (n x 3, world frame) fill the view; returns the camera
+    position (world frame).
+
+    meshcat's camera starts 3 m from the origin and looks at it, where the arm fills 10-15 % of the frame.
+    Here the camera looks along ``-direction`` (from in front of the arm, to its right, above) at the middle
+    of the points' picture, from the smallest distance at which every point lies within the vertical field
+    of view and, for a view ``aspect`` times as wide as it is high (:meth:`Recorder.show` draws that shape),
+    the horizontal one, each shrunk by ``margin``. The camera's position is a property of
+    ``/Cameras/default/rotated/<object>``; meshcat 0.3.2 has no command for the point it looks at, so that
+    point is kept in a :class:`Recorder` (:attr:`Recorder.look_at`), whose page aims the viewer's orbit
+    controls at it. A plain meshcat visualizer gets the position only and keeps looking at the origin.
+    """
+    points = np.asarray(points, dtype=float)
+    basis = _view_basis(direction)
+    tan_limit = np.tan(np.radians(CAMERA_FOV_DEG / 2)) / margin * np.array([aspect, 1.0])
+    offset = -basis[2]  # unit vector from the look-at point towards the camera
+    centre = (points.min(0) + points.max(0)) / 2
+    for _ in range(FRAMING_PASSES):
+        distance = _fitting_distance(points - centre, basis, tan_limit)
+        # Perspective draws the near points larger: the box's centre is not the middle of its picture. Move
+        # the look-at point (and the camera with it) across the view to the middle of the picture, then refit.
+        right, up, depth = basis @ (points - (centre + distance * offset)).T
+        middle = [(np.max(ratio) + np.min(ratio)) / 2 for ratio in (right / depth, up / depth)]
+        centre = centre + distance * (middle[0] * basis[0] + middle[1] * basis[1])
+    camera = centre + _fitting_distance(points - centre, basis, tan_limit) * offset
+    if isinstance(vis, Recorder):
+        vis.look_at = centre
+    _visualizer(vis)["/Cameras/default/rotated/<object>"].set_property("position", _three_frame(camera))
     return camera
+
+
+def _three_frame(point) -> list[float]:
+    """A world point (z up) in three.js's frame (y up), the frame of meshcat's camera: (x, y, z) -> (x, z, -y)."""
+    return [float(point[0]), float(point[2]), -float(point[1])]
 
 
 def add_ghost(vis, client_id: int, body: int, name: str, rgba: Sequence[float] = GHOST_RGBA) -> None:
@@ -449,10 +532,12 @@ def record_rollout(
     recorder = Recorder() if recorder is None else recorder
     set_state(states[0])
     mirror_bodies(recorder, client_id, bodies)
-    frames = []
+    frames, corners = [], []
     for state in states:
         set_state(state)
         frames.append(_scene_poses(client_id, bodies))
+        corners.append(subject_corners(client_id, bodies))
+    frame_points(recorder, np.concatenate(corners))  # the whole motion in view, not only its first state
 
     animation = meshcat.animation.Animation(default_framerate=fps)
     for key in frames[0]:

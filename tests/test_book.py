@@ -1,0 +1,258 @@
+"""The offline book (``python -m vdtutorial book OUT``): the pieces on their own, then the quick book for
+chapters 00, 04 and 07 opened in headless Chromium with the network blocked.
+
+The browser test drives Debian's ``chromium`` through the DevTools protocol (websocket-client, no browser
+download): it records every request the pages make, waits for MathJax, the widget manager and the meshcat
+viewers, reads the rendered page, and keeps one screenshot per chapter in ``book-screenshots/`` (git ignores
+it). Without chromium the test is skipped, except in CI (``CI`` set), where ``.ci/run`` installs it.
+"""
+import base64
+import html
+import io
+import json
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import nbformat
+import numpy as np
+import pytest
+
+from vdtutorial import html_book, offline_assets, viz
+from vdtutorial.__main__ import build_parser
+from vdtutorial.settings import SHIPPED_DIR
+
+ROOT = Path(__file__).resolve().parent.parent
+SCREENSHOTS = ROOT / "book-screenshots"
+TESTED_CHAPTERS = ("00", "04", "07")
+
+
+# -- the pieces ------------------------------------------------------------------------------------------
+def test_animation_controls_need_no_icon_font():
+    """matplotlib's jshtml buttons load Font Awesome from a CDN; the book draws them as inline SVG instead."""
+    frames = [np.full((8, 8, 3), shade, dtype=np.uint8) for shade in (0, 128, 255)]
+    page = viz.frames_animation(frames).to_jshtml()
+    assert "font-awesome" in page and '<i class="fa fa-play"></i>' in page  # what matplotlib writes today
+    offline = offline_assets.offline_animation_icons(page)
+    assert "font-awesome" not in offline and 'class="fa' not in offline
+    assert offline.count("<svg ") == page.count('<i class="fa ') == 9
+    assert not re.search(r"""(?:src|href)\s*=\s*["']?https?:""", offline)
+    assert offline_assets.offline_animation_icons("<p>no animation</p>") == "<p>no animation</p>"
+
+
+def _widget_output(widget):
+    return nbformat.v4.new_output("display_data", {html_book.WIDGET_VIEW: {"version_major": 2, "version_minor": 0,
+                                                                            "model_id": widget.model_id}})
+
+
+def test_controls_that_need_the_kernel_are_greyed_out_and_say_so():
+    """A slider that redraws a picture through a Python callback is disabled and gets the note above its box;
+    a slider tied to another in the browser (jslink) keeps working and gets none; a picture alone gets none."""
+    import ipywidgets as widgets
+    from ipywidgets.embed import embed_data
+
+    slider, picture = widgets.FloatSlider(description="threshold"), widgets.Image(format="png")
+    box = widgets.VBox([slider, picture])
+    left, right = widgets.IntSlider(), widgets.IntText()
+    link = widgets.jslink((left, "value"), (right, "value"))
+    alone = widgets.Label("a label")
+    notebook = nbformat.v4.new_notebook()
+    notebook.cells = [nbformat.v4.new_code_cell("box", outputs=[_widget_output(box)]),
+                      nbformat.v4.new_code_cell("linked", outputs=[_widget_output(widgets.HBox([left, right]))]),
+                      nbformat.v4.new_code_cell("label", outputs=[_widget_output(alone)])]
+    notebook.metadata["widgets"] = {html_book.WIDGET_STATE: embed_data(views=[box, left, right, link, alone])["manager_state"]}
+
+    assert html_book.mark_kernel_controls(notebook) == 1
+    state = notebook.metadata["widgets"][html_book.WIDGET_STATE]["state"]
+    assert state[slider.model_id]["state"]["disabled"] is True
+    assert not state[left.model_id]["state"].get("disabled") and not state[right.model_id]["state"].get("disabled")
+    first, linked, label = (cell.outputs for cell in notebook.cells)
+    assert len(first) == 2 and html_book.NEEDS_KERNEL in first[0]["data"]["text/plain"]
+    assert first[1]["data"][html_book.WIDGET_VIEW]["model_id"] == box.model_id
+    assert len(linked) == 1 and len(label) == 1
+    for widget in (box, slider, picture, left, right, link, alone):
+        widget.close()
+
+
+def test_chapters_titles_and_learning_goals_come_from_the_chapters_and_teaching_notes():
+    chapters = html_book.find_chapters()
+    assert [c.source.name for c in chapters] == sorted(p.name for p in (SHIPPED_DIR / "notebooks").glob("*.ipynb"))
+    goals = html_book.learning_goals(SHIPPED_DIR / "notebooks" / "TEACHING.md")
+    assert set(goals) == {c.number for c in chapters}, "TEACHING.md's learning goals name every chapter once"
+    assert all(len(goal.split()) >= 5 for goal in goals.values())
+    four = html_book.find_chapters(["4"])[0]
+    assert four.number == "04" and four.page == four.source.with_suffix(".html").name
+    assert four.title.startswith("04") and "#" not in four.title
+    with pytest.raises(ValueError, match="no chapter numbered 99"):
+        html_book.find_chapters(["99"])
+
+
+def test_book_command_line():
+    args = build_parser().parse_args(["book", "out", "--chapters", "00", "07"])
+    assert (args.out, args.chapters, args.full) == ("out", ["00", "07"], False)
+    assert build_parser().parse_args(["book", "out", "--full"]).full
+
+
+# -- the book in a browser -------------------------------------------------------------------------------
+class Chromium:
+    """Headless Chromium driven over the DevTools protocol, with every request recorded and the network
+    blocked (no name resolves, and every connection goes to a closed local port)."""
+
+    def __init__(self, executable: str, profile: Path):
+        import websocket
+
+        self.process = subprocess.Popen(
+            [executable, "--headless", "--no-sandbox", "--no-first-run", "--remote-debugging-port=0",
+             f"--user-data-dir={profile}", "--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9",
+             "--window-size=1280,900", "--enable-unsafe-swiftshader", "about:blank"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        port_file, deadline = profile / "DevToolsActivePort", time.monotonic() + 60
+        while not (port_file.is_file() and len(port_file.read_text().split()) == 2):
+            assert self.process.poll() is None and time.monotonic() < deadline, "chromium did not start"
+            time.sleep(0.1)
+        port, path = port_file.read_text().split()
+        self.socket = websocket.create_connection(f"ws://127.0.0.1:{port}{path}", timeout=120, suppress_origin=True)
+        self.calls, self.requests = 0, []
+        target = self.call("Target.createTarget", url="about:blank")["targetId"]
+        self.session = self.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
+        self.call("Network.enable")
+        self.call("Page.enable")
+
+    def call(self, method, **params):
+        self.calls += 1
+        message = {"id": self.calls, "method": method, "params": params}
+        if getattr(self, "session", None):
+            message["sessionId"] = self.session
+        self.socket.send(json.dumps(message))
+        while True:
+            reply = json.loads(self.socket.recv())
+            if reply.get("method") == "Network.requestWillBeSent":
+                self.requests.append(reply["params"]["request"]["url"])
+            if reply.get("id") == self.calls:
+                assert "error" not in reply, reply["error"]
+                return reply["result"]
+
+    def evaluate(self, expression):
+        result = self.call("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
+        assert "exceptionDetails" not in result, result["exceptionDetails"]
+        return result["result"].get("value")
+
+    def wait_for(self, expression, what, timeout=120):
+        deadline = time.monotonic() + timeout
+        while not self.evaluate(expression):
+            assert time.monotonic() < deadline, f"timed out waiting for {what}"
+            time.sleep(0.5)
+
+    def screenshot(self, clip=None) -> bytes:
+        params = {"format": "png", **({"clip": {**clip, "scale": 1}} if clip else {})}
+        return base64.b64decode(self.call("Page.captureScreenshot", **params)["data"])
+
+    def close(self):
+        self.socket.close()
+        self.process.kill()
+        self.process.wait()
+
+
+#: Everything the page shows that MathJax should have typeset: the rendered Markdown cells' text.
+MARKDOWN_TEXT = "[...document.querySelectorAll('.jp-MarkdownOutput')].map(e => e.innerText).join('\\n')"
+#: TeX left as typed: $...$, $$, \( or \[ in the visible text.
+RAW_TEX = re.compile(r"\$[^$\s][^$\n]*\$|\$\$|\\\(|\\\[")
+#: Ready when MathJax has typeset the page (its queue runs the callback last), the widget manager has drawn every
+#: widget view and its pictures, and every meshcat viewer has replayed its scene.
+READY = """(() => {
+  if (!window.__typeset) { MathJax.Hub.Queue(() => { window.__typeset = true; }); return false; }
+  const views = document.querySelectorAll('script[type="application/vnd.jupyter.widget-view+json"]').length;
+  const drawn = document.querySelectorAll('.jupyter-widgets.widget-container, .jupyter-widgets .widget-slider');
+  const pictures = [...document.querySelectorAll('.jupyter-widgets img')];
+  const scenes = [...document.querySelectorAll('iframe')].map(f => f.contentDocument);
+  return (views === 0 || drawn.length > 0) && pictures.every(i => i.complete && i.naturalWidth > 0)
+    && scenes.every(d => d && d.readyState === 'complete' && d.querySelector('canvas') !== null);
+})()"""
+
+
+def _scene_pixels(browser, frame_index):
+    """The picture of the ``frame_index``-th meshcat scene on screen, as an H x W x 3 array in [0, 1]."""
+    import matplotlib.image
+
+    rect = browser.evaluate(f"""(() => {{ const f = document.querySelectorAll('iframe')[{frame_index}];
+        f.scrollIntoView({{block: 'center'}}); const r = f.getBoundingClientRect();
+        return {{x: r.x + scrollX, y: r.y + scrollY, width: r.width, height: r.height}}; }})()""")  # page coordinates
+    time.sleep(1.0)  # a frame or two of the viewer's render loop after scrolling
+    return matplotlib.image.imread(io.BytesIO(browser.screenshot(rect)), format="png")[..., :3]
+
+
+@pytest.fixture(scope="module")
+def quick_book(tmp_path_factory):
+    executable = shutil.which("chromium") or shutil.which("chromium-browser")
+    if executable is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI needs Debian's chromium for the book's browser test (.ci/run installs it)")
+        pytest.skip("the browser test needs chromium (apt-get install chromium)")
+    out = tmp_path_factory.mktemp("book")
+    book = html_book.build_book(out, numbers=TESTED_CHAPTERS, quick=True, log=lambda line: None)
+    return executable, book
+
+
+def test_quick_book_reads_offline_in_a_browser(quick_book):
+    executable, book = quick_book
+    index = book.index.read_text()
+    for chapter in book.chapters:
+        assert f'href="{chapter.page}"' in index and chapter.title in index
+        assert html.escape(html_book.learning_goals(SHIPPED_DIR / "notebooks" / "TEACHING.md")[chapter.number]) in index
+    SCREENSHOTS.mkdir(exist_ok=True)
+    profile = Path(tempfile.mkdtemp(prefix="vdtutorial-chromium-"))
+    browser = Chromium(executable, profile)
+    try:
+        browser.call("Page.navigate", url=book.index.as_uri())
+        browser.wait_for("document.readyState === 'complete'", "the index to load")
+        browser.wait_for(READY, "the index's titles typeset")
+        assert not RAW_TEX.findall(browser.evaluate("document.body.innerText")), "the index shows raw TeX"
+        assert not [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
+        for k, chapter in enumerate(book.chapters):
+            page = book.index.parent / chapter.page
+            source = page.read_text()
+            assert not re.search(r"""<(?:script|link|img|iframe)\b[^>]*\b(?:src|href)\s*=\s*["']?(?:https?:)?//""", source)
+            browser.requests.clear()
+            browser.call("Page.navigate", url=page.as_uri())
+            browser.wait_for("document.readyState === 'complete'", f"{chapter.page} to load")
+            browser.wait_for(READY, f"{chapter.page}'s equations, widgets and scenes")
+
+            remote = [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
+            assert not remote, f"{chapter.page} asked the network for {remote}"
+            assert browser.evaluate("document.querySelectorAll('.MathJax').length") > 0, "no equation typeset"
+            assert browser.evaluate("document.querySelectorAll('.MathJax_Error, .merror').length") == 0
+            leftover = RAW_TEX.findall(browser.evaluate(MARKDOWN_TEXT))
+            assert not leftover, f"{chapter.page} shows raw TeX: {leftover[:5]}"
+            previous = book.chapters[k - 1].page if k else None
+            links = browser.evaluate("[...document.querySelectorAll('nav.vdbook a')].map(a => a.getAttribute('href'))")
+            assert "index.html" in links and (previous is None or previous in links)
+
+            scenes = browser.evaluate("document.querySelectorAll('iframe').length")
+            for frame in range(scenes):
+                pixels = _scene_pixels(browser, frame)
+                red, green, blue = np.moveaxis(pixels, 2, 0)
+                arm = np.mean(pixels.max(axis=2) < 0.2)  # the arm's dark links; the sky is lighter
+                cup = np.mean((red > 0.6) & (green < 0.35) & (blue < 0.35))
+                table = np.mean((red > 0.4) & (red - blue > 0.15) & (green > blue))  # lit tan, not the blue sky
+                assert arm > 0.005 and cup > 0.001 and table > 0.05, \
+                    f"scene {frame} of {chapter.page}: arm {arm:.1%}, cup {cup:.2%}, table {table:.1%} of the picture"
+            if chapter.number in ("00", "07"):
+                assert scenes > 0, f"{chapter.page} shows a meshcat scene"
+            if chapter.number == "07":
+                assert browser.evaluate("document.querySelectorAll('.jupyter-widgets .widget-slider').length") > 0, \
+                    "chapter 07's smoothing slider is drawn"
+                assert browser.evaluate("document.querySelectorAll('.vdbook-needs-kernel').length") > 0
+                assert browser.evaluate(
+                    "[...document.querySelectorAll('.jupyter-widgets img')].every(i => i.naturalWidth > 100)")
+
+            first = ("iframe" if scenes else ".jupyter-widgets" if chapter.number == "07" else ".MathJax_Display, .MathJax")
+            browser.evaluate(f"document.querySelector('{first}').scrollIntoView({{block: 'center'}})")
+            time.sleep(1.0)
+            (SCREENSHOTS / f"{page.stem}.png").write_bytes(browser.screenshot())
+    finally:
+        browser.close()
+        shutil.rmtree(profile, ignore_errors=True)
