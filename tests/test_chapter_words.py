@@ -7,7 +7,8 @@ levels, the claims' estimates and bounds, the sigma study's per-option means, ea
 time; the settings under ``*_config`` keys are left out) or of a shipped table (``data/results/**/*.csv``:
 Table I's measured sparsities; columns named ``*_paper`` hold the paper's values and are left out), rounded
 to the same number of decimals. The per-iteration curves (``*.csv.gz``) are left out: hundreds of thousands of
-raw values would match any decimal, and a chapter quotes what they sum up, which the records hold. The rule is narrow on purpose, so that the paper's constants and the library's settings pass:
+raw values would match any decimal, and a chapter quotes what they sum up, which the records hold. The rule
+is narrow on purpose, so that the paper's constants and the library's settings pass:
 
 * only numbers with a decimal point count (``3e5``, ``log alpha > 3``, ``25 iterations`` never do), and
   nothing in scientific notation;
