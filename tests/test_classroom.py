@@ -3,13 +3,17 @@
 The chapter tests execute notebooks (each chapter three times: unsolved, teacher's, one wrong answer), so
 they are parametrised per chapter and spread over the xdist workers; the release is made once per worker.
 """
+import csv
+import errno
 import json
 import re
+import subprocess
+import sys
 
 import nbformat
 import pytest
 
-from vdtutorial import classroom
+from vdtutorial import classroom, sandbox
 from vdtutorial.__main__ import main
 
 CHAPTERS = [name for name in classroom.chapters() if name != "00_start_here"]
@@ -22,7 +26,8 @@ WRONG = {
     "03_demonstrations": ("ch03_noisy_rollout", "labels.append(label)", "labels.append(-label)"),
     "04_sparse_variational_dropout": ("ch04_kl_approx", "- 0.5 * F.softplus(-log_alpha)", "+ 0.5 * F.softplus(-log_alpha)"),
     "05_pretraining": ("ch05_elbo_loss", "+ beta * model_kl(policy.mu) / n_train", "- beta * model_kl(policy.mu) / n_train"),
-    "06_trpo": ("ch06_gae", "alive = 1.0 - dones[t]", "alive = 1.0"),
+    "06a_trpo_pieces": ("ch06_gae", "alive = 1.0 - dones[t]", "alive = 1.0"),
+    "06b_trpo_assembled": ("ch06_accepted_fraction", "if kl <= max_kl and gain > 0:", "if kl <= max_kl:"),
     "07_finetuning": ("ch07_moving_average", "values[max(0, k - window + 1):k + 1].mean()",
                       "values[max(0, k - window):k + 1].mean()"),
     "08_grasping": ("ch08_grasp_success", "abs(float(approach[2]))", "float(approach[2])"),
@@ -38,11 +43,13 @@ def nbgrader(cell):
 
 
 def test_every_chapter_has_graded_exercises_with_visible_and_hidden_tests():
-    total = 0
+    """Every chapter (both notebooks of a chapter in parts, such as 06a and 06b) has at least two exercises."""
+    total, per_chapter = 0, {}
     for name in CHAPTERS:
         tests = [c for c in cells(classroom.chapters()[name]) if nbgrader(c).get("grade")]
         answers = [c for c in cells(classroom.chapters()[name]) if nbgrader(c).get("solution")]
-        assert len(tests) >= 2 and len(answers) == len(tests), name
+        assert tests and len(answers) == len(tests), name
+        per_chapter[name[:2]] = per_chapter.get(name[:2], 0) + len(tests)
         for cell in tests:
             visible = HIDDEN.sub("", cell.source)
             assert "assert" in visible and HIDDEN.search(cell.source), nbgrader(cell)["grade_id"]
@@ -50,7 +57,7 @@ def test_every_chapter_has_graded_exercises_with_visible_and_hidden_tests():
         for cell in answers:
             assert SOLUTION.search(cell.source), nbgrader(cell)["grade_id"]
         total += len(tests)
-    assert total >= 20
+    assert min(per_chapter.values()) >= 2 and total >= 20, per_chapter
 
 
 @pytest.fixture(scope="session")
@@ -92,7 +99,7 @@ def test_grading_a_chapter(chapter, released, tmp_path):
 
     points = {(s.student, s.exercise): (s.score, s.max_score) for s in scores}
     tests = {s.exercise for s in scores}
-    assert len(tests) >= 2
+    assert tests
     assert all(points["unsolved", t][0] == 0 for t in tests)
     assert all(points["teacher", t][0] == points["teacher", t][1] > 0 for t in tests), points
     lost = {t for t in tests if points["wrong", t][0] < points["wrong", t][1]}
@@ -150,3 +157,79 @@ def test_a_looping_cell_is_interrupted_and_the_rest_still_runs(tmp_path):
     looping = next(c for c in code if c.source.startswith("while True"))
     assert any(o.output_type == "error" for o in looping.outputs)
     assert code[-1].outputs, "the cells after the loop still ran"
+
+
+def _attacked(tmp_path, student, attacks):
+    """Chapter 01 solved by the teacher, with code put in front of some exercises' answers ({grade_id: code})."""
+    nb = nbformat.read(classroom.chapters()["01_environment"], as_version=4)
+    for cell in nb.cells:
+        if nbgrader(cell).get("grade_id") in attacks and nbgrader(cell).get("solution"):
+            cell.source = attacks[nbgrader(cell)["grade_id"]] + "\n" + cell.source
+    (tmp_path / "in" / student).mkdir(parents=True)
+    nbformat.write(nb, tmp_path / "in" / student / "01_environment.ipynb")
+    return tmp_path / "in" / student
+
+
+def _lost(scores, student):
+    return {s.exercise for s in scores if s.student == student and s.score < s.max_score}
+
+
+def test_a_submission_past_the_memory_cap_loses_only_that_exercise(tmp_path):
+    """6 GB of zeroed bytes cost nothing until touched, so without the cap the allocation would succeed here;
+    under a 2 GB cap it raises MemoryError in that answer. Graded by the command line in its own process (as
+    a teacher runs it, with Python's default warning filters), whose output is the points table and the real
+    errors only: no SQLAlchemy warning, no kernel transport warning."""
+    hog = _attacked(tmp_path, "hog", {"ch01_reward_eq11": "_hog = bytearray(6 << 30)"})
+    nb = nbformat.read(classroom.chapters()["01_environment"], as_version=4)
+    nb.cells.insert(3, nbformat.v4.new_code_cell("import os\nos._exit(1)"))   # the kernel dies: nbgrader gives up
+    (tmp_path / "in" / "crash").mkdir()
+    nbformat.write(nb, tmp_path / "in" / "crash" / "01_environment.ipynb")
+    run = subprocess.run([sys.executable, "-m", "vdtutorial", "classroom", "grade", str(hog),
+                          str(tmp_path / "in" / "crash"), "--out", str(tmp_path / "course"), "--memory", "2"],
+                         capture_output=True, text=True)
+    out, err = run.stdout, run.stderr
+    with open(tmp_path / "course" / "grades.csv") as fh:
+        scores = [classroom.Score(r["student"], r["chapter"], r["exercise"], float(r["score"]), float(r["max_score"]))
+                  for r in csv.DictReader(fh)]
+    assert _lost(scores, "hog") == {"ch01_reward_eq11_tests"}
+    assert classroom.table(scores) in out
+    ran = cells(tmp_path / "course" / "autograded" / "hog" / classroom.ASSIGNMENT / "01_environment.ipynb")
+    answer = next(c for c in ran if nbgrader(c).get("grade_id") == "ch01_reward_eq11")
+    assert any(o.output_type == "error" and o.ename == "MemoryError" for o in answer.outputs)
+    assert "nbgrader could not grade crash" in err, err[-2000:]
+    for noise in ("SAWarning", "without encryption", "Warning: "):
+        assert noise not in out + err, noise
+
+
+@pytest.mark.skipif(not sandbox.isolation_available(), reason="this system allows no user namespaces: "
+                    "the kernels cannot be given a read-only file system (classroom grade says so)")
+def test_a_submission_writing_outside_its_folder_loses_only_that_exercise_and_writes_nothing(tmp_path):
+    outside = tmp_path / "outside.txt"
+    teacher_file = tmp_path / "teacher.txt"
+    teacher_file.write_text("the teacher's")
+    attacks = {"ch01_collision_share": f"open({str(outside)!r}, 'w').write('pwned')",
+               "ch01_grasp_reward": f"open({str(teacher_file)!r}, 'a').write('pwned')"}
+    mallory = _attacked(tmp_path, "mallory", attacks)
+    scores = classroom.grade([mallory], tmp_path / "course")
+    assert _lost(scores, "mallory") == {"ch01_collision_share_tests", "ch01_grasp_reward_tests"}
+    assert not outside.exists() and teacher_file.read_text() == "the teacher's"
+    ran = cells(tmp_path / "course" / "autograded" / "mallory" / classroom.ASSIGNMENT / "01_environment.ipynb")
+    errors = [o for c in ran if nbgrader(c).get("grade_id") in attacks for o in c.outputs if o.output_type == "error"]
+    assert len(errors) == 2 and all("Read-only file system" in o.evalue for o in errors), errors
+
+
+def test_the_kernel_has_no_network_and_its_own_home(tmp_path):
+    """What the launcher gives a command, checked directly: the caps, a fresh HOME that is the working folder,
+    and (where namespaces are allowed) no route to any address."""
+    probe = ("import os, resource, socket, sys\n"
+             "print(resource.getrlimit(resource.RLIMIT_AS)[0], resource.getrlimit(resource.RLIMIT_CPU)[0])\n"
+             "print(os.environ['HOME'] == os.getcwd(), os.listdir(os.getcwd()))\n"
+             "try:\n    socket.create_connection(('192.0.2.1', 80), timeout=5)\nexcept OSError as e:\n"
+             "    print(type(e).__name__, e.errno)\n")
+    isolate = sandbox.isolation_available()
+    cmd = sandbox.command([sys.executable, "-c", probe], 3 << 30, 77, home_under=tmp_path, isolate=isolate)
+    lines = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.splitlines()
+    assert lines[0] == f"{3 << 30} 77"
+    assert lines[1] == "True ['tmp']"
+    if isolate:
+        assert lines[2] == f"OSError {errno.ENETUNREACH}", lines

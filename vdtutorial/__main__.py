@@ -226,14 +226,18 @@ def _cmd_experiment(args) -> None:
 
 def _cmd_notebooks(args) -> None:
     """The chapters and the data they load, written into a folder of the learner's (see vdtutorial.chapters)."""
-    from vdtutorial.chapters import EditedFilesError, write_notebooks
+    from vdtutorial.chapters import EditedFilesError, NoNbgraderError, write_notebooks
 
     try:
-        book = write_notebooks(args.dest, force=args.force)
-    except EditedFilesError as exc:
+        book = write_notebooks(args.dest, force=args.force, student=args.student)
+    except (EditedFilesError, NoNbgraderError) as exc:
         raise CommandError(str(exc)) from exc
-    print(f"wrote {book.chapters} chapters and {book.data_files} data files into {book.dest}; start with "
+    edition = "the student edition of " if args.student else ""
+    print(f"wrote {edition}{book.chapters} chapters and {book.data_files} data files into {book.dest}; start with "
           f"jupyter lab {book.dest / 'notebooks' / '00_start_here.ipynb'}")
+    if book.solutions:
+        print(f"the {book.solutions} chapters with every exercise solved are in {book.dest / 'solutions'}: "
+              "open them when you have tried")
 
 
 def _cmd_book(args) -> None:
@@ -404,6 +408,9 @@ def _add_experiment_commands(sub) -> None:
     p = sub.add_parser("notebooks", help="write the chapters and the data they load into a folder of yours")
     p.add_argument("dest", help="the folder to write (made if missing); the chapters then run from DEST/notebooks")
     p.add_argument("--force", action="store_true", help="overwrite files you have changed since they were written")
+    p.add_argument("--student", action="store_true",
+                   help="the student edition (made by nbgrader as classroom release makes it), the solutions "
+                        "apart in DEST/solutions")
     p.set_defaults(func=_cmd_notebooks)
 
     p = sub.add_parser("book", help="execute the chapters and write them as a static HTML book that reads offline")

@@ -8,12 +8,19 @@ reads ``DEST/data`` and writes ``DEST/runs`` (``settings.PROJECT_DIR``).
 The record holds the hash of every file written. Writing again (say, after upgrading the package)
 replaces the files the learner has not touched, and refuses, unless ``force``, when one of them was
 edited: a learner's answers are never overwritten by accident.
+
+``student=True`` writes the self-learner's edition: ``notebooks/`` holds the student edition, made by
+nbgrader exactly as ``classroom release`` makes it (each exercise's solution replaced by a stub, hidden
+tests removed), and the teacher's chapters, with the solutions, go to ``solutions/``: beside the exercises,
+but opened only on purpose.
 """
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,11 +32,16 @@ class EditedFilesError(FileExistsError):
     """DEST holds files changed since they were written (or not written by us): not overwritten."""
 
 
+class NoNbgraderError(ImportError):
+    """The student edition needs nbgrader (the ``classroom`` extra), which is not installed."""
+
+
 @dataclass(frozen=True)
 class WrittenBook:
     dest: Path
     chapters: int
     data_files: int
+    solutions: int = 0
 
 
 #: What an experiment writes beside its results while it runs (its per-run logs, saved states, the checkpoints
@@ -57,8 +69,25 @@ def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def write_notebooks(dest: str | Path, force: bool = False, source: Path = SHIPPED_DIR) -> WrittenBook:
-    """Copy the chapters and their data from ``source`` into ``dest`` (see the module docstring).
+def _student_edition(files: dict[str, Path], source: Path, scratch: Path) -> dict[str, Path]:
+    """``files`` with each chapter replaced by its student edition (released by nbgrader into ``scratch``) and
+    the teacher's chapter moved to ``solutions/``."""
+    if importlib.util.find_spec("nbgrader") is None:
+        raise NoNbgraderError("the student edition is made by nbgrader, which is not installed: "
+                              "pip install 'vdtutorial[classroom]'")
+    from vdtutorial.classroom import release
+
+    files = dict(files)
+    for released in release(scratch, source / "notebooks"):
+        files[f"solutions/{released.name}"] = files[f"notebooks/{released.name}"]
+        files[f"notebooks/{released.name}"] = released
+    return files
+
+
+def write_notebooks(dest: str | Path, force: bool = False, source: Path = SHIPPED_DIR,
+                    student: bool = False) -> WrittenBook:
+    """Copy the chapters and their data from ``source`` into ``dest``; with ``student``, the student edition
+    and its solutions apart (see the module docstring).
 
     Raises :class:`EditedFilesError`, before writing anything, if a file to be replaced differs both from
     what was last written there and from what would be written now, unless ``force``."""
@@ -67,17 +96,21 @@ def write_notebooks(dest: str | Path, force: bool = False, source: Path = SHIPPE
         raise NotADirectoryError(f"{dest} is a file, not a folder: name a folder for the chapters")
     record_path = dest / BOOK_RECORD
     written = json.loads(record_path.read_text())["files"] if record_path.is_file() else {}
-    files = shipped_files(source)
-    digests = {path.as_posix(): _digest(source / path) for path in files}
-    edited = [name for name in digests if (dest / name).is_file()
-              and _digest(dest / name) not in (written.get(name), digests[name])]
-    if edited and not force:
-        raise EditedFilesError(f"{dest} holds {len(edited)} file(s) changed since they were written, e.g. "
-                               f"{edited[0]}: pass --force to overwrite them, or name another folder")
-    for path in files:
-        (dest / path).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(source / path, dest / path)
+    with tempfile.TemporaryDirectory(prefix="vdtutorial_edition_") as scratch:
+        files = {path.as_posix(): source / path for path in shipped_files(source)}
+        if student:
+            files = _student_edition(files, source, Path(scratch))
+        digests = {name: _digest(path) for name, path in files.items()}
+        edited = [name for name in digests if (dest / name).is_file()
+                  and _digest(dest / name) not in (written.get(name), digests[name])]
+        if edited and not force:
+            raise EditedFilesError(f"{dest} holds {len(edited)} file(s) changed since they were written, e.g. "
+                                   f"{edited[0]}: pass --force to overwrite them, or name another folder")
+        for name, path in files.items():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, dest / name)
     record = {"vdtutorial": vdtutorial.__version__, "files": digests}
     record_path.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
     return WrittenBook(dest, sum(name.startswith("notebooks/") and name.endswith(".ipynb") for name in digests),
-                       sum(name.startswith("data/") for name in digests))
+                       sum(name.startswith("data/") for name in digests), sum(name.startswith("solutions/")
+                                                                              for name in digests))

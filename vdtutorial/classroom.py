@@ -12,8 +12,12 @@ nbgrader course directory and calls nbgrader's own steps,
   gradebook) then ``autograde`` per student: each submission runs on a fresh kernel with nbgrader's
   per-cell timeout, errors in a cell are recorded in that cell, and the points come from the gradebook.
 
-Autograding runs the students' code with the grader's rights: grade in an isolated environment (a
-container or a throwaway account), as nbgrader's documentation advises (:data:`SAFETY_NOTE`).
+Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.sandbox`): an address-space and a
+CPU-time cap, a throwaway home that is also its working folder, and on Linux, where the system allows
+unprivileged user namespaces, no network and a read-only file system outside that folder. The kernels talk
+to nbgrader over Unix sockets (ZeroMQ's ``ipc`` transport), not TCP. Where namespaces are not allowed the
+submissions still run with the grader's rights to the files and the network: ``classroom grade`` says so
+(:data:`SAFETY_NOTE`), and grading then belongs in a container or a throwaway account.
 Command line: ``python -m vdtutorial classroom release OUT`` and ``... classroom grade SUBMISSIONS...``.
 """
 from __future__ import annotations
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import json
 import os
 import re
 import shutil
@@ -39,8 +44,18 @@ ASSIGNMENT = "vdtutorial"
 #: Seconds a single cell may run during autograding before nbgrader interrupts it. Quick-mode cells take
 #: seconds; the longest (a live TRPO run) about a minute on a busy 2-core machine.
 CELL_TIMEOUT = 300
-SAFETY_NOTE = ("Autograding runs the students' code with your rights: grade in an isolated environment "
-               "(a container or a throwaway account), as nbgrader's documentation advises.")
+SAFETY_NOTE = ("the submissions run with your rights to files and network. Grade in a container or a throwaway "
+               "account, as nbgrader's documentation advises.")
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What one submission's kernel may use. ``isolate``: no network and a read-only file system outside the
+    kernel's throwaway folder (``None``: wherever the system allows it, see :func:`sandbox.isolation_available`)."""
+
+    memory_gb: float = 4.0
+    cpu_minutes: float = 60.0
+    isolate: bool | None = None
 
 
 class ClassroomError(Exception):
@@ -48,12 +63,13 @@ class ClassroomError(Exception):
 
 
 def chapters(source: Path = NOTEBOOKS_DIR) -> dict[str, Path]:
-    """The chapter notebooks of ``source`` by name (``"03_demonstrations"`` -> its path)."""
+    """The chapter notebooks of ``source`` by name (``"03_demonstrations"`` -> its path; a chapter in parts
+    is one notebook per part, ``"06a_trpo_pieces"``, ``"06b_trpo_assembled"``)."""
     if not source.is_dir():
         raise ClassroomError(f"no notebooks folder at {source}: pass --source with the teacher's notebooks")
-    found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]_*.ipynb"))}
+    found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]*_*.ipynb"))}   # a chapter in parts: 06a_..., 06b_...
     if not found:
-        raise ClassroomError(f"{source} holds no chapter notebooks (NN_name.ipynb)")
+        raise ClassroomError(f"{source} holds no chapter notebooks (NN_name.ipynb or NNa_name.ipynb)")
     return found
 
 
@@ -68,8 +84,10 @@ def grade_ids(path: Path) -> list[str]:
     return [c.metadata["nbgrader"]["grade_id"] for c in nb.cells if "grade_id" in c.metadata.get("nbgrader", {})]
 
 
-def _api(course: Path, timeout: int):
-    """An nbgrader API object for the course directory ``course`` (gradebook ``course/gradebook.db``)."""
+def _api(course: Path, timeout: int, sockets: Path | None = None):
+    """An nbgrader API object for the course directory ``course`` (gradebook ``course/gradebook.db``).
+    With ``sockets`` (a folder), kernels talk over Unix sockets made there, where the system has them: no
+    TCP port, and no "running over TCP without encryption" warning from each kernel."""
     from nbgrader.apps import NbGraderAPI
     from traitlets.config import Config
 
@@ -78,17 +96,21 @@ def _api(course: Path, timeout: int):
     config.CourseDirectory.course_id = ASSIGNMENT
     config.CourseDirectory.db_url = f"sqlite:///{course / 'gradebook.db'}"
     config.Execute.timeout = timeout
+    if sockets is not None and os.name == "posix":
+        config.KernelManager.transport = "ipc"
+        config.KernelManager.ip = str(sockets / "kernel")
     return NbGraderAPI(config=config)
 
 
-def _generate(course: Path, source: Path, names: list[str], timeout: int = CELL_TIMEOUT):
+def _generate(course: Path, source: Path, names: list[str], timeout: int = CELL_TIMEOUT,
+              sockets: Path | None = None):
     """Copy the teacher's chapters ``names`` into ``course/source`` and run nbgrader's generate_assignment."""
     found = chapters(source)
     src = course / "source" / ASSIGNMENT
     src.mkdir(parents=True, exist_ok=True)
     for name in names:
         shutil.copy(found[name], src / f"{name}.ipynb")
-    api = _api(course, timeout)
+    api = _api(course, timeout, sockets)
     with _environment(PATH=_path_with_our_scripts()):
         result = api.generate_assignment(ASSIGNMENT)
     if not result["success"]:
@@ -164,6 +186,40 @@ def collect(paths, source: Path = NOTEBOOKS_DIR) -> list[Submission]:
     return subs
 
 
+def _bounded_kernels(scratch: Path, limits: Limits) -> dict[str, str]:
+    """Make the ``python3`` kernel that nbgrader starts a bounded one: a kernelspec in ``scratch`` whose
+    command is the :mod:`vdtutorial.sandbox` launcher in front of ipykernel, each kernel in its own folder
+    under ``scratch/homes``. Returns the environment that makes Jupyter find it first and keep its
+    connection files and sockets in ``scratch/runtime`` (which the kernels may write, to make their sockets).
+    Windows has no ``setrlimit``: there the kernels run unbounded (``classroom grade`` says so)."""
+    from vdtutorial import sandbox
+
+    if os.name != "posix":
+        return {}
+    homes, runtime, spec = scratch / "homes", scratch / "runtime", scratch / "kernels" / "python3"
+    for folder in (homes, runtime, spec):
+        folder.mkdir(parents=True)
+    kernel = [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"]
+    argv = sandbox.command(kernel, int(limits.memory_gb * 2**30), int(limits.cpu_minutes * 60), home_under=homes,
+                           writable=[runtime],
+                           isolate=sandbox.isolation_available() if limits.isolate is None else limits.isolate)
+    (spec / "kernel.json").write_text(json.dumps({"argv": argv, "display_name": "Python 3 (bounded grading)",
+                                                  "language": "python"}))
+    search = [str(scratch)] + [p for p in os.environ.get("JUPYTER_PATH", "").split(os.pathsep) if p]
+    return {"JUPYTER_PATH": os.pathsep.join(search), "JUPYTER_RUNTIME_DIR": str(runtime)}
+
+
+@contextlib.contextmanager
+def _quiet():
+    """Hide what is not the teacher's business: SQLAlchemy's session warnings from inside nbgrader's
+    gradebook (``SAWarning``). Errors, and warnings of other kinds, still show."""
+    from sqlalchemy.exc import SAWarning
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", category=SAWarning)
+        yield
+
+
 def _path_with_our_scripts() -> str:
     """PATH with this Python's scripts folder first: nbgrader opens its gradebook by running the ``alembic``
     command, which is found only if the environment was activated (not when ``.venv/bin/python`` is called)."""
@@ -197,32 +253,40 @@ class Score:
 
 
 def grade(paths, out="grades", source: Path = NOTEBOOKS_DIR, timeout: int = CELL_TIMEOUT,
-          quick: bool = True) -> list[Score]:
+          quick: bool = True, limits: Limits = Limits()) -> list[Score]:
     """Autograde submissions with nbgrader; returns one :class:`Score` per exercise and student.
 
     ``out`` becomes an nbgrader course directory (``source/``, ``submitted/``, ``autograded/``, the SQLite
-    gradebook ``gradebook.db``) plus ``grades.csv``. Each submission runs on a fresh kernel; a cell that
-    raises or runs longer than ``timeout`` seconds scores 0 where it is a test and does not stop the others.
-    ``quick`` runs the kernels in quick mode (small budgets: the exercises do not depend on them).
+    gradebook ``gradebook.db``) plus ``grades.csv``. Each submission runs on a fresh kernel bounded by
+    ``limits``; a cell that raises or runs longer than ``timeout`` seconds scores 0 where it is a test and does
+    not stop the others. ``quick`` runs the kernels in quick mode (small budgets: the exercises do not depend
+    on them); their results go to ``runs/`` in each kernel's throwaway folder.
     """
     out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
-    api = _generate(out, source, sorted({s.chapter for s in subs}), timeout)
-    for sub in subs:
-        dest = out / "submitted" / sub.student / ASSIGNMENT / f"{sub.chapter}.ipynb"
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy(sub.path, dest)
-    scores = []
-    kernel_env = {QUICK_ENV: "1" if quick else "0", "MPLBACKEND": "Agg", "PATH": _path_with_our_scripts()}
-    with _environment(**kernel_env), warnings.catch_warnings():
-        warnings.filterwarnings("ignore", module="sqlalchemy.*")   # nbgrader's session warnings, not ours
-        for student in sorted({s.student for s in subs}):
-            result = api.autograde(ASSIGNMENT, student)
-            if not result["success"]:
-                print(f"warning: nbgrader could not grade {student}: {(result.get('error') or '').strip()[-300:]}",
-                      file=sys.stderr)
+    with tempfile.TemporaryDirectory(prefix="vdtutorial_grade_") as scratch, _quiet():
+        kernel_env = {QUICK_ENV: "1" if quick else "0", "MPLBACKEND": "Agg", "PATH": _path_with_our_scripts(),
+                      "VDTUTORIAL_RUNS": "runs", **_bounded_kernels(Path(scratch), limits)}
+        api = _generate(out, source, sorted({s.chapter for s in subs}), timeout, sockets=Path(scratch) / "runtime")
+        for sub in subs:
+            dest = out / "submitted" / sub.student / ASSIGNMENT / f"{sub.chapter}.ipynb"
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(sub.path, dest)
+        with _environment(**kernel_env):
+            for student in sorted({s.student for s in subs}):
+                result = api.autograde(ASSIGNMENT, student)
+                if not result["success"]:
+                    print(f"warning: nbgrader could not grade {student}: "
+                          f"{(result.get('error') or '').strip()[-300:]}", file=sys.stderr)
+        return _scores(api, subs, out)
+
+
+def _scores(api, subs: list[Submission], out: Path) -> list[Score]:
+    """Every submission's points from the gradebook (0 for the exercises of a notebook nbgrader could not
+    grade at all), also written to ``out/grades.csv``."""
     from nbgrader.api import MissingEntry
 
+    scores = []
     with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
         for sub in subs:
             try:
@@ -276,8 +340,21 @@ def _cmd_release(args) -> None:
 
 
 def _cmd_grade(args) -> None:
-    print(SAFETY_NOTE, file=sys.stderr)
-    scores = grade(args.submissions, args.out, Path(args.source), args.timeout, quick=not args.full)
+    from vdtutorial.sandbox import isolation_available
+
+    if args.memory <= 0 or args.cpu_minutes <= 0:
+        raise ClassroomError("--memory and --cpu-minutes must be positive")
+    limits = Limits(args.memory, args.cpu_minutes, isolate=isolation_available())
+    if os.name != "posix":
+        print(f"warning: this system has no per-process limits (setrlimit): {SAFETY_NOTE}", file=sys.stderr)
+    else:
+        print(f"each submission's kernel: at most {limits.memory_gb:g} GB of address space and "
+              f"{limits.cpu_minutes:g} CPU minutes, in a throwaway folder"
+              + (", no network, read-only files outside that folder" if limits.isolate else ""), file=sys.stderr)
+    if os.name == "posix" and not limits.isolate:
+        print(f"warning: this system allows no user namespaces, so the kernels cannot be cut off from the "
+              f"network and the files: {SAFETY_NOTE}", file=sys.stderr)
+    scores = grade(args.submissions, args.out, Path(args.source), args.timeout, quick=not args.full, limits=limits)
     print(table(scores))
     print(f"\ngradebook {Path(args.out) / 'gradebook.db'}, table {Path(args.out) / 'grades.csv'}")
 
@@ -304,12 +381,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     r.set_defaults(func=_run(_cmd_release))
     g = sub.add_parser("grade", help="autograde submitted notebooks (nbgrader autograde + gradebook), print a table",
                        description="Each SUBMISSION is STUDENT/NN_chapter.ipynb or a folder STUDENT/ of them. "
-                                   + SAFETY_NOTE)
+                                   "Each kernel is bounded: an address-space and a CPU-time cap, a throwaway "
+                                   "folder and, on Linux where user namespaces are allowed, no network and "
+                                   "read-only files outside that folder.")
     g.add_argument("submissions", nargs="+", help="STUDENT/NN_chapter.ipynb files or STUDENT/ folders")
     g.add_argument("--out", default="grades", help="nbgrader course folder with gradebook.db and grades.csv "
                                                    "(default: %(default)s)")
     g.add_argument("--timeout", type=int, default=CELL_TIMEOUT, help="seconds per cell (default: %(default)s)")
     g.add_argument("--full", action="store_true", help="run the submissions with full budgets (default: quick mode)")
+    g.add_argument("--memory", type=float, default=Limits.memory_gb, metavar="GB",
+                   help="address-space cap of each submission's kernel (default: %(default)s)")
+    g.add_argument("--cpu-minutes", type=float, default=Limits.cpu_minutes, metavar="MIN",
+                   help="CPU-time cap of each submission's kernel; past it the kernel is killed (default: %(default)s)")
     g.add_argument("--source", default=str(NOTEBOOKS_DIR), help="the teacher's notebooks (default: %(default)s)")
     g.set_defaults(func=_run(_cmd_grade))
     return p

@@ -1,0 +1,48 @@
+"""The self-learner's edition (issue 30): ``python -m vdtutorial notebooks DEST --student`` writes the
+exercises as ``classroom release`` makes them, and the solutions apart, in ``DEST/solutions``."""
+import json
+
+import nbformat
+import pytest
+
+from vdtutorial import classroom
+from vdtutorial.__main__ import main
+from vdtutorial.chapters import EditedFilesError, shipped_files
+from vdtutorial.settings import BOOK_RECORD, SHIPPED_DIR
+
+
+def _sources(path):
+    return [(c.cell_type, c.source) for c in nbformat.read(path, as_version=4).cells]
+
+
+def test_student_edition_with_its_solutions_apart(tmp_path, capsys):
+    dest = tmp_path / "learner"
+    main(["notebooks", str(dest), "--student"])
+    said = capsys.readouterr().out
+    teacher = classroom.chapters()
+    assert "student edition of" in said and str(dest / "solutions") in said
+    classroom.release(tmp_path / "release")
+    for name, path in teacher.items():
+        student = dest / "notebooks" / f"{name}.ipynb"
+        assert _sources(student) == _sources(tmp_path / "release" / f"{name}.ipynb"), name
+        assert (dest / "solutions" / f"{name}.ipynb").read_bytes() == path.read_bytes(), name
+        text = student.read_text()
+        solved = path.read_text().count("### BEGIN SOLUTION")
+        assert "BEGIN SOLUTION" not in text and text.count("raise NotImplementedError()") == solved, name
+    data = [p for p in shipped_files() if p.parts[0] == "data"]
+    assert all((dest / p).read_bytes() == (SHIPPED_DIR / p).read_bytes() for p in data[:: max(1, len(data) // 20)])
+    recorded = json.loads((dest / BOOK_RECORD).read_text())["files"]
+    assert {f"solutions/{name}.ipynb" for name in teacher} <= set(recorded)
+
+
+def test_student_edition_keeps_the_learners_answers(tmp_path):
+    from vdtutorial.chapters import write_notebooks
+
+    book = write_notebooks(tmp_path, student=True)
+    assert book.chapters == book.solutions == len(classroom.chapters())
+    write_notebooks(tmp_path, student=True)   # untouched: written again without a word
+    answer = tmp_path / "notebooks" / "01_environment.ipynb"
+    answer.write_text(answer.read_text().replace("raise NotImplementedError()", "return 0.0", 1))
+    with pytest.raises(EditedFilesError, match="01_environment.ipynb"):
+        write_notebooks(tmp_path, student=True)
+    assert "return 0.0" in answer.read_text()
