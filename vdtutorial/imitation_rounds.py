@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from vdtutorial.demos import Demos, collect
+from vdtutorial.demos import FORMAT_VERSION, Demos, collect
 from vdtutorial.policy import GaussianPolicy
 from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, default_config, pretrain
 
@@ -77,7 +77,7 @@ def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed
         behaviour, record = plan(k, policy, demos)
         part, rollout = collect(task, size, round_seed(seed, k), behaviour, progress, f"{method} round {k}")
         parts.append(part)
-        meta = {"task": task, "samples": sum(map(len, parts)), "seed": int(seed), "method": method, "reg": reg,
+        meta = {"format_version": FORMAT_VERSION, "task": task, "samples": sum(map(len, parts)), "seed": int(seed), "method": method, "reg": reg,
                 "rounds_done": k + 1}
         demos = Demos.concatenate(parts, meta)
         start = time.perf_counter()

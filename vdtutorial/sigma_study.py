@@ -21,15 +21,13 @@ import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
 from vdtutorial.demos import demo_path
-from vdtutorial.envs import ENV_IDS
-from vdtutorial.evaluation import EPISODE_STEPS, PolicyController, successes_per_episode
+from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, RUNS_DIR, curves_from_rows, finetune, load_demos,
                                     mean_band, pretrained_policy, read_rows, results_file, run_jobs,
                                     write_csv)
@@ -78,13 +76,7 @@ def mean_action_score(reg: str, seed: int, episodes: int = 3) -> float:
     policy = pretrained_policy(reg, load_demos("reach"), "state", seed)
     if reg == "vd":
         policy.prune_()
-    env = gym.make(ENV_IDS["reach"], obs_mode="state")
-    controller, total = PolicyController(policy, deterministic=True), 0
-    for k in range(episodes):
-        for reset_seed in np.random.SeedSequence([seed, k]).generate_state(NUM_ENVS):
-            total += successes_per_episode(env, controller, EPISODE_STEPS // NUM_ENVS, int(reset_seed))["successes"]
-    env.close()
-    return total / episodes
+    return mean_action_successes(policy, "reach", seed, episodes, NUM_ENVS)["successes"]
 
 
 def _mean_action_job(job: tuple[str, int]) -> dict:
