@@ -240,15 +240,18 @@ def plot(rows: list[dict], made: dict[str, dict]) -> Figure:
     return fig
 
 
-def beyond(seeds=None, out=None, workers: int = 1, progress: bool = False) -> dict:
-    """The experiment (module docstring); returns its JSON record."""
+def beyond(seeds=None, out=None, workers: int = 1, progress: bool = False, backend: str = "local",
+           address: str | None = None) -> dict:
+    """The experiment (module docstring); returns its JSON record. The data sets are made here, one after
+    the other (``progress``: their bars); the runs go to ``backend`` with ``workers`` (see
+    :func:`~vdtutorial.experiments.backends.run_jobs`)."""
     seeds = tuple(budget((0, 1, 2, 3, 4), (0, 1)) if seeds is None else seeds)
     out = Path(out) if out is not None else default_out("beyond")
     start = time.perf_counter()
     made = {}
     for variant in variants():  # data sets first, one at a time: later runs only read them
         _, made[variant.label] = data_set(variant, out, progress)
-    rows = run_jobs(_pre_rl, [_Run(v, s, out) for v in variants() for s in seeds], workers)
+    rows = run_jobs(_pre_rl, [_Run(v, s, out.resolve()) for v in variants() for s in seeds], workers, backend, address)
     write_csv(results_file(out, "beyond"), rows)
     plot(rows, made).savefig(out / "beyond.png", dpi=110)
     per_label = {label: {q: _interval([r[q] for r in rows if r["label"] == label])
@@ -267,3 +270,14 @@ def beyond(seeds=None, out=None, workers: int = 1, progress: bool = False) -> di
                            "python": sys.version.split()[0]}}
     (out / "beyond.json").write_text(json.dumps(record, indent=1, default=str))
     return record
+
+
+def format_summary(record: dict) -> str:
+    """The pre-RL scores and the comparisons of a :func:`beyond` record, a line each."""
+    lines = [f"{label:>28}: {band['successes']['mean']:.2f} successes per 200 steps before RL "
+             f"(95% interval {band['successes']['low']:.2f} to {band['successes']['high']:.2f}, {band['successes']['n']} seeds); "
+             f"{record['cost'][label]['clonings']} cloning(s), {record['cost'][label]['expert_queries']} expert labels"
+             for label, band in record["pre_rl"].items()]
+    lines += [f"{c['question']} ({c['a']} - {c['b']}): {c['estimate']:+.2f} ({c['confidence']:.1%} interval "
+              f"{c['low']:+.2f} to {c['high']:+.2f}): {c['reading']}" for c in record["comparisons"]]
+    return "\n".join(lines)
