@@ -96,8 +96,8 @@ def _one_line_error(capsys, argv) -> str:
     (["train"], "invalid choice: 'train'"),
     (["experiment", "table1", "--restart", "--state-dir", "x"], "table1 pre-trains only (no TRPO runs to resume): "
                                                                "--state-dir, --restart are options of the figures"),
-    (["experiment", "beyond", "--steps", "100000"], "beyond measures pre-trained policies only so far (no TRPO runs to "
-                                                    "resume): --steps is an option of the figures"),
+    (["experiment", "beyond", "--steps", "100000", "--restart"], "beyond measures pre-trained policies only so far "
+                                                                 "(no TRPO runs): --steps is an option of the figures"),
     (["experiment", "beyond", "--obs", "rgbd"], "beyond runs in state mode only (--obs state)"),
 ])
 def test_bad_arguments_give_one_line(argv, expected, capsys):

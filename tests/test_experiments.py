@@ -18,7 +18,7 @@ from vdtutorial.experiments import (KL_WEIGHTINGS, METHOD_LABELS, TABLE1, Curve,
                                     results_file,
                                     run_experiment, seeds_with_trend, sparsity_trends, steps_to_reach, table1,
                                     table_means, vd_reaches_l2_final)
-from vdtutorial.experiments import backends
+from vdtutorial.runner import backends
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.trpo import TIMING_COLUMNS
 from vdtutorial.vd import svdo_layers

@@ -20,9 +20,9 @@ from vdtutorial.experiments import (SUBSAMPLED_FISHER_CONFIG, Curve, ExperimentR
                                     default_trpo_config, format_summary, read_rows, results_file, run_experiment)
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments import finetune
-from vdtutorial.experiments import resume as resume_module
+from vdtutorial.runner import resume as resume_module
 from vdtutorial.experiments import runs as runs_module
-from vdtutorial.experiments.resume import GZIP_MAGIC, read_run_state, settings_differences
+from vdtutorial.runner.resume import GZIP_MAGIC, read_run_state, settings_differences
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import QUICK
 from vdtutorial.trpo import TIMING_COLUMNS, TRPOConfig

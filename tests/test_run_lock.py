@@ -9,8 +9,9 @@ import threading
 import time
 
 from vdtutorial.experiments import RunSpec, default_trpo_config, run_experiment
-from vdtutorial.experiments import grid as grid_module
-from vdtutorial.experiments.run_lock import STALE_S, RunLock, holder_alive, lock_path
+from vdtutorial.experiments.jobs import Job
+from vdtutorial.runner import grid as grid_module
+from vdtutorial.runner.run_lock import STALE_S, RunLock, holder_alive, lock_path
 from vdtutorial.trpo import TIMING_COLUMNS
 
 
@@ -83,7 +84,7 @@ def test_a_job_waits_while_another_process_holds_its_run_then_continues_from_its
     plain = _grid(tmp_path / "plain")
     spec = _specs()[0]
     state = tmp_path / "runs" / f"{spec.name}.pt"
-    job = grid_module.Job(spec, state, state.with_suffix(".csv"), None, None, None, default_trpo_config("state"), 1)
+    job = Job(spec, state, state.with_suffix(".csv"), None, None, None, default_trpo_config("state"), 1)
     other = RunLock(state)
     assert other.acquire()
     steps = grid_module.run_job(job)

@@ -6,6 +6,8 @@ Pipeline: IK expert -> noisy demonstrations -> behavioural cloning with sparse v
 gymnasium environments ``vdtutorial/JacoReach-v0`` and ``vdtutorial/JacoGrasp-v0``, after pinning
 torch's and numpy's CPU kernels to AVX2 (:mod:`vdtutorial.kernels`: the shipped results then regenerate
 bit for bit on the x86-64 CPUs measured, not all of them), which must happen before numpy loads.
+
+Taught in chapter 00.
 """
 __version__ = "0.1.0"
 

@@ -183,7 +183,7 @@ def _print_summary(result) -> None:
 
 #: Experiments without TRPO runs, and why the figures' resume options do not apply to them.
 PRE_RL_ONLY = {"table1": "pre-trains only (no TRPO runs to resume)",
-               "beyond": "measures pre-trained policies only so far (no TRPO runs to resume)"}
+               "beyond": "measures pre-trained policies only so far (no TRPO runs)"}
 
 
 def _cmd_experiment(args) -> None:
@@ -199,8 +199,10 @@ def _cmd_experiment(args) -> None:
         raise CommandError("--kl-weighting is an option of table1 (the figures use the pre-training default)")
     if args.name in PRE_RL_ONLY:
         ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
-                                            ("--state-dir", args.state_dir), ("--restart", args.restart or None),
-                                            ("--checkpoint-every", args.checkpoint_every)) if value is not None]
+                                            ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),
+                                            ("--restart", args.restart or None)) if value is not None]
+        if args.name == "beyond":   # its pre-RL runs are a grid with saved states: --restart discards them
+            ignored = [flag for flag in ignored if flag != "--restart"]
         if ignored:
             raise CommandError(f"{args.name} {PRE_RL_ONLY[args.name]}: {', '.join(ignored)} "
                                f"{'are options' if len(ignored) > 1 else 'is an option'} of the figures")
@@ -212,8 +214,8 @@ def _cmd_experiment(args) -> None:
 
         if args.obs != "state":
             raise CommandError("beyond runs in state mode only (--obs state)")
-        print(format_summary(beyond(seeds=args.seeds, out=args.out, workers=args.workers, progress=sys.stderr.isatty(),
-                                   backend=backend, address=args.address)))
+        print(format_summary(beyond(seeds=args.seeds, out=args.out, workers=args.workers, backend=backend,
+                                    address=args.address, restart=args.restart)))
         return
     trpo_config = None
     if args.fvp_subsample is not None:

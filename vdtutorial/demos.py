@@ -13,6 +13,8 @@ thousand samples instead of ~256 kB per 128x128 RGBD image).
 
 Files are zip archives of ``.npy`` arrays plus a JSON metadata record, written with fixed timestamps
 (same seed -> byte-identical file) and atomically (written aside, then renamed).
+
+Taught in chapter 03.
 """
 from __future__ import annotations
 

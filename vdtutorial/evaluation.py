@@ -4,6 +4,8 @@ The paper's reaching metric is the number of successful trajectories per episode
 (Figs. 4-6): run the controller for 200 environment steps, starting a new trajectory whenever one
 ends, and count the trajectories that ended in success. A controller here is anything with
 ``reset(env)`` (called after every ``env.reset``) and ``action(obs)``.
+
+Taught in chapter 02.
 """
 from __future__ import annotations
 

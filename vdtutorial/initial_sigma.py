@@ -12,46 +12,7 @@ Why it matters
     is a dropout model, it inherently contains information about its own uncertainty. There is potential
     to use this uncertainty information to learn an appropriate SD function."
 
-The options (:class:`InitialSigma`, ``kind``)
-    ``"fixed"`` (a) -- the paper's setting. The sigma network keeps its initialisation and its output
-        bias is set so that sigma = ``value`` (up to the small random head weights, ``HEAD_INIT_SCALE``,
-        which make it vary by a few per cent between states). ``value`` = 0.3 = the policy's
-        ``init_std`` reproduces today's behaviour bit for bit.
-    ``"demos"`` (b) -- sigma_psi(s) fitted by maximum likelihood of the demonstrations with mu frozen:
-        the data term of eq. 3, log N(a | mu(s), sigma_psi(s)), maximised over psi only. This is the
-        pre-training of Section IV completed for the second moment: sigma then measures how far the
-        expert's labels lie from the cloned mean, state by state. It is fitted on the training split of
-        pre-training (the held-out episodes stay held out) and applies to VD and L2 alike. It can
-        overfit a small set: on the shipped 8000 samples (seed 0) it raised the held-out log-likelihood
-        of the expert's actions from 1.08 to 5.33 (VD) and 1.15 to 4.89 (L2), but on 600 samples cloned
-        for 5 epochs the held-out NLL rose from 0.82 to 17 (sigma shrinks on training states whose
-        labels mu happens to fit). Early stopping on the held-out episodes would guard against it.
-    ``"spread"`` (c) -- beyond the paper, its Section VI proposal: sigma_psi(s) fitted to the VD mean
-        network's predictive spread, the standard deviation of mu(s) over weights sampled from q(W)
-        (eq. 4's multiplicative Gaussian noise, with the weights that RL prunes, log alpha > 3, removed,
-        since RL starts from the pruned network). The policy then explores where the dropout model is
-        unsure. The fit minimises the squared error of log sigma_psi(s) against the log spread at the
-        demonstration states (training split).
-
-Methods without the ingredient an option needs
-    L2 under (c): an L2 network has no noise model, so its sigma is fitted to the spread of the VD
-        network pre-trained on the same demonstrations with the same seed (``spread_net``). Both methods
-        then start with the same exploration map and differ only in mu, which is what the comparison
-        of VD against L2 is about.
-    No pre-training ("none"): there are no demonstrations and no mean network to fit to, so under every
-        option it starts from a fixed sigma, ``value`` (0.3 by default, as in the paper).
-
-How a fit works (b and c)
-    mu is evaluated once in eval mode (deterministic, log alpha > 3 dropped: the network RL starts from)
-    and frozen. The sigma network, also in eval mode (deterministic for a VD policy too), is trained with
-    Adam for ``fit_steps`` steps at learning rate ``lr`` from its initialisation; only its weights and
-    biases move (a VD sigma network's log sigma^2 gets no gradient in eval mode and is frozen in RL
-    anyway). State inputs: full batch (the sets are small, <= 8000 state vectors, so the fit is exact and
-    deterministic). Image inputs: one full-batch step through the convolutional sigma network over 7200
-    RGBD images costs about half a minute on a laptop core, so 500 of them would take hours; the fit then
-    uses a seeded subset of ``IMAGE_FIT_STATES`` training states (chosen in :func:`vdtutorial.pretrain.
-    set_initial_sigma`) and seeded minibatches of ``IMAGE_FIT_BATCH`` (a few minutes per policy). Both
-    numbers are our choices, made for cost; the paper has no such fit.
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -76,12 +37,54 @@ DEFAULT_VALUE = 0.3
 
 @dataclass(frozen=True)
 class InitialSigma:
-    """Which sigma RL starts from (see the module docstring).
+    """Which sigma RL starts from.
 
     kind: "fixed" (a), "demos" (b) or "spread" (c).
     value: sigma of option (a), radians; also the start of "none" under every option.
     fit_steps, lr: full-batch Adam steps and step size of the fits (b, c).
     spread_samples: weight samples from q(W) per state to estimate the VD spread (c).
+
+    The options (:class:`InitialSigma`, ``kind``)
+        ``"fixed"`` (a) -- the paper's setting. The sigma network keeps its initialisation and its output
+            bias is set so that sigma = ``value`` (up to the small random head weights, ``HEAD_INIT_SCALE``,
+            which make it vary by a few per cent between states). ``value`` = 0.3 = the policy's
+            ``init_std`` reproduces today's behaviour bit for bit.
+        ``"demos"`` (b) -- sigma_psi(s) fitted by maximum likelihood of the demonstrations with mu frozen:
+            the data term of eq. 3, log N(a | mu(s), sigma_psi(s)), maximised over psi only. This is the
+            pre-training of Section IV completed for the second moment: sigma then measures how far the
+            expert's labels lie from the cloned mean, state by state. It is fitted on the training split of
+            pre-training (the held-out episodes stay held out) and applies to VD and L2 alike. It can
+            overfit a small set: on the shipped 8000 samples (seed 0) it raised the held-out log-likelihood
+            of the expert's actions from 1.08 to 5.33 (VD) and 1.15 to 4.89 (L2), but on 600 samples cloned
+            for 5 epochs the held-out NLL rose from 0.82 to 17 (sigma shrinks on training states whose
+            labels mu happens to fit). Early stopping on the held-out episodes would guard against it.
+        ``"spread"`` (c) -- beyond the paper, its Section VI proposal: sigma_psi(s) fitted to the VD mean
+            network's predictive spread, the standard deviation of mu(s) over weights sampled from q(W)
+            (eq. 4's multiplicative Gaussian noise, with the weights that RL prunes, log alpha > 3, removed,
+            since RL starts from the pruned network). The policy then explores where the dropout model is
+            unsure. The fit minimises the squared error of log sigma_psi(s) against the log spread at the
+            demonstration states (training split).
+
+    Methods without the ingredient an option needs
+        L2 under (c): an L2 network has no noise model, so its sigma is fitted to the spread of the VD
+            network pre-trained on the same demonstrations with the same seed (``spread_net``). Both methods
+            then start with the same exploration map and differ only in mu, which is what the comparison
+            of VD against L2 is about.
+        No pre-training ("none"): there are no demonstrations and no mean network to fit to, so under every
+            option it starts from a fixed sigma, ``value`` (0.3 by default, as in the paper).
+
+    How a fit works (b and c)
+        mu is evaluated once in eval mode (deterministic, log alpha > 3 dropped: the network RL starts from)
+        and frozen. The sigma network, also in eval mode (deterministic for a VD policy too), is trained with
+        Adam for ``fit_steps`` steps at learning rate ``lr`` from its initialisation; only its weights and
+        biases move (a VD sigma network's log sigma^2 gets no gradient in eval mode and is frozen in RL
+        anyway). State inputs: full batch (the sets are small, <= 8000 state vectors, so the fit is exact and
+        deterministic). Image inputs: one full-batch step through the convolutional sigma network over 7200
+        RGBD images costs about half a minute on a laptop core, so 500 of them would take hours; the fit then
+        uses a seeded subset of ``IMAGE_FIT_STATES`` training states (chosen in :func:`vdtutorial.pretrain.
+        set_initial_sigma`) and seeded minibatches of ``IMAGE_FIT_BATCH`` (a few minutes per policy). Both
+        numbers are our choices, made for cost; the paper has no such fit.
+
     """
 
     kind: str = "fixed"

@@ -8,6 +8,8 @@ only for Linux x86_64 and CPython up to 3.11; elsewhere pip compiles it from sou
 compiler and the Python headers needed), or conda-forge supplies a build. A source build made in pip's
 isolated build environment has no numpy in it, so ``pybullet.isNumpyEnabled()`` is 0 and every camera
 image comes back as Python lists, about 3x slower (chapter 01 renders them).
+
+Taught in chapter 00.
 """
 from __future__ import annotations
 

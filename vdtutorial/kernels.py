@@ -15,6 +15,8 @@ vdtutorial`` does it first). The variables are only set where the user has not s
 ``VDTUTORIAL_NATIVE_KERNELS=1`` keeps the CPU's own kernels (no longer the shipped numbers to the last
 bit). The CPU's flags are read from ``/proc/cpuinfo``: elsewhere (macOS, Windows) and on other
 architectures nothing is pinned, since forcing AVX2 on a CPU without it would stop the process.
+
+Taught in chapter 04.
 """
 from __future__ import annotations
 

@@ -4,6 +4,8 @@
 a run goes through the same code path end to end in seconds instead of hours. Library code never reads
 the environment variable itself: it calls :func:`budget` with the full-scale value and the quick one, when a
 run starts (never when a module is imported), so that :func:`use_quick` reaches every run made after it.
+
+Taught in chapter 00.
 """
 from __future__ import annotations
 

@@ -7,45 +7,13 @@ The model (paper, eq. 4)
     Gaussian/binary dropout correspondence alpha = p / (1 - p), alpha > e^3 is binary dropout with
     p > 0.95, and the paper drops such weights for the RL phase (Section IV).
 
-Additive parametrisation
-    Learning alpha directly makes the gradient with respect to theta very noisy once alpha is large. As
-    Molchanov et al. do, each layer learns ``log_sigma2`` (the log variance sigma^2 = alpha theta^2 of
-    the weight) next to ``theta`` (the attribute ``weight``), and derives
-    ``log_alpha = log_sigma2 - log(theta^2 + 1e-8)``. ``log_sigma2`` starts at -10: the noise is
-    negligible at first and the network starts as an ordinary one. (A consequence: weights initialised
-    with |theta| < e^((-10 - 3) / 2) ~ 0.0015 are pruned from the start.)
-
-Clipping log alpha to [-8, 8]
-    Below -8 the noise standard deviation is under e^-4 ~ 2% of |theta| and the KL term is nearly flat,
-    so nothing is lost; above 8 the weight is dropped with p > 0.9997 anyway. Clipping keeps
-    ``log(theta^2)`` from running to -infinity as theta shrinks to zero, which would otherwise make the
-    KL value and its gradient explode.
-
-Local reparameterisation (the efficient form of eq. 4)
-    The weights of one layer are independent Gaussians, so each pre-activation is Gaussian with mean
-    x theta^T + b and variance x^2 sigma^2^T. Sampling the pre-activations instead of the weights costs
-    one extra matrix product and one noise draw per output instead of per weight, and gives a
-    lower-variance gradient estimate (the noise is independent between the examples of a mini-batch).
-
-Objective (paper, eqs. 1-3)
-    Maximise the variational lower bound N/M sum_m log p(y_m | x_m, w) - KL(q || p) with a log-uniform
-    prior p. Its KL term depends on alpha only and has no closed form; :func:`kl_approx` uses Molchanov's
-    fitted approximation. Per example, the loss to minimise is the mean negative log-likelihood plus
-    beta * KL / N; a warm-up of beta from 0 to 1 lets the data term shape theta before the prior starts
-    pruning.
-
-Pruning and fine-tuning
-    In eval mode a layer is deterministic and uses theta with the weights of log alpha > 3 set to zero.
-    :meth:`prune_` freezes that mask for the RL phase: from then on the forward pass is always the
-    deterministic ``theta * mask`` (also in train mode), ``log_sigma2`` stops training (the paper trains W
-    but not alpha in the RL phase), pruned thetas are set to zero and get an exactly zero gradient, so
-    no gradient-based optimiser (Adam, or TRPO's conjugate-gradient step) can revive them.
-
 Reading and exploiting sparsity
     :func:`sparsity_report` counts pruned weights and pruned neurons; :func:`compact` removes pruned
     neurons physically, giving a smaller plain network with identical eval-mode outputs. Both need the
     network's wiring, described as :class:`Edge` lists (:func:`chain` derives them for ``nn.Sequential``
     stacks; composite modules provide a ``weight_edges()`` method).
+
+Taught in chapter 04.
 """
 from __future__ import annotations
 
@@ -80,6 +48,13 @@ def kl_approx(log_alpha: torch.Tensor) -> torch.Tensor:
     computed as ``softplus(-log_alpha)`` so it neither overflows nor loses precision. The KL is
     positive, decreases monotonically in alpha and tends to 0 as alpha -> infinity: that slope is what
     pushes unnecessary weights towards pure noise, i.e. towards being pruned.
+
+    Objective (paper, eqs. 1-3)
+        Maximise the variational lower bound N/M sum_m log p(y_m | x_m, w) - KL(q || p) with a log-uniform
+        prior p. Its KL term depends on alpha only and has no closed form; :func:`kl_approx` uses Molchanov's
+        fitted approximation. Per example, the loss to minimise is the mean negative log-likelihood plus
+        beta * KL / N; a warm-up of beta from 0 to 1 lets the data term shape theta before the prior starts
+        pruning.
     """
     neg_kl = K1 * torch.sigmoid(K2 + K3 * log_alpha) - 0.5 * F.softplus(-log_alpha) - K1
     return -neg_kl
@@ -87,7 +62,28 @@ def kl_approx(log_alpha: torch.Tensor) -> torch.Tensor:
 
 class SVDOLayer(nn.Module):
     """What the sparse-VD linear and convolutional layers share: parameters, the train / eval / pruned
-    forward, the KL term and pruning. Subclasses only say how a weight tensor is applied (``_op``)."""
+    forward, the KL term and pruning. Subclasses only say how a weight tensor is applied (``_op``).
+
+    Additive parametrisation
+        Learning alpha directly makes the gradient with respect to theta very noisy once alpha is large. As
+        Molchanov et al. do, each layer learns ``log_sigma2`` (the log variance sigma^2 = alpha theta^2 of
+        the weight) next to ``theta`` (the attribute ``weight``), and derives
+        ``log_alpha = log_sigma2 - log(theta^2 + 1e-8)``. ``log_sigma2`` starts at -10: the noise is
+        negligible at first and the network starts as an ordinary one. (A consequence: weights initialised
+        with |theta| < e^((-10 - 3) / 2) ~ 0.0015 are pruned from the start.)
+
+    Clipping log alpha to [-8, 8]
+        Below -8 the noise standard deviation is under e^-4 ~ 2% of |theta| and the KL term is nearly flat,
+        so nothing is lost; above 8 the weight is dropped with p > 0.9997 anyway. Clipping keeps
+        ``log(theta^2)`` from running to -infinity as theta shrinks to zero, which would otherwise make the
+        KL value and its gradient explode.
+
+    Local reparameterisation (the efficient form of eq. 4)
+        The weights of one layer are independent Gaussians, so each pre-activation is Gaussian with mean
+        x theta^T + b and variance x^2 sigma^2^T. Sampling the pre-activations instead of the weights costs
+        one extra matrix product and one noise draw per output instead of per weight, and gives a
+        lower-variance gradient estimate (the noise is independent between the examples of a mini-batch).
+    """
 
     def __init__(self, weight_shape: tuple[int, ...], bias: bool):
         super().__init__()
@@ -124,7 +120,15 @@ class SVDOLayer(nn.Module):
 
     @torch.no_grad()
     def prune_(self, threshold: float = THRESHOLD) -> "SVDOLayer":
-        """Freeze the mask log alpha <= threshold for RL fine-tuning (idempotent, see the module docstring)."""
+        """Freeze the mask log alpha <= threshold for RL fine-tuning (idempotent, see the module docstring).
+
+        Pruning and fine-tuning
+            In eval mode a layer is deterministic and uses theta with the weights of log alpha > 3 set to zero.
+            :meth:`prune_` freezes that mask for the RL phase: from then on the forward pass is always the
+            deterministic ``theta * mask`` (also in train mode), ``log_sigma2`` stops training (the paper trains W
+            but not alpha in the RL phase), pruned thetas are set to zero and get an exactly zero gradient, so
+            no gradient-based optimiser (Adam, or TRPO's conjugate-gradient step) can revive them.
+        """
         self.mask.copy_(self.keep_mask(threshold))
         self.weight.mul_(self.mask)
         self.pruned.fill_(True)

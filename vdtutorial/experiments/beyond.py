@@ -19,12 +19,13 @@ spent in the expert and the number of clonings it took. The comparisons (the JSO
 differences of means over seeds with Welch t intervals, Bonferroni-corrected over all comparisons of the
 experiment, read with the verdicts of :mod:`vdtutorial.experiments.effects`.
 
-Resumable: data sets, checkpoints and per-run scores are files; running the same command again reads what
-is there and computes the rest. The RL stage (TRPO at 1e5 steps from these policies) is not run by this
+Resumable: the data sets and checkpoints are files made once, and the runs are a grid of the runner
+(:class:`PreRLJob`, :func:`~vdtutorial.runner.grid.run_grid`) with a state file each; running the same command
+again reads what is there and computes the rest. The RL stage (TRPO at 1e5 steps from these policies) is not run by this
 module (see ``RL_STAGE``).
 
 Files in ``out`` (default ``runs/beyond``; the shipped results in ``data/results/beyond``): ``demos/`` (the
-data sets made here, with each DART/DAgger round's record beside it), ``pre_rl/`` (one score per run),
+data sets made here, with each DART/DAgger round's record beside it), ``runs/`` (the runs' states), ``checkpoints/``,
 ``beyond.csv.gz``, ``beyond.png`` and ``beyond.json``.
 """
 from __future__ import annotations
@@ -43,15 +44,15 @@ import vdtutorial
 from vdtutorial.dagger import BETA, dagger
 from vdtutorial.dart import dart
 from vdtutorial.demos import Demos, demo_path, generate_demos
-from vdtutorial.evaluation import mean_action_successes
-from vdtutorial.experiments.backends import run_jobs
+from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.curves import CONFIDENCE, mean_band
 from vdtutorial.experiments.effects import verdict, welch_interval
 from vdtutorial.experiments.results import default_out, experiment_command
-from vdtutorial.experiments.rows import results_file, write_csv
 from vdtutorial.experiments.runs import METHOD_LABELS, NUM_ENVS, pretrained_policy
 from vdtutorial.imitation_rounds import cloning_config
 from vdtutorial.pretrain import CheckpointError, load_checkpoint, pretrain, save_checkpoint
+from vdtutorial.runner import results_file, run_grid, write_csv
+from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.settings import budget, is_quick, recorded_path
 
 TASK = "reach"
@@ -63,9 +64,9 @@ TOO_LARGE = 1.0
 #: DART's poor starts: the smallest hand-set Sigma and the too-large one.
 DART_STARTS = (0.05, TOO_LARGE)
 #: What the RL stage would be, and why it is not run here.
-RL_STAGE = ("TRPO at 1e5 env steps from these pre-trained policies is not run by this experiment yet: the grid "
-            "(vdtutorial/experiments/grid.py) names a run's data set by (samples, Sigma) and looks for shipped "
-            "checkpoints by that name, which a DART or DAgger data set does not have")
+RL_STAGE = ("not run yet: TRPO at 1e5 env steps from these policies needs finetune_steps (experiments/runs.py) to "
+            "start from a policy cloned on a DART or DAgger data set, whereas it looks the policy up by the data set's "
+            "(samples, Sigma) name, which those sets do not have")
 
 
 def samples() -> int:
@@ -155,27 +156,61 @@ def cloned_policy(variant: Variant, demos: Demos, seed: int, checkpoints: Path):
 
 
 @dataclass(frozen=True)
-class _Run:
+class PreRLJob:
+    """One variant and seed as a job of the grid runner (:class:`~vdtutorial.runner.grid.GridJob`): clone on the
+    variant's data set (made first, by :func:`beyond`) and score the mean action before RL. Its state file holds
+    the one row and the settings it was made with, so a rerun finds it finished, and a rerun with other settings
+    stops with the runner's :class:`~vdtutorial.runner.resume.ResumeError` rather than mixing results."""
+
     variant: Variant
     seed: int
     out: Path
+    state_dir: Path
 
+    @property
+    def name(self) -> str:
+        return f"{self.variant.name}_seed{self.seed}"
 
-def _pre_rl(run: _Run) -> dict:
-    """One run's pre-RL score, read from ``out/pre_rl`` when an earlier call made it."""
-    path = run.out / "pre_rl" / f"{run.variant.name}_seed{run.seed}.json"
-    if path.exists():
-        return json.loads(path.read_text())
-    demos, _ = data_set(run.variant, run.out)
-    policy = cloned_policy(run.variant, demos, run.seed, run.out / "checkpoints")
-    if run.variant.reg == "vd":
-        policy.prune_()
-    score = mean_action_successes(policy, TASK, run.seed, pre_rl_episodes(), NUM_ENVS)
-    row = {"label": run.variant.label, "kind": run.variant.kind, "method": run.variant.reg, "sigma": run.variant.sigma,
-           "seed": run.seed, **score, "success_rate": score["successes"] / max(score["trajectories"], 1e-12)}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(row))
-    return row
+    @property
+    def state_path(self) -> Path:
+        return self.state_dir / f"{self.name}.pt"
+
+    @property
+    def csv_path(self) -> Path:
+        return self.state_dir / f"{self.name}.csv"
+
+    @property
+    def settings(self) -> dict:
+        return {"experiment": "beyond", "variant": asdict(self.variant), "seed": self.seed, "samples": samples(),
+                "rounds": rounds(), "episodes": pre_rl_episodes(), "num_envs": NUM_ENVS,
+                "pretrain_config": asdict(cloning_config(self.variant.reg))}
+
+    @property
+    def rows_expected(self) -> int:
+        return 1
+
+    @property
+    def env_steps(self) -> int:
+        return pre_rl_episodes() * EPISODE_STEPS
+
+    def tags(self) -> dict:
+        return {"label": self.variant.label, "kind": self.variant.kind, "method": self.variant.reg,
+                "sigma": self.variant.sigma, "seed": self.seed}
+
+    def summary(self, rows: list[dict]) -> str:
+        return f"{rows[0]['successes']:.3g} successes per 200 steps before RL"
+
+    def compute(self):
+        start = time.perf_counter()
+        demos, _ = data_set(self.variant, self.out)
+        policy = cloned_policy(self.variant, demos, self.seed, self.out / "checkpoints")
+        if self.variant.reg == "vd":
+            policy.prune_()
+        score = mean_action_successes(policy, TASK, self.seed, pre_rl_episodes(), NUM_ENVS)
+        rows = [{**score, "success_rate": score["successes"] / max(score["trajectories"], 1e-12)}]
+        save_finished_rows(self.state_path, self.settings, rows, time.perf_counter() - start)
+        yield {"env_steps": self.env_steps}
+        return rows
 
 
 def _interval(values) -> dict:
@@ -240,18 +275,21 @@ def plot(rows: list[dict], made: dict[str, dict]) -> Figure:
     return fig
 
 
-def beyond(seeds=None, out=None, workers: int = 1, progress: bool = False, backend: str = "local",
-           address: str | None = None) -> dict:
+def beyond(seeds=None, out=None, workers: int = 1, progress: bool | None = None, backend: str = "local",
+           address: str | None = None, restart: bool = False) -> dict:
     """The experiment (module docstring); returns its JSON record. The data sets are made here, one after
-    the other (``progress``: their bars); the runs go to ``backend`` with ``workers`` (see
-    :func:`~vdtutorial.experiments.backends.run_jobs`)."""
+    the other; the runs are a grid (:func:`~vdtutorial.runner.grid.run_grid`: ``workers``, ``backend``,
+    ``address``, ``restart``, ``progress``), their states in ``out/runs``."""
     seeds = tuple(budget((0, 1, 2, 3, 4), (0, 1)) if seeds is None else seeds)
     out = Path(out) if out is not None else default_out("beyond")
     start = time.perf_counter()
     made = {}
     for variant in variants():  # data sets first, one at a time: later runs only read them
-        _, made[variant.label] = data_set(variant, out, progress)
-    rows = run_jobs(_pre_rl, [_Run(v, s, out.resolve()) for v in variants() for s in seeds], workers, backend, address)
+        _, made[variant.label] = data_set(variant, out, bool(progress))
+    state_dir = (out / "runs").resolve()
+    jobs = [PreRLJob(v, s, out.resolve(), state_dir) for v in variants() for s in seeds]
+    results = run_grid("beyond", jobs, workers, backend, address, restart, progress)
+    rows = [row for result in results for row in result["rows"]]
     write_csv(results_file(out, "beyond"), rows)
     plot(rows, made).savefig(out / "beyond.png", dpi=110)
     per_label = {label: {q: _interval([r[q] for r in rows if r["label"] == label])

@@ -33,7 +33,7 @@ import numpy as np
 from scipy import stats
 
 from vdtutorial.experiments.curves import CONFIDENCE, moving_average, record_window, smooth_window
-from vdtutorial.experiments.rows import read_rows, results_file
+from vdtutorial.runner.rows import read_rows, results_file
 
 #: Bootstrap resamples for the steps-to-reach interval.
 BOOTSTRAP_SAMPLES = 2000

@@ -1,6 +1,6 @@
 """What a grid costs on N cores: an estimate of wall time from measured env steps per second.
 
-A run is one task on one core (one torch thread, see :mod:`~vdtutorial.experiments.backends`), so a
+A run is one task on one core (one torch thread, see :mod:`~vdtutorial.runner.backends`), so a
 grid's wall time on ``cores`` cores is the time at which the last run ends when the runs, in the grid's
 order, each start on the first core that is free (Ray and the local pool both hand out tasks that
 way). A run lasts ``total_steps / steps_per_s`` seconds, plus ``pretrain_s[method]`` when its pre-trained
@@ -18,7 +18,7 @@ from dataclasses import replace
 
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments.figures import FIGURES, figure_specs
-from vdtutorial.experiments.grid import RunSpec
+from vdtutorial.experiments.jobs import RunSpec
 from vdtutorial.pretrain import RL_START_SIGMA, checkpoint_path
 
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from vdtutorial.demos import SHIPPED_NOISE
 from vdtutorial.experiments.curves import vd_reaches_l2_final
-from vdtutorial.experiments.grid import RunSpec
+from vdtutorial.experiments.jobs import RunSpec
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
 from vdtutorial.experiments.runs import METHOD_LABELS, default_seeds, default_total_steps, default_trpo_config
 

@@ -5,8 +5,8 @@ from pathlib import Path
 
 from vdtutorial.demos import DemoFileError, Demos, demo_command, demo_path, generate_demos
 from vdtutorial.experiments.curves import Curve, vd_reaches_l2_final
-from vdtutorial.experiments.grid import RunSpec
-from vdtutorial.experiments.progress import live_by_default
+from vdtutorial.experiments.jobs import RunSpec
+from vdtutorial.runner.progress import live_by_default
 from vdtutorial.experiments.results import ExperimentResult, run_experiment
 from vdtutorial.experiments.runs import METHOD_LABELS, RL_METHODS, RUNS_DIR, pretrained_policy
 from vdtutorial.pretrain import PretrainConfig
@@ -26,7 +26,7 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
     Everything -- demonstrations, checkpoints, results -- goes to ``out`` (default ``runs/reproduce_quick``
     beside ``data/``), so the shipped full-scale artefacts are never touched. Quick mode shrinks the
     defaults further. Like every grid it is resumable: run it again to continue an interrupted one.
-    ``progress``: see :mod:`~vdtutorial.experiments.progress` (each step and each finished run prints a
+    ``progress``: see :mod:`~vdtutorial.runner.progress` (each step and each finished run prints a
     line unless it is False)."""
     out = Path(out) if out is not None else RUNS_DIR / "reproduce_quick"
     samples = budget(2000, 300) if samples is None else samples

@@ -19,9 +19,10 @@ import vdtutorial
 from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, final_point, record_window,
                                            smooth_window)
 from vdtutorial.experiments.effects import claim_effects
-from vdtutorial.experiments.grid import Job, RunSpec, run_grid
+from vdtutorial.experiments.jobs import Job, RunSpec
+from vdtutorial.runner.grid import run_grid
 from vdtutorial.experiments.plots import plot_curves
-from vdtutorial.experiments.rows import read_rows, results_file, write_csv
+from vdtutorial.runner.rows import read_rows, results_file, write_csv
 from vdtutorial.kernels import kernel_settings
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, RUNS_DIR, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
@@ -102,7 +103,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
                    window: int | None = None, command: str = "", summarise=None, *, backend: str = "local",
                    address: str | None = None, state_dir: str | Path | None = None, restart: bool = False,
                    checkpoint_every: int = CHECKPOINT_EVERY, progress: bool | None = None) -> ExperimentResult:
-    """Run ``specs`` as a restartable grid (:func:`~vdtutorial.experiments.grid.run_grid`), then write
+    """Run ``specs`` as a restartable grid (:func:`~vdtutorial.runner.grid.run_grid`), then write
     ``NAME.csv.gz`` (all rows), ``NAME.png`` (:func:`plot_curves`) and ``NAME.json`` (command, configuration,
     per-run compute times, summary) into ``out``. The summary holds each curve's final point, plus
     whatever ``summarise(curves)`` returns.
@@ -113,11 +114,11 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     demos_root: where the demonstrations are read (default ``data/``).
     checkpoints_root: where pre-trained checkpoints are made when the shipped ones do not match
         (default ``out``; see :func:`~vdtutorial.experiments.runs.pretrained_policy`).
-    backend, address, workers: where the runs execute (:mod:`~vdtutorial.experiments.backends`).
+    backend, address, workers: where the runs execute (:mod:`~vdtutorial.runner.backends`).
     state_dir: the runs' saved states and CSVs (default ``out/runs``; on a cluster, shared storage).
     restart: discard the saved states of these runs instead of continuing them.
     checkpoint_every: TRPO iterations between two saved states of a run.
-    progress: the grid's live line and per-run lines (:mod:`~vdtutorial.experiments.progress`).
+    progress: the grid's live line and per-run lines (:mod:`~vdtutorial.runner.progress`).
     """
     out = Path(out) if out is not None else default_out(name)
     window = smooth_window() if window is None else window

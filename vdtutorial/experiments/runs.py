@@ -1,5 +1,8 @@
 """One run of the paper's experiments: a pre-trained (or fresh) policy fine-tuned by TRPO, or the IK
-expert measured as a reference line. See the package docstring for what a run and a seed are."""
+expert measured as a reference line. See the package docstring for what a run and a seed are.
+
+Taught in chapter 07.
+"""
 from __future__ import annotations
 
 import math
@@ -16,9 +19,9 @@ from gymnasium.wrappers import RecordEpisodeStatistics
 from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.envs import ENV_IDS, HORIZON
 from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
-from vdtutorial.experiments.resume import (check_resumable, numerics_warning, read_run_state, restore_run_state,
-                                          save_run_state)
-from vdtutorial.experiments.rows import write_csv
+from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
+                                     save_run_state)
+from vdtutorial.runner.rows import write_csv
 from vdtutorial.initial_sigma import InitialSigma
 from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path,
@@ -128,10 +131,37 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     return load_checkpoint(path)
 
 
+def finetune_policy(method: str, env: gym.Env | gym.vector.VectorEnv, demos: Demos | None = None, obs_mode: str = "state",
+                    seed: int = 0, config: PretrainConfig | None = None, *, checkpoints_root: Path | None = None,
+                    progress: bool = False, resumed: bool = False) -> GaussianPolicy:
+    """The policy RL starts from, for ``method`` on ``env``: the one home of "pre-trained policy ready for RL".
+
+    "vd" and "l2": the policy pre-trained on ``demos`` with ``config`` (looked up or trained by
+    :func:`pretrained_policy`) with its start sigma ``config.initial_sigma`` (the sigma study's choice by
+    default), and for "vd" pruned where log alpha > 3 (Section IV-A) -- pruned weights are exact zeros that
+    TRPO never moves. "none": a fresh network for ``env``'s spaces (one env or a vector env), seeded with
+    ``seed``, sigma fixed at ``config.initial_sigma``.
+    ``resumed``: the run continues from a saved state that holds every parameter, so the network is built
+    from the default checkpoint without fitting the start sigma again (minutes for an image policy) only
+    to be overwritten.
+    """
+    if method not in RL_METHODS:
+        raise ValueError(f"method must be one of {RL_METHODS}, got {method!r}")
+    cfg = config or default_config(method if method != "none" else "l2", obs_mode)
+    if method == "none":
+        torch.manual_seed(seed)
+        space = getattr(env, "single_observation_space", env.observation_space)
+        actions = getattr(env, "single_action_space", env.action_space)
+        return make_policy(space, actions.shape[0], variational=False, init_std=InitialSigma.parse(cfg.initial_sigma).value)
+    network = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA) if resumed else cfg
+    policy = pretrained_policy(method, demos, obs_mode, seed, network, checkpoints_root, progress)
+    return policy.prune_() if method == "vd" else policy
+
+
 def run_settings(method: str, task: str, demos_meta: dict | None, obs_mode: str, seed: int, num_envs: int,
                  pretrain_config: PretrainConfig, trpo_config: TRPOConfig) -> dict:
     """Everything that determines a fine-tuning run's numbers, as plain data: what a saved run state must
-    match to be resumed (:mod:`vdtutorial.experiments.resume`). The budget is not in it: a run is the same
+    match to be resumed (:mod:`vdtutorial.runner.resume`). The budget is not in it: a run is the same
     run whatever its length, so a finished run can be extended and a shorter request finds it too long."""
     settings = {"method": method, "task": task, "obs_mode": obs_mode, "seed": int(seed), "num_envs": int(num_envs),
                 "image_size": int(pretrain_config.image_size), "trpo_config": asdict(trpo_config)}
@@ -161,7 +191,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
 
     state_path: the run's resumable state. If the file exists, the run continues from it -- after
         checking that it was saved with the same settings (:func:`run_settings`; otherwise
-        :class:`~vdtutorial.experiments.resume.ResumeError`) -- and every chunk saves it again. The rows
+        :class:`~vdtutorial.runner.resume.ResumeError`) -- and every chunk saves it again. The rows
         are then those of an uninterrupted run (wall times aside). A resumed pre-trained run needs only the
         default checkpoint (the state holds every parameter, the fitted start sigma included).
     """
@@ -183,20 +213,12 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     start = time.perf_counter()
     env = make_vec_env(ENV_IDS[task], num_envs, obs_mode=obs_mode, image_size=cfg.image_size)
     try:
-        if method == "none":
-            torch.manual_seed(seed)
-            policy = make_policy(env.single_observation_space, env.single_action_space.shape[0], variational=False,
-                                 init_std=InitialSigma.parse(cfg.initial_sigma).value)  # no demos: fixed sigma
-        else:
-            # a resumed run's parameters all come from its state: the network is built from the default
-            # checkpoint, without fitting the start sigma again (minutes for an image policy) only to overwrite it
-            network = cfg if saved is None else replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
-            policy = pretrained_policy(method, data, obs_mode, seed, network, checkpoints_root, progress)
-            if method == "vd":
-                policy.prune_()
+        policy = finetune_policy(method, env, data, obs_mode, seed, cfg, checkpoints_root=checkpoints_root,
+                                 progress=progress, resumed=saved is not None)
         algo = TRPO(policy, env, trpo_config, seed=seed)
         if saved is not None:
-            restore_run_state(algo, saved)
+            algo.restore(saved)
+            restore_random_states(saved)
         if csv_path is not None:  # TRPO appends: start the file from the rows so far (a stale file would mix runs)
             Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
             Path(csv_path).unlink(missing_ok=True)
@@ -209,7 +231,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
                      progress=progress and state_path is None)
             if state_path is not None:
                 seconds = (saved or {}).get("seconds", 0.0) + time.perf_counter() - start
-                save_run_state(algo, state_path, settings, seconds)
+                save_run_state(algo.checkpoint(), state_path, settings, seconds)
             yield {"iteration": algo.iteration_index, "iterations": iterations,
                    "env_steps": (algo.iteration_index - first) * trpo_config.steps_per_iter}
     finally:

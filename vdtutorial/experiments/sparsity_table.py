@@ -7,6 +7,8 @@ more. Table I reports the opposite trend (more data, sparser). The paper does no
 was normalised, so the table is measured both ways: ``per-set`` (1/N with each set's own training-split
 size, eq. 3 as written, ``PretrainConfig.kl_samples=None``) and ``fixed`` (1/N_8000 for every set, the
 8000-sample set's nominal training split, so that the rows differ only by their data).
+
+Taught in chapter 05.
 """
 from __future__ import annotations
 
@@ -15,10 +17,10 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
-from vdtutorial.experiments.backends import run_jobs
+from vdtutorial.runner.backends import run_jobs
 from vdtutorial.experiments.curves import mean_band
 from vdtutorial.experiments.results import default_out, experiment_command
-from vdtutorial.experiments.rows import write_csv
+from vdtutorial.runner.rows import write_csv
 from vdtutorial.experiments.runs import pretrained_policy
 from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, default_config
 from vdtutorial.vd import sparsity_report
@@ -115,7 +117,7 @@ def table1(obs_mode: str = "state", seeds=(0,), kl_weighting: str = "per-set", o
     (:func:`format_table1`, the command, the configuration) into ``out`` (default ``runs/table1``; quick
     mode: ``runs/quick/table1``), prints the table, and returns the rows. Checkpoints that must be made
     go under ``checkpoints_root`` (default ``out``). ``backend``, ``address``: as for the figures
-    (:mod:`~vdtutorial.experiments.backends`)."""
+    (:mod:`~vdtutorial.runner.backends`)."""
     if kl_weighting not in KL_WEIGHTINGS:
         raise ValueError(f"kl_weighting must be one of {tuple(KL_WEIGHTINGS)}, got {kl_weighting!r}")
     seeds = tuple(seeds)

@@ -1,26 +1,23 @@
 """Resumable runs: the state of a run saved atomically every few iterations, and checked before reuse.
 
-A fine-tuning run is a pure function of its settings: TRPO derives each iteration's environment resets
-and action noise from (seed, iteration), so the state after iteration k -- policy, baseline, iteration
-index and log rows, which :meth:`TRPO.save <vdtutorial.trpo.TRPO.save>` writes -- continues the run
-exactly. The state file here is TRPO's checkpoint (:meth:`TRPO.checkpoint <vdtutorial.trpo.TRPO.checkpoint>`)
-plus two things:
+A run is resumable when it is a pure function of its settings and its state after iteration k continues
+it exactly (a TRPO run is: it derives each iteration's resets and action noise from (seed, iteration);
+its state is :meth:`TRPO.checkpoint <vdtutorial.trpo.TRPO.checkpoint>`, see
+:mod:`vdtutorial.experiments.runs`). The state file holds the run's own checkpoint (a dict with its
+``rows``) plus:
 
-* ``run_settings``: everything that determines the run's numbers (method, data set, seed, observation
-  mode, pre-training and TRPO configurations; see :func:`vdtutorial.experiments.runs.run_settings`).
-  A state is only ever resumed by a run with equal settings; otherwise :class:`ResumeError` says which
-  settings differ, so that one folder never silently mixes two configurations.
-* ``rng``: the global torch, numpy and Python random states, restored on resume. TRPO itself draws from
-  seeded generators of its own; saving the global states keeps a resumed run exact even if some part of
-  the run (a future baseline or critic, say) draws from them.
+* ``run_settings``: everything that determines the run's numbers, as plain data. A state is only ever
+  resumed by a run with equal settings; otherwise :class:`ResumeError` says which settings differ, so
+  that one folder never silently mixes two configurations.
+* ``rng``: the global torch, numpy and Python random states, restored on resume, so that a resumed run
+  stays exact even if some part of it draws from them.
 
-Writes go to a temporary file first and are moved into place with ``os.replace``, so a run killed at any
-moment (SIGKILL included) leaves either the previous state or the new one, never half a file. The file is
-``torch.save``'s format compressed with gzip: the weights a VD policy pruned are stored as exact zeros (98%
-of its largest image layer) and its masks as one byte each, so an image VD run's state shrinks from 1.26 MB
-to 0.51 MB -- which matters when the states of a grid that spans several working sessions are committed as
-it goes.
-States written uncompressed (before this format) are still read.
+Writes go to a temporary file and are moved into place with ``os.replace``, so a run killed at any moment
+(SIGKILL included) leaves the previous state or the new one, never half a file. The file is
+``torch.save``'s format compressed with gzip (a pruned VD policy's zeros and one-byte masks compress
+well: an image VD run's state shrinks from 1.26 MB to 0.51 MB, which matters when a long grid's states
+are committed as it goes). Uncompressed states are still read.
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -35,7 +32,6 @@ import numpy as np
 import torch
 
 from vdtutorial.kernels import kernel_settings
-from vdtutorial.trpo import TRPO
 
 
 class ResumeError(ValueError):
@@ -96,15 +92,16 @@ def numerics_warning(state: dict) -> str | None:
             "may differ in the last digits from those of an uninterrupted run")
 
 
-def save_run_state(algo: TRPO, path: str | os.PathLike, settings: dict, seconds: float) -> None:
-    """Write ``algo``'s checkpoint (:meth:`TRPO.checkpoint`) with the run's settings, the global random
-    states, the numerics (:func:`numerics`) and the run's compute time so far (``seconds``), atomically."""
-    _atomic_save({**algo.checkpoint(), "run_settings": settings, "rng": _rng_state(), "numerics": numerics(),
+def save_run_state(checkpoint: dict, path: str | os.PathLike, settings: dict, seconds: float) -> None:
+    """Write a run's ``checkpoint`` (a dict with its ``rows``, e.g. :meth:`TRPO.checkpoint
+    <vdtutorial.trpo.TRPO.checkpoint>`) with the run's settings, the global random states, the numerics
+    (:func:`numerics`) and the run's compute time so far (``seconds``), atomically."""
+    _atomic_save({**checkpoint, "run_settings": settings, "rng": _rng_state(), "numerics": numerics(),
                   "seconds": seconds}, Path(path))
 
 
 def save_finished_rows(path: str | os.PathLike, settings: dict, rows: list[dict], seconds: float) -> None:
-    """The state of a run without TRPO (the expert's reference): its settings and all its rows."""
+    """The state of a run computed in one piece (the expert's reference): its settings and all its rows."""
     _atomic_save({"run_settings": settings, "rows": rows, "seconds": seconds}, Path(path))
 
 
@@ -116,7 +113,7 @@ def read_run_state(path: str | os.PathLike) -> dict:
     except Exception as exc:  # truncated or not a state file: say which file, and what to do
         raise ResumeError(f"{path} is not a readable run state ({exc}); delete it or rerun with --restart") from exc
     if not isinstance(state, dict) or "run_settings" not in state:
-        raise ResumeError(f"{path} is not a run state written by vdtutorial.experiments; delete it or rerun "
+        raise ResumeError(f"{path} is not a run state written by vdtutorial; delete it or rerun "
                           "with --restart")
     return state
 
@@ -146,8 +143,7 @@ def check_resumable(path: str | os.PathLike, state: dict, settings: dict, iterat
                           "rerun with --restart, or ask for at least as many steps")
 
 
-def restore_run_state(algo: TRPO, state: dict) -> None:
-    """Continue ``algo`` from a state read by :func:`read_run_state`: TRPO's checkpoint and the global
-    random states."""
-    algo.restore(state)
+def restore_random_states(state: dict) -> None:
+    """Set the global random states saved with a state read by :func:`read_run_state` (the run restores
+    its own checkpoint)."""
     _set_rng_state(state["rng"])

@@ -9,7 +9,9 @@ policy's mean-action score before RL in TRPO's layout (8 fresh 25-step runs = on
 
 Writes ``sigma_study.csv.gz`` (the TRPO rows of every run, a few columns), ``sigma_study.json`` (command,
 settings, the summary per option and method with 95% t-intervals over seeds, the rule's decision) and
-``sigma_study.png`` into ``out``. Run ``python -m vdtutorial.sigma_study --help``.
+``sigma_study.png`` into ``out``. Run ``python -m vdtutorial.experiments.sigma_study --help``.
+
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -21,15 +23,17 @@ import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
 from vdtutorial.demos import demo_path
+from vdtutorial.envs import ENV_IDS
 from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, RUNS_DIR, curves_from_rows, finetune, load_demos,
-                                    mean_band, pretrained_policy, read_rows, results_file, run_jobs,
+                                    mean_band, finetune_policy, read_rows, results_file, run_jobs,
                                     write_csv)
 from vdtutorial.experiments.plots import draw_band
 from vdtutorial.initial_sigma import InitialSigma
@@ -73,9 +77,9 @@ def mean_action_score(reg: str, seed: int, episodes: int = 3) -> float:
     """Successes per 200-step episode of the pre-trained policy's mean action, before RL, counted as
     TRPO counts an iteration: ``NUM_ENVS`` fresh runs of ``200 / NUM_ENVS`` steps (reset seeds derived from
     (seed, k)), averaged over ``episodes`` episodes."""
-    policy = pretrained_policy(reg, load_demos("reach"), "state", seed)
-    if reg == "vd":
-        policy.prune_()
+    env = gym.make(ENV_IDS["reach"], obs_mode="state")
+    policy = finetune_policy(reg, env, load_demos("reach"), "state", seed)
+    env.close()
     return mean_action_successes(policy, "reach", seed, episodes, NUM_ENVS)["successes"]
 
 
@@ -166,7 +170,7 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
     write_csv(results_file(out, "sigma_study"), rows)
     plot(rows, window).savefig(out / "sigma_study.png", dpi=110)
     summary = summarise(rows, pre_rl)
-    command = shlex.join(["python", "-m", "vdtutorial.sigma_study", "--seeds", *map(str, seeds), "--steps",
+    command = shlex.join(["python", "-m", "vdtutorial.experiments.sigma_study", "--seeds", *map(str, seeds), "--steps",
                           str(steps), "--options", *options, "--none-options", *none_options,
                           "--workers", str(workers)])
     record = {"command": command, "rule": "data/results/sigma_study/RULE.md", "options": list(options),
@@ -186,7 +190,7 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m vdtutorial.sigma_study", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m vdtutorial.experiments.sigma_study", description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     parser.add_argument("--steps", type=int, default=100_000, help="RL env steps per run")
     parser.add_argument("--options", nargs="+", default=list(OPTIONS), help="initial sigma options (the first is the rule's reference (a))")

@@ -6,6 +6,8 @@ summed over the runs in flight and its ETA is the steps left at that rate; its l
 default only there (a terminal on stderr, or a notebook kernel); elsewhere -- a log file, CI, pytest --
 only the per-run lines are printed, one per finished run, so that a long grid is never silent and a log
 never fills with redrawn bars. ``progress=False`` silences both, ``progress=True`` forces both.
+
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -29,7 +31,7 @@ def live_by_default() -> bool:
 
 
 class GridProgress:
-    """The listener of :func:`~vdtutorial.experiments.backends.run_jobs` for a grid of runs.
+    """The listener of :func:`~vdtutorial.runner.backends.run_jobs` for a grid of runs.
 
     name: the experiment's name, the line's label.
     names: the name of each pending run (in the order of the jobs).

@@ -22,6 +22,8 @@ report)`` as it arrives and each result to ``listener.finished(index, result)`` 
 ``listener.tick()`` about twice a second while waiting (so that a live line can refresh its clock), and
 returns the results in the order of the jobs. A plain function works
 too (no reports).
+
+Taught in chapter 07.
 """
 from __future__ import annotations
 

@@ -11,7 +11,9 @@ A holder keeps its lock fresh: a thread touches the file every :data:`HEARTBEAT_
 holder has died (SIGKILL, a lost node) is stale and taken over: on the same machine when its process no
 longer exists, on another machine when it has not been touched for :data:`STALE_S` seconds. Two
 processes that find the same stale lock within the same instant may both take it over; that only costs
-compute, never correctness, since every state is written atomically (:mod:`~vdtutorial.experiments.resume`).
+compute, never correctness, since every state is written atomically (:mod:`~vdtutorial.runner.resume`).
+
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ import time
 import uuid
 from pathlib import Path
 
-from vdtutorial.experiments.backends import process_exists
+from vdtutorial.runner.backends import process_exists
 
 #: Seconds between two touches of a held lock.
 HEARTBEAT_S = 30.0

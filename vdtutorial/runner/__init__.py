@@ -1,0 +1,18 @@
+"""The grid runner: named jobs run on local processes or Ray, resumed from their saved states, locked so
+that no run is computed twice, and reported as they go. It knows nothing of VD, TRPO or policies: the
+paper's runs become its jobs in :mod:`vdtutorial.experiments.jobs`.
+
+Modules, one idea each: :mod:`~vdtutorial.runner.grid` (a restartable grid of jobs),
+:mod:`~vdtutorial.runner.backends` (where jobs execute), :mod:`~vdtutorial.runner.resume` (a run's saved
+state), :mod:`~vdtutorial.runner.run_lock` (one process at a time per run),
+:mod:`~vdtutorial.runner.progress` (the grid's progress lines) and :mod:`~vdtutorial.runner.rows` (CSV
+files).
+
+Taught in chapter 07.
+"""
+from vdtutorial.runner.backends import run_jobs
+from vdtutorial.runner.grid import GridJob, run_grid
+from vdtutorial.runner.resume import ResumeError
+from vdtutorial.runner.rows import read_rows, results_file, write_csv
+
+__all__ = ["GridJob", "ResumeError", "read_rows", "results_file", "run_grid", "run_jobs", "write_csv"]
