@@ -22,6 +22,7 @@ rounds hand more and more of the steps to the learner. The data of every round k
 (building G per episode, eq. 10 per state) and in the re-training of every round: the paper calls DAgger
 "computationally quite expensive" against demonstrations generated once, and these are the numbers that
 claim is about.
+Taught in chapter 09.
 """
 from __future__ import annotations
 

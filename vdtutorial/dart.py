@@ -27,6 +27,7 @@ Sigma_0 = sigma_0^2 I (a poorly chosen hand-set value), then each round clones t
 collected so far and sets the next round's covariance to Sigma_hat of that policy. The number of labels
 is fixed per round (the experiment's 8000 split over the rounds), so DART spends exactly the labels of a
 one-shot data set.
+Taught in chapter 09.
 """
 from __future__ import annotations
 

@@ -12,6 +12,7 @@ Labels are the budget. The expert labels every state it is shown (one query per 
 experiments compare methods at an equal number of labels, so ``samples`` is split over the rounds in
 fixed shares decided before the first round (:func:`round_sizes`) and every round's queries and the wall
 time spent in the expert are recorded.
+Taught in chapter 09.
 """
 from __future__ import annotations
 

@@ -27,6 +27,7 @@ module (see ``RL_STAGE``).
 Files in ``out`` (default ``runs/beyond``; the shipped results in ``data/results/beyond``): ``demos/`` (the
 data sets made here, with each DART/DAgger round's record beside it), ``runs/`` (the runs' states), ``checkpoints/``,
 ``beyond.csv.gz``, ``beyond.png`` and ``beyond.json``.
+Taught in chapter 09.
 """
 from __future__ import annotations
 
