@@ -44,3 +44,20 @@ def pytest_report_header(config):
 
     return (f"vdtutorial from {Path(vdtutorial.__file__).parent}; {', '.join(f'{k} {v}' for k, v in numerics_here().items())}; "
             f"pybullet.isNumpyEnabled() = {bool(pybullet.isNumpyEnabled())}")
+
+
+def assert_expert_labels(demos, episodes) -> None:
+    """Every state of the reach ``episodes`` of ``demos`` is labelled with the noiseless IK expert's action in it
+    (eq. 8), whoever acted there: G is rebuilt for each episode's cup and eq. 10 asked again."""
+    from vdtutorial.envs import ENV_IDS
+    from vdtutorial.expert import IKExpert
+
+    env = gymnasium.make(ENV_IDS["reach"], obs_mode="state")
+    expert = IKExpert(env)
+    for ep in episodes:
+        rows = numpy.flatnonzero(demos.episode == ep)
+        env.reset(options={"cup_xy": demos.cup[rows[0], :2]})
+        expert.reset()
+        for i in rows:
+            numpy.testing.assert_allclose(expert.action(demos.joints[i].astype(numpy.float64)), demos.actions[i], atol=1e-5)
+    env.close()

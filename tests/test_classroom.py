@@ -31,6 +31,7 @@ WRONG = {
     "07_finetuning": ("ch07_moving_average", "values[max(0, k - window + 1):k + 1].mean()",
                       "values[max(0, k - window):k + 1].mean()"),
     "08_grasping": ("ch08_grasp_success", "abs(float(approach[2]))", "float(approach[2])"),
+    "09_beyond_the_paper": ("ch09_dart_noise", "errors.T @ errors / len(errors)", "errors.T @ errors"),
 }
 
 

@@ -7,7 +7,8 @@ import pytest
 
 from vdtutorial.demos import SHIPPED_NOISE, DemoFileError, Demos, demo_path, generate_demos
 from vdtutorial.envs import ENV_IDS
-from vdtutorial.expert import IKExpert
+
+from conftest import assert_expert_labels
 
 
 @pytest.fixture(scope="module")
@@ -26,15 +27,7 @@ def test_same_seed_gives_a_byte_identical_file(small, tmp_path):
 
 def test_labels_are_the_noiseless_expert_actions(small):
     """Eq. 8: each stored action is pi_exp of its state, not the noisy action that was executed."""
-    env = gym.make(ENV_IDS["reach"], obs_mode="state")
-    expert = IKExpert(env)
-    for ep in np.unique(small.episode)[:3]:
-        rows = np.flatnonzero(small.episode == ep)
-        env.reset(options={"cup_xy": small.cup[rows[0], :2]})
-        expert.reset()
-        for i in rows:
-            np.testing.assert_allclose(expert.action(small.joints[i].astype(np.float64)), small.actions[i], atol=1e-5)
-    env.close()
+    assert_expert_labels(small, np.unique(small.episode)[:3])
 
 
 def test_noise_spreads_the_visited_states():

@@ -188,6 +188,11 @@ def _print_summary(result) -> None:
     print(format_summary(result))
 
 
+#: Experiments without TRPO runs, and why the figures' resume options do not apply to them.
+PRE_RL_ONLY = {"table1": "pre-trains only (no TRPO runs to resume)",
+               "beyond": "measures pre-trained policies only so far (no TRPO runs)"}
+
+
 def _cmd_experiment(args) -> None:
     import warnings
 
@@ -199,15 +204,25 @@ def _cmd_experiment(args) -> None:
     resumable = {"checkpoint_every": args.checkpoint_every} if args.checkpoint_every is not None else {}
     if args.kl_weighting != "per-set" and args.name != "table1":
         raise CommandError("--kl-weighting is an option of table1 (the figures use the pre-training default)")
-    if args.name == "table1":
+    if args.name in PRE_RL_ONLY:
         ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
-                                            ("--state-dir", args.state_dir), ("--restart", args.restart or None),
-                                            ("--checkpoint-every", args.checkpoint_every)) if value is not None]
+                                            ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),
+                                            ("--restart", args.restart or None)) if value is not None]
+        if args.name == "beyond":   # its pre-RL runs are a grid with saved states: --restart discards them
+            ignored = [flag for flag in ignored if flag != "--restart"]
         if ignored:
-            raise CommandError(f"table1 pre-trains only (no TRPO runs to resume): {', '.join(ignored)} "
+            raise CommandError(f"{args.name} {PRE_RL_ONLY[args.name]}: {', '.join(ignored)} "
                                f"{'are options' if len(ignored) > 1 else 'is an option'} of the figures")
-        experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting, out=args.out,
-                           workers=args.workers, backend=backend, address=args.address)
+        if args.name == "table1":
+            experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting,
+                               out=args.out, workers=args.workers, backend=backend, address=args.address)
+            return
+        from vdtutorial.experiments.beyond import beyond, format_summary
+
+        if args.obs != "state":
+            raise CommandError("beyond runs in state mode only (--obs state)")
+        print(format_summary(beyond(seeds=args.seeds, out=args.out, workers=args.workers, backend=backend,
+                                    address=args.address, restart=args.restart)))
         return
     trpo_config = None
     if args.fvp_subsample is not None:
@@ -375,9 +390,10 @@ def _add_measurement_commands(sub) -> None:
 
 def _add_experiment_commands(sub) -> None:
     """The paper's experiments and what reads them, the main job, and the chapters written out."""
-    p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1")
-    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1"), help="which figure or table")
-    p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0)")
+    p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1; and beyond "
+                       "(learned noise with DART, and DAgger, beside the hand-set Sigma)")
+    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1", "beyond"), help="which figure or table")
+    p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0; beyond: 0-4)")
     p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state", help="policy input (default state)")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")

@@ -22,6 +22,7 @@ import io
 import json
 import os
 import re
+import time
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,6 +92,16 @@ class Demos:
         idx = np.arange(len(self)) if indices is None else np.asarray(indices)
         obs = [base.observation_at(self.joints[i], self.cup[i, :2]) for i in idx]
         return {k: np.stack([o[k] for o in obs]) for k in obs[0]}
+
+    @classmethod
+    def concatenate(cls, parts: list["Demos"], meta: dict) -> "Demos":
+        """One data set from several collected one after another (the rounds of DART or DAgger), with
+        episode numbers shifted so that episodes of different parts stay distinct: the held-out split
+        holds out whole episodes."""
+        offsets = np.cumsum([0] + [int(part.episode.max()) + 1 if len(part) else 0 for part in parts[:-1]])
+        arrays = {name: np.concatenate([getattr(part, name) for part in parts]) for name in ARRAYS}
+        arrays["episode"] = np.concatenate([part.episode + offset for part, offset in zip(parts, offsets)]).astype(np.int32)
+        return cls(meta=dict(meta), **arrays)
 
     # -- files ---------------------------------------------------------------------------------------
     def save(self, path) -> Path:
@@ -168,26 +179,55 @@ def generate_demos(task: str = "reach", samples: int = 8000, noise: float = 0.5,
         action (eq. 6); the stored label is the noiseless expert action (eq. 8).
     seed: seeds the cup positions and the noise; same seed -> identical data set.
     """
+    if not np.isfinite(noise) or noise < 0:
+        raise ValueError(f"noise (Sigma) must be a finite standard deviation >= 0, got {noise!r}")
+    demos, record = collect(task, samples, seed, lambda state, a_exp, rng: a_exp + rng.normal(0.0, noise, size=a_exp.shape),
+                            progress, f"{task} demos (Sigma={noise:g})")
+    demos.meta = {
+        "format_version": FORMAT_VERSION, "task": task, "samples": int(samples), "noise": float(noise), "seed": int(seed),
+        "episodes": record["episodes"], "noisy_success_rate": record["successes"] / record["episodes"],
+        "env_id": ENV_IDS[task], "image_size": record["image_size"], "vdtutorial": vdtutorial.__version__,
+        "gymnasium": gym.__version__, "pybullet": pybullet.getAPIVersion(), "command": demo_command(task, samples, noise, seed),
+    }
+    return demos
+
+
+def collect(task: str, samples: int, seed: int, behaviour, progress: bool = False, desc: str = "rollouts"):
+    """Roll out ``behaviour`` until ``samples`` states are visited, labelling each with the noiseless expert.
+
+    The loop of eqs. 5-8 with the executed action left open, so that every way of visiting states
+    (the noisy expert of eq. 6, DART's learned noise, DAgger's mixture of expert and learner) shares one
+    rollout and one labelling: ``behaviour(state, a_exp, rng)`` returns the action executed in the
+    state (the env's ``obs_mode="state"`` vector) whose expert label is ``a_exp``; ``rng`` is the
+    generator seeded by ``seed`` that also draws the cups.
+
+    Returns the data set (``meta`` empty: the caller says how it was made) and a record of the rollout:
+    ``episodes``, ``successes``, ``expert_queries`` (labels asked of the expert, one per state) and
+    ``expert_seconds`` (wall time spent in the expert: building G per episode and eq. 10 per state).
+    """
     if task not in ENV_IDS:
         raise ValueError(f"task must be one of {sorted(ENV_IDS)}, got {task!r}")
     if int(samples) != samples or samples < 1:
         raise ValueError(f"samples must be a positive integer, got {samples!r}")
-    if not np.isfinite(noise) or noise < 0:
-        raise ValueError(f"noise (Sigma) must be a finite standard deviation >= 0, got {noise!r}")
     rng = np.random.default_rng(seed)
     env = gym.make(ENV_IDS[task], obs_mode="state")
     expert = IKExpert(env)
     rows = {name: [] for name in ARRAYS}
     episodes = successes = 0
-    bar = tqdm(total=samples, desc=f"{task} demos (Sigma={noise:g})", disable=not progress, unit="sample")
+    expert_seconds = 0.0
+    bar = tqdm(total=samples, desc=desc, disable=not progress, unit="sample")
     n = 0
     try:
         while n < samples:
             env.reset(seed=int(rng.integers(2**31 - 1)))
+            start = time.perf_counter()
             expert.reset()
+            expert_seconds += time.perf_counter() - start
             for t in range(10**6):
                 base = env.unwrapped
+                start = time.perf_counter()
                 a_exp = expert.action()
+                expert_seconds += time.perf_counter() - start
                 rows["joints"].append(base.joints)
                 rows["cup"].append(base.cup_position)
                 rows["actions"].append(a_exp)
@@ -195,7 +235,8 @@ def generate_demos(task: str = "reach", samples: int = 8000, noise: float = 0.5,
                 rows["t"].append(t)
                 n += 1
                 bar.update(1)
-                _, _, terminated, truncated, info = env.step(a_exp + rng.normal(0.0, noise, size=a_exp.shape))
+                state = np.concatenate([base.joints, base.cup_position]).astype(np.float32)
+                _, _, terminated, truncated, info = env.step(behaviour(state, a_exp, rng))
                 if terminated or truncated or n >= samples:
                     break
             successes += bool(info["is_success"])
@@ -203,11 +244,7 @@ def generate_demos(task: str = "reach", samples: int = 8000, noise: float = 0.5,
     finally:
         bar.close()
         env.close()
-    meta = {
-        "format_version": FORMAT_VERSION, "task": task, "samples": int(samples), "noise": float(noise), "seed": int(seed),
-        "episodes": episodes, "noisy_success_rate": successes / episodes, "env_id": ENV_IDS[task],
-        "image_size": env.unwrapped.scene.image_size, "vdtutorial": vdtutorial.__version__,
-        "gymnasium": gym.__version__, "pybullet": pybullet.getAPIVersion(), "command": demo_command(task, samples, noise, seed),
-    }
+    record = {"episodes": episodes, "successes": successes, "expert_queries": n, "expert_seconds": expert_seconds,
+              "image_size": env.unwrapped.scene.image_size}
     dtypes = {"joints": np.float32, "cup": np.float32, "actions": np.float32, "episode": np.int32, "t": np.int16}
-    return Demos(meta=meta, **{k: np.asarray(v, dtype=dtypes[k]) for k, v in rows.items()})
+    return Demos(**{k: np.asarray(v, dtype=dtypes[k]) for k, v in rows.items()}), record

@@ -66,6 +66,21 @@ def successes_per_episode(env: gym.Env, controller, steps: int = EPISODE_STEPS, 
     return out
 
 
+def mean_action_successes(policy, task: str, seed: int, episodes: int, num_envs: int) -> dict:
+    """A pre-trained policy's score before RL, counted as TRPO counts an iteration: per 200-step episode,
+    ``num_envs`` fresh runs of ``200 / num_envs`` steps with the policy's mean action (reset seeds derived
+    from (seed, k) for episode k). Returns the successes and the finished trajectories per episode,
+    averaged over ``episodes`` episodes."""
+    env = gym.make(ENV_IDS[task], obs_mode="state")
+    controller, totals = PolicyController(policy, deterministic=True), {"successes": 0, "trajectories": 0}
+    for k in range(episodes):
+        for reset_seed in np.random.SeedSequence([seed, k]).generate_state(num_envs):
+            counts = successes_per_episode(env, controller, EPISODE_STEPS // num_envs, int(reset_seed))
+            totals = {key: totals[key] + counts[key] for key in totals}
+    env.close()
+    return {key: value / episodes for key, value in totals.items()}
+
+
 def expert_success_rate(task: str, episodes: int, seed: int = 0, progress: bool = False) -> tuple[float, float]:
     """Fraction of noiseless expert trajectories that succeed, and their mean length in steps.
     Trajectory ``k`` uses cup seed ``seed + k``."""

@@ -31,7 +31,7 @@ from matplotlib.figure import Figure
 import vdtutorial
 from vdtutorial.demos import demo_path
 from vdtutorial.envs import ENV_IDS
-from vdtutorial.evaluation import EPISODE_STEPS, PolicyController, successes_per_episode
+from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, RUNS_DIR, curves_from_rows, finetune, load_demos,
                                     mean_band, finetune_policy, read_rows, results_file, run_jobs,
                                     write_csv)
@@ -79,12 +79,8 @@ def mean_action_score(reg: str, seed: int, episodes: int = 3) -> float:
     (seed, k)), averaged over ``episodes`` episodes."""
     env = gym.make(ENV_IDS["reach"], obs_mode="state")
     policy = finetune_policy(reg, env, load_demos("reach"), "state", seed)
-    controller, total = PolicyController(policy, deterministic=True), 0
-    for k in range(episodes):
-        for reset_seed in np.random.SeedSequence([seed, k]).generate_state(NUM_ENVS):
-            total += successes_per_episode(env, controller, EPISODE_STEPS // NUM_ENVS, int(reset_seed))["successes"]
     env.close()
-    return total / episodes
+    return mean_action_successes(policy, "reach", seed, episodes, NUM_ENVS)["successes"]
 
 
 def _mean_action_job(job: tuple[str, int]) -> dict:
