@@ -46,3 +46,13 @@ def test_chapters_link_to_existing_files(notebook):
     markdown = "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "markdown")
     _, missing = _missing_targets(markdown, notebook.parent)
     assert not missing, f"{notebook.name} links to missing files: {missing}"
+
+
+def test_the_exercise_count_the_guides_quote_is_the_chapters():
+    """README and TEACHING.md say how many graded exercises and points the chapters hold: count them."""
+    cells = [cell.get("metadata", {}).get("nbgrader", {}) for path in (ROOT / "notebooks").glob("*.ipynb")
+             for cell in json.loads(path.read_text())["cells"]]
+    graded = [cell["points"] for cell in cells if cell.get("grade") and cell.get("points")]
+    quoted = f"{len(graded)} graded exercises ({sum(graded):g} points)"
+    assert quoted in (ROOT / "README.md").read_text()
+    assert f"{len(graded)} exercises worth {sum(graded):g} points" in (ROOT / "notebooks" / "TEACHING.md").read_text()
