@@ -5,6 +5,8 @@ Chapter 06, section 4 teaches the linear one; the benchmark of section 7 uses th
 fitted on one batch and predicts on the next, so the advantages of a batch never use a baseline that
 has seen their own returns. Both keep all their state in ``state_dict``, so a checkpointed run
 continues exactly.
+
+Taught in chapter 06b.
 """
 from __future__ import annotations
 

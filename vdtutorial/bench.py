@@ -5,6 +5,8 @@ and with two worker processes (gymnasium's AsyncVectorEnv), and the IK expert's 
 ``policy``: network and pre-training cost (:func:`bench_policy`).
 ``finetune``: TRPO fine-tuning throughput end to end, rollouts + updates (:func:`bench_finetune`).
 ``trpo``: our TRPO against sb3-contrib's on gymnasium's Pendulum-v1 (:func:`bench_trpo_pendulum`).
+
+Taught in chapter 06b.
 """
 from __future__ import annotations
 

@@ -13,6 +13,8 @@ edited: a learner's answers are never overwritten by accident.
 nbgrader exactly as ``classroom release`` makes it (each exercise's solution replaced by a stub, hidden
 tests removed), and the teacher's chapters, with the solutions, go to ``solutions/``: beside the exercises,
 but opened only on purpose.
+
+Taught in chapter 00.
 """
 from __future__ import annotations
 

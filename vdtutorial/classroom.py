@@ -19,6 +19,8 @@ to nbgrader over Unix sockets (ZeroMQ's ``ipc`` transport), not TCP. Where names
 submissions still run with the grader's rights to the files and the network: ``classroom grade`` says so
 (:data:`SAFETY_NOTE`), and grading then belongs in a container or a throwaway account.
 Command line: ``python -m vdtutorial classroom release OUT`` and ``... classroom grade SUBMISSIONS...``.
+
+Not taught in a chapter: the teacher's tool (notebooks/TEACHING.md).
 """
 from __future__ import annotations
 

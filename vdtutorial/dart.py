@@ -15,18 +15,6 @@ same way must be disturbed that way too). They also give a scaled variant, Sigma
 (T tr(Sigma_hat)) Sigma_hat, that sets the total error to a prior alpha when the learner is expected to be
 worse at test time than on the training states.
 
-**The variant implemented here** is the unscaled closed form Sigma_hat (:func:`noise_estimate`; pass
-``alpha`` and ``horizon`` for Sigma_alpha). The expectation is taken over the *held-out* episodes of the
-aggregated demonstrations (the whole episodes that pre-training did not fit, :func:`vdtutorial.pretrain.split_by_episode`):
-they are supervisor trajectories under the current noise that the policy has not been trained on, which is
-what the expectation asks for; on its own training states the error would be underestimated. The labels
-pi_exp(x_t) are the ones already stored with those states, so the estimate costs no expert query.
-
-**Rounds** (DART's Algorithm 1, with :mod:`vdtutorial.imitation_rounds`): round 0 collects with a start
-Sigma_0 = sigma_0^2 I (a poorly chosen hand-set value), then each round clones the expert on everything
-collected so far and sets the next round's covariance to Sigma_hat of that policy. The number of labels
-is fixed per round (the experiment's 8000 split over the rounds), so DART spends exactly the labels of a
-one-shot data set.
 Taught in chapter 09.
 """
 from __future__ import annotations
@@ -48,7 +36,15 @@ JITTER = 1e-10
 def noise_estimate(errors: np.ndarray, alpha: float | None = None, horizon: int | None = None) -> np.ndarray:
     """DART's Gaussian noise from the learner's errors ``errors`` (one row pi_theta(x) - pi_exp(x) per
     visited state): their mean outer product Sigma_hat; with ``alpha`` (and the horizon T) the scaled
-    Sigma_alpha = alpha / (T tr(Sigma_hat)) Sigma_hat (module docstring)."""
+    Sigma_alpha = alpha / (T tr(Sigma_hat)) Sigma_hat (module docstring).
+
+    **The variant implemented here** is the unscaled closed form Sigma_hat (:func:`noise_estimate`; pass
+    ``alpha`` and ``horizon`` for Sigma_alpha). The expectation is taken over the *held-out* episodes of the
+    aggregated demonstrations (the whole episodes that pre-training did not fit, :func:`vdtutorial.pretrain.split_by_episode`):
+    they are supervisor trajectories under the current noise that the policy has not been trained on, which is
+    what the expectation asks for; on its own training states the error would be underestimated. The labels
+    pi_exp(x_t) are the ones already stored with those states, so the estimate costs no expert query.
+    """
     errors = np.asarray(errors, dtype=np.float64)
     if errors.ndim != 2 or len(errors) == 0:
         raise ValueError(f"errors must be a non-empty (states, action dims) array, got shape {errors.shape}")
@@ -96,7 +92,14 @@ def dart(task: str = "reach", reg: str = "vd", samples: int = 8000, rounds: int 
 
     Each round's record holds the covariance it collected with and its per-joint standard deviation; the
     last one also holds ``next_covariance`` (and ``next_sigma_per_joint``), the estimate from the final
-    policy: the noise DART would use next, the learned Sigma."""
+    policy: the noise DART would use next, the learned Sigma.
+
+    **Rounds** (DART's Algorithm 1, with :mod:`vdtutorial.imitation_rounds`): round 0 collects with a start
+    Sigma_0 = sigma_0^2 I (a poorly chosen hand-set value), then each round clones the expert on everything
+    collected so far and sets the next round's covariance to Sigma_hat of that policy. The number of labels
+    is fixed per round (the experiment's 8000 split over the rounds), so DART spends exactly the labels of a
+    one-shot data set.
+    """
     if not np.isfinite(start_sigma) or start_sigma < 0:
         raise ValueError(f"start_sigma must be a finite standard deviation >= 0, got {start_sigma!r}")
     cfg = cloning_config(reg, config)

@@ -19,35 +19,7 @@ exact, not an approximation: the terms of the KL's Hessian that involve second d
 networks are multiplied by the KL's first derivatives with respect to (mu, sigma), which are zero at
 theta_old.
 
-Why both passes are written out here instead of left to autograd. Measured on the rgbd policy (both
-networks, 114k parameters, batch 200, one thread, CPU time on the shared machine): the double backward
-costs 0.94 s per product; this form 0.17 s, plus 0.52 s once per update (its forward pass and the
-unfolded image). The double backward (and the "double-vjp" trick that gets J v from two backward
-passes) goes through the convolutions' double-backward kernels, which also compute terms nobody
-needs (for the first convolution, a transposed convolution back onto the image); forward-mode AD
-(``torch.func.jvp``) recomputes the whole forward pass, input normalisation included, for every v
-(1.36 s per product with an autograd backward); ``torch.func.linearize`` avoids that but spends
-seconds tracing the networks at every update. And the weight gradient of the first convolution, the
-largest layer, is ~4x cheaper as one batched matrix product with the image patches, unfolded once
-per update, than with ``convolution_backward``.
-
-mu's and sigma's first convolutions read the same image (:meth:`vdtutorial.policy.GaussianPolicy.prepare`
-normalises it once for both): the forward and tangent passes run them as one convolution with both
-filter banks (:func:`vdtutorial.policy.joint_conv2d`, bit for bit the same outputs), and the patches are
-unfolded once for both. Their two weight gradients stay two matrix products: one product with both
-filter banks would read the patches once (27 ms instead of 44 ms on a batch of 200), but it sums in
-another order, and conjugate gradient magnifies that last-bit difference to 1e-5 relative in F s within
-one update; every speed-up here keeps TRPO's numbers bit for bit (tests/test_regeneration.py).
-
-Pruning (chapter 04) enters both passes the way it enters the forward pass, as the weight's 0/1 mask:
-the product along a pruned weight, and along a parameter that is frozen or that the outputs do not
-depend on, is exactly 0.
-
-Supported: :class:`vdtutorial.policy.GaussianPolicy` whose networks are built from plain or sparse-VD
-Linear / Conv2d layers, ReLU, Tanh and Flatten (every network :func:`vdtutorial.policy.make_policy`
-builds), with sparse-VD layers pruned or in eval mode (in train mode an unpruned sparse-VD layer is
-random, and TRPO's policy must be deterministic). :func:`supports` says whether a policy qualifies;
-TRPO falls back to the double backward for any other policy.
+Taught in chapter 06b.
 """
 from __future__ import annotations
 
@@ -65,7 +37,18 @@ ACTIVATIONS = (nn.ReLU, nn.Tanh, nn.Flatten)
 
 
 def supports(policy: nn.Module) -> bool:
-    """True when :class:`GaussNewtonFisher` computes the Fisher-vector products of ``policy``."""
+    """True when :class:`GaussNewtonFisher` computes the Fisher-vector products of ``policy``.
+
+    Pruning (chapter 04) enters both passes the way it enters the forward pass, as the weight's 0/1 mask:
+    the product along a pruned weight, and along a parameter that is frozen or that the outputs do not
+    depend on, is exactly 0.
+
+    Supported: :class:`vdtutorial.policy.GaussianPolicy` whose networks are built from plain or sparse-VD
+    Linear / Conv2d layers, ReLU, Tanh and Flatten (every network :func:`vdtutorial.policy.make_policy`
+    builds), with sparse-VD layers pruned or in eval mode (in train mode an unpruned sparse-VD layer is
+    random, and TRPO's policy must be deterministic). :func:`supports` says whether a policy qualifies;
+    TRPO falls back to the double backward for any other policy.
+    """
     if type(policy) is not GaussianPolicy:  # a subclass may change distribution()
         return False
     for net in (policy.mu, policy.sigma):
@@ -253,6 +236,26 @@ class GaussNewtonFisher:
 
     The constructor runs one forward pass; each call then costs one tangent pass and one backward pass
     through both networks, over the activations of that forward pass.
+
+    Why both passes are written out here instead of left to autograd. Measured on the rgbd policy (both
+    networks, 114k parameters, batch 200, one thread, CPU time on the shared machine): the double backward
+    costs 0.94 s per product; this form 0.17 s, plus 0.52 s once per update (its forward pass and the
+    unfolded image). The double backward (and the "double-vjp" trick that gets J v from two backward
+    passes) goes through the convolutions' double-backward kernels, which also compute terms nobody
+    needs (for the first convolution, a transposed convolution back onto the image); forward-mode AD
+    (``torch.func.jvp``) recomputes the whole forward pass, input normalisation included, for every v
+    (1.36 s per product with an autograd backward); ``torch.func.linearize`` avoids that but spends
+    seconds tracing the networks at every update. And the weight gradient of the first convolution, the
+    largest layer, is ~4x cheaper as one batched matrix product with the image patches, unfolded once
+    per update, than with ``convolution_backward``.
+
+    mu's and sigma's first convolutions read the same image (:meth:`vdtutorial.policy.GaussianPolicy.prepare`
+    normalises it once for both): the forward and tangent passes run them as one convolution with both
+    filter banks (:func:`vdtutorial.policy.joint_conv2d`, bit for bit the same outputs), and the patches are
+    unfolded once for both. Their two weight gradients stay two matrix products: one product with both
+    filter banks would read the patches once (27 ms instead of 44 ms on a batch of 200), but it sums in
+    another order, and conjugate gradient magnifies that last-bit difference to 1e-5 relative in F s within
+    one update; every speed-up here keeps TRPO's numbers bit for bit (tests/test_regeneration.py).
     """
 
     def __init__(self, policy: GaussianPolicy, obs, old: Normal, params: list[nn.Parameter]):

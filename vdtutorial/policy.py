@@ -12,39 +12,12 @@ Network kinds (``TwoStreamNet``), chosen from the observation space by :func:`ma
     TRPO), followed by the same final layer.
 Every layer is a plain or a sparse variational dropout layer according to one flag, ``variational``.
 
-Input normalisation (inside the network, so checkpoints carry it)
-    RGB (uint8 from the environments) / 255 and depth / ``DEPTH_SCALE`` (the environments' 3 m camera
-    far plane), both in [0, 1], are stacked into one 4-channel image and shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and continuous
-    across the +-pi wrap of continuous joints. Other vector inputs (the cup position, a generic Box) are
-    mapped from the observation space's bounds to [-1, 1]; dimensions with infinite or zero-width bounds
-    pass through unchanged. ``GaussianPolicy.prepare`` normalises a batch once for both networks, for
-    code that evaluates the policy on one batch many times (TRPO's update).
-
-Sizes (CPU budget: 2 shared cores)
-    The paper does not give its layer sizes. The defaults are 8/16/16 channels with kernels 8/4/3 and
-    strides 4/2/2 (128 -> 31 -> 14 -> 6 pixels, 576 features), then 64-64-32 units in each stream.
-    Measured here for one network (``mu``), a batch of 200, ``torch.set_num_threads(1)``, best of 6;
-    "VD" is sparse VD in train mode (local reparameterisation doubles the products; in eval mode or
-    once pruned it costs the same as plain):
-        rgbd 128 x 128, defaults:      forward 0.035 s (VD 0.066 s), forward + backward 0.089 s (VD 0.18 s);
-        rgbd 128 x 128, 16/32/32 5x5/2: forward 0.13 s (VD 0.30 s), forward + backward 0.39 s (VD 0.91 s);
-        state:                         forward 0.3 ms (VD 0.7 ms), forward + backward 0.6 ms (VD 1.3 ms).
-    With two threads on the shared, loaded machine the same runs were 2-4x slower and erratic, so one
-    thread per process is the better choice for these small networks.
-
-Initialisation
-    The final layer's weights of both networks are shrunk by ``HEAD_INIT_SCALE`` so that at the start
-    the mean action is close to 0 and sigma is close to ``init_std`` whatever the observation. sigma =
-    ``min_std`` + softplus(output): positive by construction, with a floor that keeps log-probabilities
-    finite; the final bias of the sigma network is set so that sigma = ``init_std`` (default 0.3 rad) for
-    a zero pre-activation. With sparse VD layers the shrunk final weights (|theta| <= 0.1 / sqrt(64))
-    include ~10% below the "born pruned" size of :mod:`vdtutorial.vd` (|theta| < 0.0015): pre-training
-    revives the useful ones in ``mu``; in the untrained ``sigma`` they are dropped by :meth:`prune_`.
-
 Sparsity
     ``vd.sparsity_report(policy.mu).neuron_fraction`` is the number to compare with the paper's Table I
     (pre-training sparsifies ``mu`` only); ``policy.mu.compact()`` gives the pruned network as a small
     plain one.
+
+Taught in chapter 05.
 """
 from __future__ import annotations
 
@@ -181,6 +154,26 @@ class TwoStreamNet(nn.Module):
     obs_low, obs_high: bounds of a vector observation (``"state"``, ``"mlp"``), for the normalisation.
     conv_channels, conv_kernels, conv_strides: the 3 convolutions of the image stream.
     scene_hidden: units of the fully connected layers of the scene stream; joint_hidden: of the joint stream.
+
+    Input normalisation (inside the network, so checkpoints carry it)
+        RGB (uint8 from the environments) / 255 and depth / ``DEPTH_SCALE`` (the environments' 3 m camera
+        far plane), both in [0, 1], are stacked into one 4-channel image and shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and continuous
+        across the +-pi wrap of continuous joints. Other vector inputs (the cup position, a generic Box) are
+        mapped from the observation space's bounds to [-1, 1]; dimensions with infinite or zero-width bounds
+        pass through unchanged. ``GaussianPolicy.prepare`` normalises a batch once for both networks, for
+        code that evaluates the policy on one batch many times (TRPO's update).
+
+    Sizes (CPU budget: 2 shared cores)
+        The paper does not give its layer sizes. The defaults are 8/16/16 channels with kernels 8/4/3 and
+        strides 4/2/2 (128 -> 31 -> 14 -> 6 pixels, 576 features), then 64-64-32 units in each stream.
+        Measured here for one network (``mu``), a batch of 200, ``torch.set_num_threads(1)``, best of 6;
+        "VD" is sparse VD in train mode (local reparameterisation doubles the products; in eval mode or
+        once pruned it costs the same as plain):
+            rgbd 128 x 128, defaults:      forward 0.035 s (VD 0.066 s), forward + backward 0.089 s (VD 0.18 s);
+            rgbd 128 x 128, 16/32/32 5x5/2: forward 0.13 s (VD 0.30 s), forward + backward 0.39 s (VD 0.91 s);
+            state:                         forward 0.3 ms (VD 0.7 ms), forward + backward 0.6 ms (VD 1.3 ms).
+        With two threads on the shared, loaded machine the same runs were 2-4x slower and erratic, so one
+        thread per process is the better choice for these small networks.
     """
 
     def __init__(self, kind: str, obs_shape, out_dim: int, variational: bool = False, *, obs_low=None, obs_high=None,
@@ -306,6 +299,15 @@ class GaussianPolicy(nn.Module):
 
     ``config`` holds every constructor argument, JSON-friendly; ``GaussianPolicy.from_config(config)``
     plus ``load_state_dict`` rebuilds a checkpoint (pruning masks included).
+
+    Initialisation
+        The final layer's weights of both networks are shrunk by ``HEAD_INIT_SCALE`` so that at the start
+        the mean action is close to 0 and sigma is close to ``init_std`` whatever the observation. sigma =
+        ``min_std`` + softplus(output): positive by construction, with a floor that keeps log-probabilities
+        finite; the final bias of the sigma network is set so that sigma = ``init_std`` (default 0.3 rad) for
+        a zero pre-activation. With sparse VD layers the shrunk final weights (|theta| <= 0.1 / sqrt(64))
+        include ~10% below the "born pruned" size of :mod:`vdtutorial.vd` (|theta| < 0.0015): pre-training
+        revives the useful ones in ``mu``; in the untrained ``sigma`` they are dropped by :meth:`prune_`.
     """
 
     def __init__(self, kind: str, obs_shape, action_dim: int, variational: bool = False, sizes: dict | None = None,

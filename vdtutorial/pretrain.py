@@ -21,14 +21,7 @@ before the network has learnt anything).
 ``reg="l2"`` -- the baseline: ``mu`` has plain layers and the loss adds ``l2 * sum(W^2)`` over the
 weights of ``mu`` (weight decay; biases excluded).
 
-Both use Adam, minibatches of ``batch_size``, a held-out split by whole episodes (samples of one
-trajectory are strongly correlated; splitting by sample would leak), and log per epoch the training
-loss, the held-out mean squared error of the (deterministic, pruned) mean action and, for VD, the
-fraction of weights of ``mu`` with log alpha > 3.
-
-When mu is cloned, the sigma network is set by ``initial_sigma``, the option that decides what sigma RL
-starts from (:mod:`vdtutorial.initial_sigma`): a fixed value (the paper's setting, the default 0.3), a
-maximum-likelihood fit to the demonstrations, or a fit to the VD network's predictive spread.
+Taught in chapter 05.
 """
 from __future__ import annotations
 
@@ -180,7 +173,17 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     policy (in eval mode, sigma trainable again; a VD policy is not yet pruned: call ``policy.prune_()``
     to start RL) and one log row per epoch.
     ``observations`` may pass inputs already made by :func:`demo_observations`; ``spread_net``: the VD mean
-    network whose spread an L2 policy follows under ``initial_sigma="spread"``."""
+    network whose spread an L2 policy follows under ``initial_sigma="spread"``.
+
+    Both use Adam, minibatches of ``batch_size``, a held-out split by whole episodes (samples of one
+    trajectory are strongly correlated; splitting by sample would leak), and log per epoch the training
+    loss, the held-out mean squared error of the (deterministic, pruned) mean action and, for VD, the
+    fraction of weights of ``mu`` with log alpha > 3.
+
+    When mu is cloned, the sigma network is set by ``initial_sigma``, the option that decides what sigma RL
+    starts from (:mod:`vdtutorial.initial_sigma`): a fixed value (the paper's setting, the default 0.3), a
+    maximum-likelihood fit to the demonstrations, or a fit to the VD network's predictive spread.
+    """
     cfg = config or PretrainConfig()
     torch.manual_seed(seed)
     task = demos.meta["task"]

@@ -17,6 +17,8 @@ Where namespaces are not allowed (macOS, Windows, containers that forbid them) o
 The launcher is run as a script (``python -I sandbox.py ...``), never imported as ``vdtutorial.sandbox`` in
 the launched process: importing the package loads numpy, whose threads would forbid ``unshare(CLONE_NEWUSER)``
 (a process must be single-threaded to enter a new user namespace). It uses only the standard library.
+
+Not taught in a chapter: part of the teacher's grading (vdtutorial/classroom.py, notebooks/TEACHING.md).
 """
 from __future__ import annotations
 

@@ -21,6 +21,8 @@ Only ``[p for p in policy.parameters() if p.requires_grad]`` moves: frozen param
 never do, and a weight that the forward pass multiplies by a 0/1 pruning mask gets a gradient, a Fisher
 product and so a step of exactly 0: pruned weights stay pruned. Every iteration is a pure function of
 (seed, iteration index, parameters and baseline at its start), so a checkpoint resumes a run exactly.
+
+Taught in chapters 06a and 06b.
 """
 from __future__ import annotations
 

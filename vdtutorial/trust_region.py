@@ -6,6 +6,8 @@ Chapter 06 builds each piece on its own and checks it against a brute-force comp
 and 5) before :class:`vdtutorial.trpo.TRPO` puts them together; they live apart from the algorithm so that
 each can be read, taught and tested without a rollout. :mod:`vdtutorial.fisher` computes the same
 Fisher-vector product in a cheaper form for the paper's Gaussian policy.
+
+Taught in chapters 06a and 06b.
 """
 from __future__ import annotations
 

@@ -19,14 +19,6 @@ spent in the expert and the number of clonings it took. The comparisons (the JSO
 differences of means over seeds with Welch t intervals, Bonferroni-corrected over all comparisons of the
 experiment, read with the verdicts of :mod:`vdtutorial.experiments.effects`.
 
-Resumable: the data sets and checkpoints are files made once, and the runs are a grid of the runner
-(:class:`PreRLJob`, :func:`~vdtutorial.runner.grid.run_grid`) with a state file each; running the same command
-again reads what is there and computes the rest. The RL stage (TRPO at 1e5 steps from these policies) is not run by this
-module (see ``RL_STAGE``).
-
-Files in ``out`` (default ``runs/beyond``; the shipped results in ``data/results/beyond``): ``demos/`` (the
-data sets made here, with each DART/DAgger round's record beside it), ``runs/`` (the runs' states), ``checkpoints/``,
-``beyond.csv.gz``, ``beyond.png`` and ``beyond.json``.
 Taught in chapter 09.
 """
 from __future__ import annotations
@@ -280,7 +272,17 @@ def beyond(seeds=None, out=None, workers: int = 1, progress: bool | None = None,
            address: str | None = None, restart: bool = False) -> dict:
     """The experiment (module docstring); returns its JSON record. The data sets are made here, one after
     the other; the runs are a grid (:func:`~vdtutorial.runner.grid.run_grid`: ``workers``, ``backend``,
-    ``address``, ``restart``, ``progress``), their states in ``out/runs``."""
+    ``address``, ``restart``, ``progress``), their states in ``out/runs``.
+
+    Files in ``out`` (default ``runs/beyond``; the shipped results in ``data/results/beyond``): ``demos/`` (the
+    data sets made here, with each DART/DAgger round's record beside it), ``runs/`` (the runs' states), ``checkpoints/``,
+    ``beyond.csv.gz``, ``beyond.png`` and ``beyond.json``.
+
+    Resumable: the data sets and checkpoints are files made once, and the runs are a grid of the runner
+    (:class:`PreRLJob`, :func:`~vdtutorial.runner.grid.run_grid`) with a state file each; running the same command
+    again reads what is there and computes the rest. The RL stage (TRPO at 1e5 steps from these policies) is not run by this
+    module (see ``RL_STAGE``).
+    """
     seeds = tuple(budget((0, 1, 2, 3, 4), (0, 1)) if seeds is None else seeds)
     out = Path(out) if out is not None else default_out("beyond")
     start = time.perf_counter()
