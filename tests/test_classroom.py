@@ -7,6 +7,7 @@ import csv
 import errno
 import json
 import re
+import signal
 import subprocess
 import sys
 
@@ -234,3 +235,14 @@ def test_the_kernel_has_no_network_and_its_own_home(tmp_path):
     assert lines[1] == "True ['tmp']"
     if isolate:
         assert lines[2] == f"OSError {errno.ENETUNREACH}", lines
+
+
+def test_a_command_past_the_cpu_cap_is_killed_by_the_kernel(tmp_path):
+    """RLIMIT_CPU, soft and hard at 1 s: a busy loop is killed after one CPU second, long before its own 30 s
+    (a kernel spinning where nbgrader's per-cell timeout cannot interrupt it dies the same way). Linux sends
+    SIGKILL when the hard limit is reached, and the soft one's SIGXCPU only while below it."""
+    spin = "import time\nt = time.process_time()\nwhile time.process_time() - t < 30:\n    pass\nprint('survived')"
+    cmd = sandbox.command([sys.executable, "-c", spin], 3 << 30, 1, home_under=tmp_path,
+                          isolate=sandbox.isolation_available())
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert run.returncode in (-signal.SIGKILL, -signal.SIGXCPU) and "survived" not in run.stdout, (run.returncode, run.stdout)
