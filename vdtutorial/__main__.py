@@ -68,6 +68,13 @@ def output_path(out: str | None, default: Path, force: bool) -> Path:
     return path
 
 
+def _device(args):
+    """``--device`` as a torch.device, refused in one line (exit code 2) when this machine has no such device."""
+    from vdtutorial.policy import torch_device
+
+    return torch_device(args.device, "--device")
+
+
 def _progress(args) -> bool:
     """Progress bars: on in a terminal, off in logs and pipes, unless --progress / --no-progress says."""
     return sys.stderr.isatty() if args.progress is None else args.progress
@@ -103,6 +110,7 @@ def _cmd_pretrain(args) -> None:
                                      save_checkpoint)
     from vdtutorial.vd import sparsity_report
 
+    device = _device(args)  # before any work
     torch.set_num_threads(1)
     demos = Demos.load(args.demos)
     config = default_config(args.reg, args.obs)
@@ -114,9 +122,11 @@ def _cmd_pretrain(args) -> None:
     spread_net = None
     if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
         spread_net = load_checkpoint(checkpoint_path(demos.meta, "vd", args.obs, args.seed), variational=True).mu
-    policy, history = pretrain(demos, config, seed=args.seed, progress=_progress(args), spread_net=spread_net)
+    policy, history = pretrain(demos, config, seed=args.seed, progress=_progress(args), spread_net=spread_net,
+                               device=device)
     command = (pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
-               + (f" --epochs {args.epochs}" if args.epochs else ""))
+               + (f" --epochs {args.epochs}" if args.epochs else "")
+               + (f" --device {args.device}" if args.device != "cpu" else ""))
     save_checkpoint(policy, out, {"command": command})
     print(f"held-out imitation MSE {history[-1]['val_mse']:.4f}")
     if args.reg == "vd":
@@ -164,12 +174,12 @@ def _cmd_digits(args) -> None:
 def _cmd_bench(args) -> None:
     from vdtutorial import bench
 
-    if args.profile and args.what != "finetune":
-        raise CommandError("--profile is an option of bench finetune only")
+    if args.what != "finetune" and (args.profile or args.device != "cpu"):
+        raise CommandError(f"{'--profile' if args.profile else '--device'} is an option of bench finetune only")
     if args.what == "trpo":
         bench.bench_trpo_pendulum(seeds=args.seeds, total_steps=args.steps)
     elif args.what == "finetune":
-        bench.bench_finetune(profile=args.profile)
+        bench.bench_finetune(profile=args.profile, device=_device(args))
     else:
         {"env": bench.bench_env, "policy": bench.bench_policy}[args.what]()
 
@@ -207,7 +217,9 @@ def _cmd_experiment(args) -> None:
     if args.name in PRE_RL_ONLY:
         ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
                                             ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),
-                                            ("--restart", args.restart or None)) if value is not None]
+                                            ("--restart", args.restart or None),
+                                            ("--device", None if args.device == "cpu" else args.device))
+                   if value is not None]
         if args.name == "beyond":   # its pre-RL runs are a grid with saved states: --restart discards them
             ignored = [flag for flag in ignored if flag != "--restart"]
         if ignored:
@@ -224,6 +236,7 @@ def _cmd_experiment(args) -> None:
         print(format_summary(beyond(seeds=args.seeds, out=args.out, workers=args.workers, backend=backend,
                                     address=args.address, restart=args.restart)))
         return
+    _device(args)  # refused before any run starts
     trpo_config = None
     if args.fvp_subsample is not None:
         trpo_config = dataclasses.replace(experiments.default_trpo_config(args.obs), fvp_subsample=args.fvp_subsample)
@@ -233,7 +246,7 @@ def _cmd_experiment(args) -> None:
             result = getattr(experiments, args.name)(
                 seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs, out=args.out, workers=args.workers,
                 trpo_config=trpo_config, backend=backend, address=args.address, state_dir=args.state_dir,
-                restart=args.restart, **resumable)
+                restart=args.restart, device=args.device, **resumable)
         except experiments.ResumeError as exc:
             raise CommandError(str(exc)) from exc
     _print_summary(result)
@@ -356,6 +369,10 @@ def _add_pipeline_commands(sub) -> None:
                         "on the demonstrations, mu frozen) or 'spread' (fitted to the VD network's predictive spread; "
                         "L2 follows the VD checkpoint of the same seed)")
     p.add_argument("--out", default=None, help="checkpoint file (default: runs/checkpoints/TASK_nN_sigmaS_REG_OBS_seedK.pt)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="where behavioural cloning runs (default cpu; cuda: a CUDA GPU). On a GPU the numbers differ "
+                        "from the CPU's by floating-point rounding, and VD's weight noise comes from other random "
+                        "draws; the checkpoint is written from the CPU either way")
     _add_force(p)
     _add_progress(p)
     p.set_defaults(func=_cmd_pretrain)
@@ -385,6 +402,10 @@ def _add_measurement_commands(sub) -> None:
     p.add_argument("--steps", type=positive_int, default=None, help="trpo only: env steps per run (default: 100000)")
     p.add_argument("--profile", action="store_true",
                    help="finetune only: then profile the rgbd whole-batch case and print its top operators")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="finetune only: where TRPO's updates run (default cpu; cuda: a CUDA GPU); the rollouts stay on "
+                        "the CPU. The update columns are then wall seconds with the GPU, the CPU ones what this "
+                        "process spent, waiting for the GPU included")
     p.set_defaults(func=_cmd_bench)
 
 
@@ -418,6 +439,10 @@ def _add_experiment_commands(sub) -> None:
                    help="discard the saved states of this experiment's runs and start them again")
     p.add_argument("--checkpoint-every", type=positive_int, default=None, metavar="K",
                    help="TRPO iterations between two saved states of a run (default 10)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="figures only: where the runs' TRPO updates run (default cpu; cuda: a CUDA GPU, shared by the "
+                        "workers). Rollouts and pre-training stay on the CPU. Results on a GPU differ from the CPU's "
+                        "by floating-point rounding, so the rows are not the shipped ones bit for bit")
     p.set_defaults(func=_cmd_experiment, on_interrupt="the finished runs and the saved states of the others are "
                    "kept: rerun the same command (without --restart) to continue")
 

@@ -190,7 +190,8 @@ FINETUNE_CASES = (
 )
 
 
-def bench_finetune(iterations: int | None = None, profile: bool = False) -> list[dict]:
+def bench_finetune(iterations: int | None = None, profile: bool = False,
+                   device: torch.device | str = "cpu") -> list[dict]:
     """TRPO fine-tuning of the pruned VD reach policy (8000 demonstrations, Sigma = 0.5, seed 0), state
     and rgbd 128 x 128, in one process with one torch thread: seconds per 200-step iteration spent
     collecting (rendering + policy) and updating, env steps per second end to end (wall clock, and per
@@ -205,7 +206,11 @@ def bench_finetune(iterations: int | None = None, profile: bool = False) -> list
     A second table splits each case's update into its parts, in CPU seconds per iteration
     (``TRPO.update_split``): the surrogate gradient (with the forward pass at theta_old), the Fisher
     setup, the CG products, the line search and the baseline fit. With ``profile``, the rgbd whole-batch
-    Gauss-Newton case then runs ``iterations`` more under the profilers (:func:`print_profile`)."""
+    Gauss-Newton case then runs ``iterations`` more under the profilers (:func:`print_profile`).
+
+    ``device``: where the updates run (``TRPO(device=...)``; "cuda": a GPU). The rollouts stay on the CPU, so
+    the collect column does not change; the update column is wall time with the GPU, and the CPU-time columns
+    (steps per CPU second, the update split) count what this process spent, waiting for the GPU included."""
     import torch
 
     from vdtutorial.demos import Demos, demo_path
@@ -231,7 +236,7 @@ def bench_finetune(iterations: int | None = None, profile: bool = False) -> list
         for label, fisher, fvp_subsample in FINETUNE_CASES:
             torch.manual_seed(0)
             policy = finetune_policy("vd", env, demos, obs_mode, 0, config, checkpoints_root=ckpt.parent.parent)
-            algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fisher=fisher)
+            algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fisher=fisher, device=device)
             runs.append((algo, []))
         for i in range(iterations + 1):
             for algo, timed in runs:  # every case collects from the shared env, reset with its own seeds
@@ -251,7 +256,8 @@ def bench_finetune(iterations: int | None = None, profile: bool = False) -> list
         print(f"       whole batch, Gauss-Newton / double backward: {new['steps_per_s'] / old['steps_per_s']:.2f}x env "
               f"steps/s ({new['steps_per_cpu_s'] / old['steps_per_cpu_s']:.2f}x per CPU second), update "
               f"{old['update_s'] / new['update_s']:.2f}x faster")
-        print(f"       policy: {source}, pruned; {iterations} iterations of 200 steps after one warm-up, per case")
+        print(f"       policy: {source}, pruned; {iterations} iterations of 200 steps after one warm-up, per case; "
+              f"updates on {torch.device(device)}")
         if profile and obs_mode == "rgbd":
             print_profile(runs[FINETUNE_CASES.index(("Gauss-Newton", "gauss_newton", 1.0))][0], iterations)
         env.close()

@@ -24,6 +24,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -47,14 +48,45 @@ CUP_DIMS = 3
 HEAD_INIT_SCALE = 0.1
 
 
-def obs_to_tensor(obs):
+def obs_to_tensor(obs, device: torch.device | str | None = None):
     """Tensor(s) from a numpy array, a tensor, or a dict of either (gymnasium Dict observations):
-    uint8 images stay uint8 (4x less memory in a rollout batch; the network scales them), anything
-    else becomes float32."""
+    uint8 images stay uint8 (4x less memory in a rollout batch, and in a copy to a GPU; the network scales
+    them), anything else becomes float32. ``device``: where the tensors go (None: where they are, a numpy
+    array's on the CPU)."""
     if isinstance(obs, dict):
-        return {key: obs_to_tensor(value) for key, value in obs.items()}
-    tensor = torch.as_tensor(obs)
+        return {key: obs_to_tensor(value, device) for key, value in obs.items()}
+    tensor = torch.as_tensor(obs, device=device)
     return tensor if tensor.dtype == torch.uint8 else tensor.to(torch.float32)
+
+
+def torch_device(name: torch.device | str, option: str = "device") -> torch.device:
+    """``name`` ("cpu", "cuda", "cuda:1", or a torch.device) as a ``torch.device`` this machine can run, else a
+    ValueError that says why in one line, naming the ``option`` that asked for it (the command line passes
+    "--device"). Only pre-training and TRPO's update run on a GPU; the package is CPU-first (the environments,
+    rollouts and checkpoints stay on the CPU)."""
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
+        raise ValueError(f"{option} {name}: expected cpu, cuda or cuda:N")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"{option} {name}: this machine has no CUDA GPU (torch.cuda.is_available() is False)")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise ValueError(f"{option} {name}: this machine has {torch.cuda.device_count()} CUDA GPU(s)")
+    return device
+
+
+@contextmanager
+def on_device(module: nn.Module, device: torch.device):
+    """Run the ``with`` block with ``module`` on ``device``, then move it back to the CPU (also after an error).
+    ``Module.to`` keeps the same Parameter objects (only their data moves), so lists of a module's parameters
+    made before stay valid; on the CPU it changes nothing."""
+    module.to(device)
+    try:
+        yield module
+    finally:
+        module.to("cpu")
 
 
 def _is_unbatched(obs) -> bool:

@@ -40,7 +40,7 @@ import vdtutorial
 from vdtutorial.demos import Demos, demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.initial_sigma import IMAGE_FIT_STATES, InitialSigma, apply_initial_sigma
-from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor
+from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor, on_device, torch_device
 from vdtutorial.settings import DATA_DIR, budget, recorded_path
 from vdtutorial.vd import model_kl, sparsity_report
 
@@ -151,10 +151,11 @@ def demo_observations(demos: Demos, obs_mode: str, image_size: int = 128, progre
     return {"rgb": rgb, "depth": depth, "joints": demos.joints[indices].astype(np.float32)}
 
 
-def _take(obs, idx):
+def _take(obs, idx, device: torch.device | None = None):
+    """The observations ``idx`` of ``obs`` (an array or a dict of arrays) as tensors, on ``device`` when given."""
     if isinstance(obs, dict):
-        return {k: obs_to_tensor(v[idx]) for k, v in obs.items()}
-    return obs_to_tensor(obs[idx])
+        return {k: obs_to_tensor(v[idx], device) for k, v in obs.items()}
+    return obs_to_tensor(obs[idx], device)
 
 
 def split_by_episode(demos: Demos, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -167,13 +168,17 @@ def split_by_episode(demos: Demos, val_fraction: float, seed: int) -> tuple[np.n
 
 
 def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
-             observations=None, spread_net=None) -> tuple[GaussianPolicy, list[dict]]:
+             observations=None, spread_net=None,
+             device: torch.device | str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
     """Behavioural cloning of ``demos`` with the chosen regulariser (default: :func:`default_config` for
     state inputs), then sigma set by ``config.initial_sigma`` (:func:`set_initial_sigma`). Returns the
     policy (in eval mode, sigma trainable again; a VD policy is not yet pruned: call ``policy.prune_()``
     to start RL) and one log row per epoch.
     ``observations`` may pass inputs already made by :func:`demo_observations`; ``spread_net``: the VD mean
-    network whose spread an L2 policy follows under ``initial_sigma="spread"``.
+    network whose spread an L2 policy follows under ``initial_sigma="spread"``. ``device``: where the cloning
+    runs (:func:`vdtutorial.policy.torch_device`; "cuda" for a GPU): the policy and each minibatch move there,
+    and the policy comes back to the CPU before sigma is set, so it is returned on the CPU. A GPU gives the
+    same computation up to floating-point rounding (and other random draws for VD's weight noise).
 
     Both use Adam, minibatches of ``batch_size``, a held-out split by whole episodes (samples of one
     trajectory are strongly correlated; splitting by sample would leak), and log per epoch the training
@@ -185,6 +190,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     maximum-likelihood fit to the demonstrations, or a fit to the VD network's predictive spread.
     """
     cfg = config or PretrainConfig()
+    device = torch_device(device)  # refused before any work when this machine has no such device
     torch.manual_seed(seed)
     task = demos.meta["task"]
     space = observation_space(task, cfg.obs_mode, cfg.image_size)
@@ -194,35 +200,37 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     actions = torch.as_tensor(demos.actions, dtype=torch.float32)
     train_idx, val_idx = split_by_episode(demos, cfg.val_fraction, seed)
     n_train = len(train_idx)
-    params = list(policy.mu.parameters())
-    weights = [p for name, p in policy.mu.named_parameters() if name.endswith("weight")]
-    optimiser = torch.optim.Adam(params, lr=cfg.lr)
-    generator = torch.Generator().manual_seed(seed)
-    history = []
-    bar = tqdm(range(cfg.epochs), desc=f"pre-training ({cfg.reg}, {cfg.obs_mode})", disable=not progress)
-    step, total_steps = 0, cfg.epochs * math.ceil(n_train / cfg.batch_size)
-    for epoch in bar:
-        policy.train()
-        losses = []
-        for batch in torch.randperm(n_train, generator=generator).split(cfg.batch_size):
-            idx = train_idx[batch.numpy()]
-            o, a = _take(obs, idx), actions[idx]
-            nll = -policy.log_prob(o, a).mean()
+    with on_device(policy, device):  # the cloning only: sigma is set, and the policy returned, on the CPU
+        params = list(policy.mu.parameters())
+        weights = [p for name, p in policy.mu.named_parameters() if name.endswith("weight")]
+        optimiser = torch.optim.Adam(params, lr=cfg.lr)
+        generator = torch.Generator().manual_seed(seed)
+        history = []
+        bar = tqdm(range(cfg.epochs), desc=f"pre-training ({cfg.reg}, {cfg.obs_mode})", disable=not progress)
+        step, total_steps = 0, cfg.epochs * math.ceil(n_train / cfg.batch_size)
+        for epoch in bar:
+            policy.train()
+            losses = []
+            for batch in torch.randperm(n_train, generator=generator).split(cfg.batch_size):
+                idx = train_idx[batch.numpy()]
+                o, a = _take(obs, idx, device), actions[idx].to(device)
+                nll = -policy.log_prob(o, a).mean()
+                if cfg.reg == "vd":
+                    beta = min(1.0, step / max(1.0, cfg.beta_warmup * total_steps))
+                    loss = nll + beta * model_kl(policy.mu) / (cfg.kl_samples or n_train)
+                else:
+                    loss = nll + cfg.l2 * sum((w ** 2).sum() for w in weights)
+                optimiser.zero_grad()
+                loss.backward()
+                optimiser.step()
+                losses.append(loss.item())
+                step += 1
+            row = {"epoch": epoch + 1, "train_loss": float(np.mean(losses)),
+                   **evaluate_imitation(policy, obs, actions, val_idx)}
             if cfg.reg == "vd":
-                beta = min(1.0, step / max(1.0, cfg.beta_warmup * total_steps))
-                loss = nll + beta * model_kl(policy.mu) / (cfg.kl_samples or n_train)
-            else:
-                loss = nll + cfg.l2 * sum((w ** 2).sum() for w in weights)
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            losses.append(loss.item())
-            step += 1
-        row = {"epoch": epoch + 1, "train_loss": float(np.mean(losses)), **evaluate_imitation(policy, obs, actions, val_idx)}
-        if cfg.reg == "vd":
-            row["weights_pruned"] = sparsity_report(policy.mu).weight_fraction
-        history.append(row)
-        bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
+                row["weights_pruned"] = sparsity_report(policy.mu).weight_fraction
+            history.append(row)
+            bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
     policy.eval()
     policy.sigma.requires_grad_(True)  # frozen for behavioural cloning only: the RL phase trains sigma too
     sigma_record = set_initial_sigma(policy, demos, cfg, seed, obs, spread_net)
@@ -257,17 +265,18 @@ def set_initial_sigma(policy: GaussianPolicy, demos: Demos, config: PretrainConf
 @torch.no_grad()
 def evaluate_imitation(policy: GaussianPolicy, obs, actions: torch.Tensor, idx: np.ndarray, batch: int = 500) -> dict:
     """Held-out mean squared error of the mean action (eval mode: deterministic, log alpha > 3 dropped)
-    and mean log-likelihood of the expert's actions."""
+    and mean log-likelihood of the expert's actions, computed on the device the policy is on."""
     if len(idx) == 0:
         return {"val_mse": float("nan"), "val_loglik": float("nan")}
     was_training = policy.training
     policy.eval()
+    device = next(policy.parameters()).device
     se = ll = 0.0
     for start in range(0, len(idx), batch):
         part = idx[start:start + batch]
-        dist = policy.distribution(_take(obs, part))
-        se += ((dist.mean - actions[part]) ** 2).sum().item()
-        ll += dist.log_prob(actions[part]).sum().item()
+        dist, expert = policy.distribution(_take(obs, part, device)), actions[part].to(device)
+        se += ((dist.mean - expert) ** 2).sum().item()
+        ll += dist.log_prob(expert).sum().item()
     policy.train(was_training)
     return {"val_mse": se / (len(idx) * actions.shape[1]), "val_loglik": ll / len(idx)}
 

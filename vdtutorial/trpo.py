@@ -30,7 +30,7 @@ import csv
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Callable
 
 import gymnasium
@@ -43,7 +43,7 @@ from tqdm.auto import tqdm
 from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, MLPBaseline, Obs, default_baseline_features
 from vdtutorial.fisher import GaussNewtonFisher
 from vdtutorial.fisher import supports as supports_gauss_newton
-from vdtutorial.policy import obs_to_tensor
+from vdtutorial.policy import obs_to_tensor, on_device, torch_device
 from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search
 
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
@@ -332,6 +332,12 @@ class Batch:
     successes: int                # how many of those ended with info["is_success"] True
     fvp_index: torch.Tensor | None = None  # (m,) the samples of the Fisher-vector products; None = all
 
+    def to(self, device: torch.device) -> "Batch":
+        """A copy with the tensors of the policy's update on ``device`` (the baseline's numpy arrays stay; on the
+        CPU the copy holds the same tensors)."""
+        index = None if self.fvp_index is None else self.fvp_index.to(device)
+        return replace(self, obs=obs_to_tensor(self.obs, device), actions=self.actions.to(device),
+                       advantages=self.advantages.to(device), fvp_index=index)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -414,6 +420,8 @@ class TRPO:
         are exact, so this changes the cost, not the algorithm. ``"gauss_newton"`` only for a
         :class:`vdtutorial.policy.GaussianPolicy` (:func:`vdtutorial.fisher.supports`);
         ``"double_backward"`` for any policy; ``"auto"`` (default): the first when the policy supports it.
+    device: where :meth:`update` runs ("cpu"; "cuda": a GPU, see :func:`vdtutorial.policy.torch_device`);
+        rollouts, the baseline and checkpoints stay on the CPU.
 
     With small policies, ``torch.set_num_threads(1)`` is much faster on a busy 2-core machine:
     extra threads only contend for the cores.
@@ -422,10 +430,9 @@ class TRPO:
     def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
                  config: TRPOConfig | None = None, seed: int = 0,
                  baseline_features: Callable[[Obs], np.ndarray] | None = None,
-                 fisher: str = "auto"):
+                 fisher: str = "auto", device: torch.device | str = "cpu"):
         _check_fisher(fisher, policy)
-        self.fisher = fisher
-        self.policy = policy
+        self.policy, self.fisher, self.device = policy, fisher, torch_device(device)
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
         self.config = config or TRPOConfig()
         self.seed = seed
@@ -460,7 +467,12 @@ class TRPO:
     def update(self, batch: Batch) -> dict:
         """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the
         step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
-        outcome (accepted fraction of the full step, or "rejected"); the CPU seconds of its parts: ``update_split``."""
+        outcome (accepted fraction of the full step, or "rejected"); the CPU seconds of its parts: ``update_split``.
+        On ``device``: the policy and the batch move there for the step, and the policy back to the CPU after it."""
+        with on_device(self.policy, self.device):
+            return self._step(batch.to(self.device))
+
+    def _step(self, batch: Batch) -> dict:
         cfg, timer = self.config, _CPUTimer()
         obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs  # inputs made once
         # One forward with graph at theta_old gives pi_old (detached), the surrogate and g.
@@ -510,14 +522,10 @@ class TRPO:
         stats = self.update(batch)
         updated = time.perf_counter()
         previous_time = self.rows[-1]["wall_time"] if self.rows else 0.0
-        row = {"iteration": self.iteration_index,
-               "env_steps": (self.iteration_index + 1) * self.config.steps_per_iter,
-               "successes": batch.successes,
-               "episodes": len(batch.episode_returns),
-               "mean_return": float(np.mean(batch.episode_returns)) if batch.episode_returns else math.nan,
-               **stats,
-               "collect_s": collected - start,
-               "update_s": updated - collected,
+        row = {"iteration": self.iteration_index, "env_steps": (self.iteration_index + 1) * self.config.steps_per_iter,
+               "successes": batch.successes, "episodes": len(batch.episode_returns),
+               "mean_return": float(np.mean(batch.episode_returns)) if batch.episode_returns else math.nan, **stats,
+               "collect_s": collected - start, "update_s": updated - collected,
                "wall_time": previous_time + updated - start}
         self.rows.append(row)
         self.iteration_index += 1
@@ -546,13 +554,11 @@ class TRPO:
         """Policy, baseline, iteration index and log rows: everything a run needs to continue exactly
         (TRPO draws its resets and action noise from (seed, iteration), so no generator state is needed)."""
         return {"policy": self.policy.state_dict(), "baseline": self.baseline.state_dict(),
-                "iteration": self.iteration_index, "rows": self.rows,
-                "seed": self.seed, "config": asdict(self.config)}
+                "iteration": self.iteration_index, "rows": self.rows, "seed": self.seed, "config": asdict(self.config)}
 
     def restore(self, state: dict) -> None:
         """Continue from a :meth:`checkpoint` of a run with the same seed and config."""
-        # fields added to TRPOConfig after a checkpoint was written take their defaults, which keep
-        # the behaviour of the code that wrote it
+        # fields added to TRPOConfig after a checkpoint was written take defaults that keep the old behaviour
         saved_config = {**asdict(TRPOConfig()), **state["config"]}
         if state["seed"] != self.seed or saved_config != asdict(self.config):
             raise ValueError("checkpoint was written with a different seed or config; resuming it would "

@@ -324,7 +324,7 @@ def _dead_units(layers, edges, masks) -> dict[nn.Module, tuple[torch.Tensor, tor
     for e in edges:
         n = _units(e.src)
         read = live_columns[e.dst][e.offset:e.offset + n * e.repeat].view(n, e.repeat).any(1)
-        dead_out[e.src] = dead_out.get(e.src, torch.ones(n, dtype=torch.bool)) & ~read
+        dead_out[e.src] = dead_out.get(e.src, torch.ones(n, dtype=torch.bool, device=read.device)) & ~read
     return {l: (~masks[l].reshape(_units(l), -1).any(1), d) for l, d in dead_out.items()}
 
 

@@ -60,6 +60,8 @@ class Job:
     state_path: the run's resumable state (:mod:`~vdtutorial.runner.resume`), saved every
         ``checkpoint_every`` iterations.
     csv_path: the run's rows, written when it has finished.
+    device: where TRPO's updates run (not one of the run's :attr:`settings`: see
+        :func:`~vdtutorial.experiments.runs.finetune_steps`).
     """
 
     spec: RunSpec
@@ -70,6 +72,7 @@ class Job:
     pretrain_config: PretrainConfig | None
     trpo_config: TRPOConfig
     checkpoint_every: int = CHECKPOINT_EVERY
+    device: str = "cpu"
 
     @property
     def settings(self) -> dict:
@@ -123,5 +126,5 @@ class Job:
         _, rows = yield from finetune_steps(spec.method, spec.task, demos, spec.obs_mode, spec.seed, spec.total_steps,
                                             pretrain_config=self.pretrain_config, trpo_config=self.trpo_config,
                                             checkpoints_root=self.checkpoints_root, state_path=self.state_path,
-                                            checkpoint_every=self.checkpoint_every)
+                                            checkpoint_every=self.checkpoint_every, device=self.device)
         return rows

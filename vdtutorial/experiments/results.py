@@ -103,7 +103,8 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
                    pretrain_config: PretrainConfig | None = None, trpo_config: TRPOConfig | None = None,
                    window: int | None = None, command: str = "", summarise=None, *, backend: str = "local",
                    address: str | None = None, state_dir: str | Path | None = None, restart: bool = False,
-                   checkpoint_every: int = CHECKPOINT_EVERY, progress: bool | None = None) -> ExperimentResult:
+                   checkpoint_every: int = CHECKPOINT_EVERY, progress: bool | None = None,
+                   device: str = "cpu") -> ExperimentResult:
     """Run ``specs`` as a restartable grid (:func:`~vdtutorial.runner.grid.run_grid`), then write
     ``NAME.csv.gz`` (all rows), ``NAME.png`` (:func:`derive`: one panel per measure) and ``NAME.json``
     (command, configuration, per-run compute times, summary) into ``out``. The summary holds each curve's
@@ -122,6 +123,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     restart: discard the saved states of these runs instead of continuing them.
     checkpoint_every: TRPO iterations between two saved states of a run.
     progress: the grid's live line and per-run lines (:mod:`~vdtutorial.runner.progress`).
+    device: where the runs' TRPO updates run ("cuda": a GPU; see :func:`~vdtutorial.experiments.runs.finetune_steps`).
     """
     out = Path(out) if out is not None else default_out(name)
     window = smooth_window() if window is None else window
@@ -133,7 +135,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     task = specs[0].task
     metric = METRIC[task]
     jobs = [Job(spec, state_dir.resolve() / f"{spec.name}.pt", state_dir.resolve() / f"{spec.name}.csv", demos_root,
-                checkpoints_root, pretrain_config, trpo_config, checkpoint_every) for spec in specs]
+                checkpoints_root, pretrain_config, trpo_config, checkpoint_every, device) for spec in specs]
     start = time.perf_counter()
     results = run_grid(name, jobs, workers, backend, address, restart, progress)
     wall = time.perf_counter() - start
@@ -151,6 +153,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
         "num_envs": NUM_ENVS, "steps_per_iteration": trpo_config.steps_per_iter,
         "window": window, "smoothing": f"trailing moving average over {window} iterations", "band": f"{CONFIDENCE:.0%} Student-t "
         "interval of the mean over seeds", "workers": workers, "backend": backend, "wall_time_s": wall,
+        "device": device,  # where the TRPO updates ran: a GPU's rows differ from the CPU's by rounding
         "pretrain_config": {k: v for k, v in asdict(pretrain_config or default_config("vd", specs[0].obs_mode)).items()
                             if k not in ("reg", "obs_mode")},  # these two are set per run
         "trpo_config": asdict(trpo_config),

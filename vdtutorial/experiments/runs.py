@@ -184,7 +184,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
                    csv_path: str | Path | None = None, *, pretrain_config: PretrainConfig | None = None,
                    trpo_config: TRPOConfig | None = None, num_envs: int = NUM_ENVS,
                    checkpoints_root: Path | None = None, progress: bool = False, state_path: str | Path | None = None,
-                   checkpoint_every: int = CHECKPOINT_EVERY):
+                   checkpoint_every: int = CHECKPOINT_EVERY, device: str = "cpu"):
     """:func:`finetune` as a generator: it yields after every ``checkpoint_every`` iterations (with no
     ``state_path``: once, at the end) a progress report ``{"iteration": done so far, "iterations": total,
     "env_steps": steps of this chunk}``, and returns ``(policy, rows)`` (``yield from`` gets them).
@@ -194,6 +194,9 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
         :class:`~vdtutorial.runner.resume.ResumeError`) -- and every chunk saves it again. The rows
         are then those of an uninterrupted run (wall times aside). A resumed pre-trained run needs only the
         default checkpoint (the state holds every parameter, the fitted start sigma included).
+    device: where TRPO's updates run (:class:`~vdtutorial.trpo.TRPO`; "cuda": a GPU, whose rows differ from the
+        CPU's by floating-point rounding). It is not one of the run's settings; pre-training, when no checkpoint
+        matches, stays on the CPU, so that a checkpoint is the same whatever the device.
     """
     if method not in RL_METHODS:
         raise ValueError(f"method must be one of {RL_METHODS} (the expert is measured by expert_reference), "
@@ -215,7 +218,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     try:
         policy = finetune_policy(method, env, data, obs_mode, seed, cfg, checkpoints_root=checkpoints_root,
                                  progress=progress, resumed=saved is not None)
-        algo = TRPO(policy, env, trpo_config, seed=seed)
+        algo = TRPO(policy, env, trpo_config, seed=seed, device=device)
         if saved is not None:
             algo.restore(saved)
             restore_random_states(saved)
@@ -243,8 +246,8 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
              seed: int = 0, total_steps: int | None = None, csv_path: str | Path | None = None, *,
              pretrain_config: PretrainConfig | None = None, trpo_config: TRPOConfig | None = None,
              num_envs: int = NUM_ENVS, checkpoints_root: Path | None = None, progress: bool = False,
-             state_path: str | Path | None = None,
-             checkpoint_every: int = CHECKPOINT_EVERY) -> tuple[GaussianPolicy, list[dict]]:
+             state_path: str | Path | None = None, checkpoint_every: int = CHECKPOINT_EVERY,
+             device: str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
     """One run of the RL stage: the policy of ``method`` ("vd", "l2" or "none") trained by TRPO for
     ``total_steps`` env steps (default 3e5) on ``num_envs`` copies of the task (default 8 x 25 = 200 steps
     per iteration). Returns the trained policy and TRPO's log rows; ``csv_path`` (replaced if it exists)
@@ -257,11 +260,12 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
     trpo_config: default :func:`default_trpo_config` of ``obs_mode``.
     checkpoints_root: where pre-trained checkpoints are looked up and saved (see :func:`pretrained_policy`).
     state_path, checkpoint_every: make the run resumable (see :func:`finetune_steps`).
+    device: where TRPO's updates run (see :func:`finetune_steps`).
     """
     steps = finetune_steps(method, task, demos, obs_mode, seed, total_steps, csv_path,
                            pretrain_config=pretrain_config, trpo_config=trpo_config, num_envs=num_envs,
                            checkpoints_root=checkpoints_root, progress=progress, state_path=state_path,
-                           checkpoint_every=checkpoint_every)
+                           checkpoint_every=checkpoint_every, device=device)
     while True:
         try:
             next(steps)
