@@ -151,8 +151,9 @@ def test_a_trpo_update_of_the_image_policy_on_cuda_matches_the_cpu():
     gpu_stats, cpu_stats = gpu.update(batch), cpu.update(batch)
     env.close()
     assert _on_cpu(gpu.policy) and batch.actions.device.type == "cpu"
+    assert [id(p) for p in gpu.params] == [id(p) for p in gpu.policy.parameters() if p.requires_grad]
     assert cpu_stats["line_search"] != "rejected" and gpu_stats["line_search"] == cpu_stats["line_search"]
     for key in ("mean_kl", "surrogate_improvement", "entropy"):
         assert gpu_stats[key] == pytest.approx(cpu_stats[key], rel=1e-3), key
     for a, b in zip(cpu.policy.parameters(), gpu.policy.parameters()):
-        assert torch.allclose(a, b, rtol=1e-3, atol=1e-5)
+        assert torch.allclose(a, b, rtol=1e-3, atol=1e-4)

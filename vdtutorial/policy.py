@@ -80,8 +80,9 @@ def torch_device(name: torch.device | str, option: str = "device") -> torch.devi
 @contextmanager
 def on_device(module: nn.Module, device: torch.device):
     """Run the ``with`` block with ``module`` on ``device``, then move it back to the CPU (also after an error).
-    ``Module.to`` keeps the same Parameter objects (only their data moves), so lists of a module's parameters
-    made before stay valid; on the CPU it changes nothing."""
+    ``Module.to`` keeps the same Parameter objects (only their data moves; unless
+    ``torch.__future__.set_overwrite_module_params_on_conversion(True)``), so lists of a module's parameters made
+    before, such as TRPO's, stay valid; on the CPU it changes nothing."""
     module.to(device)
     try:
         yield module
