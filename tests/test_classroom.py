@@ -224,7 +224,7 @@ def test_the_kernel_has_no_network_and_its_own_home(tmp_path):
     """What the launcher gives a command, checked directly: the caps, a fresh HOME that is the working folder,
     and (where namespaces are allowed) no route to any address."""
     probe = ("import os, resource, socket, sys\n"
-             "print(resource.getrlimit(resource.RLIMIT_AS)[0], resource.getrlimit(resource.RLIMIT_CPU)[0])\n"
+             f"print(resource.getrlimit({sandbox.memory_limit()})[0], resource.getrlimit(resource.RLIMIT_CPU)[0])\n"
              "print(os.environ['HOME'] == os.getcwd(), os.listdir(os.getcwd()))\n"
              "try:\n    socket.create_connection(('192.0.2.1', 80), timeout=5)\nexcept OSError as e:\n"
              "    print(type(e).__name__, e.errno)\n")
@@ -246,3 +246,21 @@ def test_a_command_past_the_cpu_cap_is_killed_by_the_kernel(tmp_path):
                           isolate=sandbox.isolation_available())
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert run.returncode in (-signal.SIGKILL, -signal.SIGXCPU) and "survived" not in run.stdout, (run.returncode, run.stdout)
+
+
+def test_the_memory_cap_counts_memory_not_mapped_libraries(tmp_path):
+    """PyPI's CUDA build of torch maps more than 4 GB of shared libraries on import, GPU or not; an
+    address-space cap killed every kernel that imported it (all of chapters 04-09's points lost on Python
+    3.13 in CI). A 3 GB read-only file mapping stands in for those libraries under a 1 GB cap: it must be
+    allowed, while 2 GB of writable memory must not."""
+    library = tmp_path / "libbig.so"
+    with open(library, "wb") as fh:
+        fh.truncate(3 << 30)   # sparse: no disk used
+    probe = ("import mmap\n"
+             f"with open({str(library)!r}, 'rb') as fh:\n"
+             "    mapped = mmap.mmap(fh.fileno(), 0, prot=mmap.PROT_READ)\n"
+             "print('mapped', len(mapped) >> 30)\n"
+             "try:\n    bytearray(2 << 30)\nexcept MemoryError:\n    print('MemoryError')\n")
+    cmd = sandbox.command([sys.executable, "-c", probe], 1 << 30, 60, home_under=tmp_path)
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert run.stdout.split("\n")[:2] == ["mapped 3", "MemoryError"], (run.stdout, run.stderr[-500:])

@@ -12,8 +12,8 @@ nbgrader course directory and calls nbgrader's own steps,
   gradebook) then ``autograde`` per student: each submission runs on a fresh kernel with nbgrader's
   per-cell timeout, errors in a cell are recorded in that cell, and the points come from the gradebook.
 
-Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.sandbox`): an address-space and a
-CPU-time cap, a throwaway home that is also its working folder, and on Linux, where the system allows
+Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.sandbox`): a memory and a CPU-time
+cap, a throwaway home that is also its working folder, and on Linux, where the system allows
 unprivileged user namespaces, no network and a read-only file system outside that folder. The kernels talk
 to nbgrader over Unix sockets (ZeroMQ's ``ipc`` transport), not TCP. Where namespaces are not allowed the
 submissions still run with the grader's rights to the files and the network: ``classroom grade`` says so
@@ -350,7 +350,7 @@ def _cmd_grade(args) -> None:
     if os.name != "posix":
         print(f"warning: this system has no per-process limits (setrlimit): {SAFETY_NOTE}", file=sys.stderr)
     else:
-        print(f"each submission's kernel: at most {limits.memory_gb:g} GB of address space and "
+        print(f"each submission's kernel: at most {limits.memory_gb:g} GB of memory and "
               f"{limits.cpu_minutes:g} CPU minutes, in a throwaway folder"
               + (", no network, read-only files outside that folder" if limits.isolate else ""), file=sys.stderr)
     if os.name == "posix" and not limits.isolate:
@@ -383,7 +383,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     r.set_defaults(func=_run(_cmd_release))
     g = sub.add_parser("grade", help="autograde submitted notebooks (nbgrader autograde + gradebook), print a table",
                        description="Each SUBMISSION is STUDENT/NN_chapter.ipynb or a folder STUDENT/ of them. "
-                                   "Each kernel is bounded: an address-space and a CPU-time cap, a throwaway "
+                                   "Each kernel is bounded: a memory and a CPU-time cap, a throwaway "
                                    "folder and, on Linux where user namespaces are allowed, no network and "
                                    "read-only files outside that folder.")
     g.add_argument("submissions", nargs="+", help="STUDENT/NN_chapter.ipynb files or STUDENT/ folders")
@@ -392,7 +392,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--timeout", type=int, default=CELL_TIMEOUT, help="seconds per cell (default: %(default)s)")
     g.add_argument("--full", action="store_true", help="run the submissions with full budgets (default: quick mode)")
     g.add_argument("--memory", type=float, default=Limits.memory_gb, metavar="GB",
-                   help="address-space cap of each submission's kernel (default: %(default)s)")
+                   help="memory cap (GB) of each submission's kernel (default: %(default)s)")
     g.add_argument("--cpu-minutes", type=float, default=Limits.cpu_minutes, metavar="MIN",
                    help="CPU-time cap of each submission's kernel; past it the kernel is killed (default: %(default)s)")
     g.add_argument("--source", default=str(NOTEBOOKS_DIR), help="the teacher's notebooks (default: %(default)s)")

@@ -2,9 +2,11 @@
 
 A student's notebook runs arbitrary code. Before the kernel starts, this launcher
 
-* caps the address space (``RLIMIT_AS``: a ``bytearray(30 << 30)`` raises ``MemoryError`` in that cell
-  instead of taking the machine's memory) and the CPU time (``RLIMIT_CPU``: the kernel is killed when it has
-  used that many CPU seconds), soft and hard, so the kernel cannot raise them again;
+* caps the memory (on Linux ``RLIMIT_DATA``, the private writable mappings: a ``bytearray(30 << 30)``
+  raises ``MemoryError`` in that cell instead of taking the machine's memory; not the address space, which
+  PyPI's CUDA build of torch fills past 4 GB with its libraries on import, GPU or not) and the CPU time
+  (``RLIMIT_CPU``: the kernel is killed when it has used that many CPU seconds), soft and hard, so the
+  kernel cannot raise them again;
 * on Linux, where unprivileged user namespaces are allowed, moves the process into new user, mount and
   network namespaces: no network interface but a loopback that is down, and every file system mounted
   read-only except the folders it is told are writable (the notebook's folder, a throwaway home) and a
@@ -58,6 +60,15 @@ def command(cmd: list[str], memory_bytes: int, cpu_seconds: int, home_under: Pat
     if isolate:
         head += ["--isolate"] + [arg for folder in writable for arg in ("--writable", str(folder))]
     return head + ["--"] + list(cmd)
+
+
+def memory_limit() -> int:
+    """The ``resource`` limit that ``--memory`` sets: ``RLIMIT_DATA`` on Linux, where since kernel 4.7 it
+    counts every private writable mapping (heap, ``mmap``-ed arrays, thread stacks) but not the code and
+    read-only data of shared libraries; ``RLIMIT_AS`` elsewhere (macOS counts data differently)."""
+    import resource
+
+    return resource.RLIMIT_DATA if sys.platform.startswith("linux") else resource.RLIMIT_AS
 
 
 def isolation_available() -> bool:
@@ -120,9 +131,9 @@ def _read_only_except(writable: list[Path]) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="run a command with an address-space and a CPU-time cap, "
+    parser = argparse.ArgumentParser(description="run a command with a memory and a CPU-time cap, "
                                                  "optionally without network and with a read-only file system")
-    parser.add_argument("--memory", type=int, required=True, help="address-space cap in bytes")
+    parser.add_argument("--memory", type=int, required=True, help="memory cap in bytes (see memory_limit)")
     parser.add_argument("--cpu", type=int, required=True, help="CPU-time cap in seconds")
     parser.add_argument("--isolate", action="store_true", help="new user, mount and network namespaces")
     parser.add_argument("--writable", action="append", default=[], help="a folder that stays writable")
@@ -142,7 +153,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.isolate:
         _enter_namespaces()
         _read_only_except(writable)
-    resource.setrlimit(resource.RLIMIT_AS, (args.memory, args.memory))
+    resource.setrlimit(memory_limit(), (args.memory, args.memory))
     resource.setrlimit(resource.RLIMIT_CPU, (args.cpu, args.cpu))
     os.execvp(cmd[0], cmd)
 
