@@ -44,6 +44,27 @@ def test_animation_controls_need_no_icon_font():
     assert offline_assets.offline_animation_icons("<p>no animation</p>") == "<p>no animation</p>"
 
 
+def test_links_to_repository_files_point_at_copies_inside_the_book(tmp_path):
+    """A chapter links ``../docs/results.md`` (relative to notebooks/); next to the book's pages that would be
+    a dead link, so the book copies the file in and links the copy. Missing files and files outside the
+    repository keep their links; other links and text are untouched."""
+    (tmp_path / "repo" / "docs").mkdir(parents=True)
+    (tmp_path / "repo" / "docs" / "results.md").write_text("# results\n")
+    (tmp_path / "secret.md").write_text("outside\n")
+    notebook = nbformat.v4.new_notebook(cells=[
+        nbformat.v4.new_markdown_cell("see [`docs/results.md`](../docs/results.md#trpo), [gone](../docs/gone.md), "
+                                      "[up](../../secret.md) and [paper](https://doi.org/10.1109/IROS.2018.8594341)"),
+        nbformat.v4.new_code_cell("# [not a link](../docs/results.md)")])
+    out = tmp_path / "book"
+    copied = html_book.repository_links(notebook, tmp_path / "repo", out)
+    assert copied == ["docs/results.md"]
+    assert (out / "docs" / "results.md").read_text() == "# results\n"
+    assert notebook.cells[0].source == ("see [`docs/results.md`](docs/results.md#trpo), [gone](../docs/gone.md), "
+                                        "[up](../../secret.md) and [paper](https://doi.org/10.1109/IROS.2018.8594341)")
+    assert notebook.cells[1].source == "# [not a link](../docs/results.md)"
+    assert not (out / "secret.md").exists()
+
+
 def _widget_output(widget):
     return nbformat.v4.new_output("display_data", {html_book.WIDGET_VIEW: {"version_major": 2, "version_minor": 0,
                                                                             "model_id": widget.model_id}})

@@ -15,7 +15,8 @@ from CDNs, to be undone one by one.
 Two things an exported notebook cannot do are said on the page instead of being left broken: a widget
 whose controls run Python callbacks (every slider in the chapters redraws a figure in the kernel) keeps
 the picture it was saved with, its controls are greyed out, and a note above it says that moving them
-needs a running kernel; the animation controls draw their icons as inline SVG.
+needs a running kernel; the animation controls draw their icons as inline SVG. A chapter's link to a file
+of the repository (``../docs/results.md``) would point outside the book: the file is copied in and linked there.
 
 Not taught in a chapter: it renders the chapters themselves (README, "As a book that reads offline").
 """
@@ -24,6 +25,7 @@ from __future__ import annotations
 import html
 import os
 import re
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -182,6 +184,33 @@ def offline_outputs(notebook) -> None:
                 data["text/html"] = offline_animation_icons(text if isinstance(text, str) else "".join(text))
 
 
+#: A markdown link from a chapter to a file of the repository outside ``notebooks/``: ``](../docs/results.md)``.
+REPOSITORY_LINK = re.compile(r"\]\(\.\./([^)#\s]+)(#[^)\s]*)?\)")
+
+
+def repository_links(notebook, source: Path, out: Path) -> list[str]:
+    """Point the chapter's links to repository files (``../docs/results.md``, relative to ``notebooks/``) at
+    copies inside the book (``OUT/docs/results.md``), so that they work next to the book's pages and offline.
+    A link whose file is not under ``source`` (an installed package carries no ``docs/``) stays as it is.
+    Returns the files copied, as paths relative to ``source``."""
+    root, copied = source.resolve(), []
+
+    def relink(match):
+        target = (source / match.group(1)).resolve()
+        if root not in target.parents or not target.is_file():
+            return match.group(0)
+        relative = target.relative_to(root)
+        (out / relative).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(target, out / relative)
+        copied.append(relative.as_posix())
+        return f"]({relative.as_posix()}{match.group(2) or ''})"
+
+    for cell in notebook.cells:
+        if cell.cell_type == "markdown":
+            cell.source = REPOSITORY_LINK.sub(relink, cell.source)
+    return copied
+
+
 def _exporter(urls: dict[str, str]):
     from nbconvert import HTMLExporter
 
@@ -237,6 +266,7 @@ def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, sourc
         seconds[chapter.number] = time.perf_counter() - start
         marked = mark_kernel_controls(notebook)
         offline_outputs(notebook)
+        repository_links(notebook, source, out)
         book = {"previous": chapters[k - 1] if k > 0 else None, "next": chapters[k + 1] if k + 1 < len(chapters) else None,
                 "mathjax_settings": MATHJAX_SETTINGS}
         body, _ = exporter.from_notebook_node(notebook, resources={"book": book})

@@ -60,8 +60,10 @@ def _draw_panel(ax, curves: dict[str, Curve], metric: str, legend: bool) -> None
 
 
 def _smoothing_text(window: int) -> str:
-    return (f"(trailing mean over {window} iterations = {window * EPISODE_STEPS} steps; thin: each seed; band: "
-            f"{CONFIDENCE:.0%} t-interval of the mean over seeds,\nclipped to the measure's possible values)")
+    """The figure's note on smoothing and bands, in lines short enough for the 7-inch single-panel figure."""
+    iterations = "iteration" if window == 1 else "iterations"
+    return (f"(trailing mean over {window} {iterations} = {window * EPISODE_STEPS} steps; thin: each seed;\nband: "
+            f"{CONFIDENCE:.0%} t-interval of the mean over seeds, clipped to the measure's possible values)")
 
 
 def plot_curves(curves: dict[str, Curve], metric: str, title: str, window: int | None = None) -> Figure:
