@@ -25,7 +25,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +45,7 @@ from vdtutorial.experiments.results import default_out, derive, experiment_comma
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_trpo_config,
                                          finetune_steps, pretrained_policy, run_settings)
 from vdtutorial.imitation_rounds import cloning_config
-from vdtutorial.pretrain import default_config
+from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.runner import results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.settings import budget, is_quick, recorded_path
@@ -223,7 +223,8 @@ class RLJob:
     with the start sigma and, for VD, the pruning of the figures' runs
     (:func:`~vdtutorial.experiments.runs.finetune_policy`). The run is that of
     :func:`~vdtutorial.experiments.runs.finetune_steps`: its state saved every ``checkpoint_every`` iterations, a
-    rerun continues it to the rows of an uninterrupted run, a larger ``steps`` extends it."""
+    rerun continues it to the rows of an uninterrupted run, a larger ``steps`` extends it. ``start_sigma``: the
+    sigma RL starts from (an :class:`~vdtutorial.initial_sigma.InitialSigma` spelling; None: the figures')."""
 
     variant: Variant
     seed: int
@@ -231,6 +232,13 @@ class RLJob:
     out: Path
     state_dir: Path
     checkpoint_every: int = CHECKPOINT_EVERY
+    start_sigma: str | None = None
+
+    @property
+    def pretrain_config(self) -> PretrainConfig:
+        """The figures' pre-training settings (:func:`default_config`), with ``start_sigma`` if one is given."""
+        config = default_config(self.variant.reg)
+        return config if self.start_sigma is None else replace(config, initial_sigma=self.start_sigma)
 
     @property
     def name(self) -> str:
@@ -249,7 +257,7 @@ class RLJob:
         """What :func:`~vdtutorial.experiments.runs.finetune_steps` saves with the run (its run_settings)."""
         path = data_set_path(self.variant, self.out)
         return run_settings(self.variant.reg, TASK, Demos.load(path, task=TASK).meta, "state", self.seed, NUM_ENVS,
-                            default_config(self.variant.reg), default_trpo_config("state"), path)
+                            self.pretrain_config, default_trpo_config("state"), path)
 
     @property
     def rows_expected(self) -> int:
@@ -267,7 +275,8 @@ class RLJob:
 
     def compute(self):
         _, rows = yield from finetune_steps(self.variant.reg, TASK, data_set_path(self.variant, self.out), "state",
-                                            self.seed, self.steps, checkpoints_root=self.out,
+                                            self.seed, self.steps, pretrain_config=self.pretrain_config,
+                                            checkpoints_root=self.out,
                                             state_path=self.state_path, checkpoint_every=self.checkpoint_every)
         return rows
 
@@ -321,11 +330,11 @@ def rl_claims(rows: list[dict], window: int) -> tuple[Claim, ...]:
                  for reg in ("vd", "l2") for question, a, b in _questions(reg, final.__getitem__) for kind in kinds)
 
 
-def rl_stage(rows: list[dict], seeds, steps: int) -> tuple[Figure, dict]:
+def rl_stage(rows: list[dict], seeds, steps: int, configs: dict[str, PretrainConfig]) -> tuple[Figure, dict]:
     """The RL curves' figure (one panel per measure) and record: each curve's final point and the claims of
     :func:`rl_claims` on every measure, as the figures derive them (:func:`~vdtutorial.experiments.results.derive`:
     95% Welch intervals, verdicts and Holm-corrected verdicts), each read in words (``reading``, of the Holm
-    verdict)."""
+    verdict). ``configs``: the RL runs' pre-training settings per regulariser, for the record."""
     window = smooth_window()
     title = figure_title("Beyond the paper: TRPO from hand-set Sigma, DART and DAgger (reaching)", "state", steps,
                          len(seeds))
@@ -334,7 +343,7 @@ def rl_stage(rows: list[dict], seeds, steps: int) -> tuple[Figure, dict]:
         effect["reading"] = READINGS[effect["holm_verdict"]]
     return figure, {"steps": steps, "window": window, "metric": "successes", "measures": list(measures_of("successes")),
                     "trpo_config": asdict(default_trpo_config("state")),
-                    "pretrain_config": {reg: asdict(default_config(reg)) for reg in ("vd", "l2")}, **summary}
+                    "pretrain_config": {reg: asdict(config) for reg, config in configs.items()}, **summary}
 
 
 def dagger_cost(cost: dict, pre: list[dict], rl: list[dict], steps: int) -> list[dict]:
@@ -391,11 +400,12 @@ def plot(rows: list[dict], made: dict[str, dict]) -> Figure:
 
 def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, progress: bool | None = None,
            backend: str = "local", address: str | None = None, restart: bool = False, state_dir=None,
-           checkpoint_every: int = CHECKPOINT_EVERY) -> dict:
+           checkpoint_every: int = CHECKPOINT_EVERY, start_sigma: str | None = None) -> dict:
     """The experiment (module docstring); returns its JSON record. The data sets are made here, one after
     the other; the runs are a grid (:func:`~vdtutorial.runner.grid.run_grid`: ``workers``, ``backend``,
     ``address``, ``restart``, ``progress``): per variant and seed a :class:`PreRLJob` and an :class:`RLJob` of
-    ``steps`` env steps (default :func:`rl_steps`), their states in ``state_dir`` (default ``out/runs``).
+    ``steps`` env steps (default :func:`rl_steps`; RL starts from ``start_sigma``, default the figures' start
+    sigma), their states in ``state_dir`` (default ``out/runs``).
 
     Files in ``out`` (default ``runs/beyond``; the shipped results in ``data/results/beyond``): ``demos/`` (the
     data sets made here, with each DART/DAgger round's record beside it), ``runs/``, ``checkpoints/``,
@@ -414,13 +424,15 @@ def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, pro
         _, made[variant.label] = data_set(variant, out, bool(progress))
     state_dir = Path(state_dir).resolve() if state_dir is not None else (out / "runs").resolve()
     jobs = ([PreRLJob(v, s, out.resolve(), state_dir) for v in variants() for s in seeds]
-            + [RLJob(v, s, steps, out.resolve(), state_dir, checkpoint_every) for v in variants() for s in seeds])
+            + [RLJob(v, s, steps, out.resolve(), state_dir, checkpoint_every, start_sigma) for v in variants()
+               for s in seeds])
     results = run_grid("beyond", jobs, workers, backend, address, restart, progress)
     rows = [row for result in results for row in result["rows"]]
     write_csv(results_file(out, "beyond"), rows)
     pre = [row for row in rows if row["stage"] == PRE_RL]
     plot(pre, made).savefig(out / "beyond.png", dpi=110)
-    rl_figure, rl = rl_stage([row for row in rows if row["stage"] == RL], seeds, steps)
+    configs = {job.variant.reg: job.pretrain_config for job in jobs if isinstance(job, RLJob)}
+    rl_figure, rl = rl_stage([row for row in rows if row["stage"] == RL], seeds, steps, configs)
     rl_figure.savefig(out / "beyond_rl.png", dpi=110)
     per_label = {label: {q: _interval([r[q] for r in pre if r["label"] == label])
                          for q in ("successes", "trajectories", "success_rate")}

@@ -184,13 +184,12 @@ def run_settings(method: str, task: str, demos_meta: dict | None, obs_mode: str,
     A data set made in rounds (:func:`made_in_rounds`) is named by its method, rounds and file (``source``)."""
     settings = {"method": method, "task": task, "obs_mode": obs_mode, "seed": int(seed), "num_envs": int(num_envs),
                 "image_size": int(pretrain_config.image_size), "trpo_config": asdict(trpo_config)}
-    if method != "none" and made_in_rounds(demos_meta):
-        settings["demos"] = {"samples": int(demos_meta["samples"]), "seed": int(demos_meta["seed"]),
-                             "method": demos_meta["method"], "rounds_done": int(demos_meta["rounds_done"]),
-                             "file": Path(source).name}
-    elif method != "none":
-        settings["demos"] = {"samples": int(demos_meta["samples"]), "noise": float(demos_meta["noise"]),
-                             "seed": int(demos_meta["seed"])}
+    if method != "none":
+        settings["demos"] = ({"samples": int(demos_meta["samples"]), "seed": int(demos_meta["seed"]),
+                              "method": demos_meta["method"], "rounds_done": int(demos_meta["rounds_done"]),
+                              "file": Path(source).name} if made_in_rounds(demos_meta) else
+                             {"samples": int(demos_meta["samples"]), "noise": float(demos_meta["noise"]),
+                              "seed": int(demos_meta["seed"])})
         settings["pretrain_config"] = asdict(replace(pretrain_config, reg=method, obs_mode=obs_mode))
     else:  # no demonstrations: only the fixed sigma the run starts from comes from the pre-training config
         settings["init_std"] = InitialSigma.parse(pretrain_config.initial_sigma).value
