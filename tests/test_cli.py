@@ -99,8 +99,8 @@ def _one_line_error(capsys, argv) -> str:
     (["rederive", "nowhere"], "nowhere is not an experiment folder"),
     (["experiment", "table1", "--restart", "--state-dir", "x"], "table1 pre-trains only (no TRPO runs to resume): "
                                                                "--state-dir, --restart are options of the figures"),
-    (["experiment", "beyond", "--steps", "100000", "--restart"], "beyond measures pre-trained policies only so far "
-                                                                 "(no TRPO runs): --steps is an option of the figures"),
+    (["experiment", "beyond", "--fvp-subsample", "0.1"], "beyond fine-tunes with the paper's TRPO settings: "
+                                                         "--fvp-subsample is an option of the figures"),
     (["experiment", "beyond", "--obs", "rgbd"], "beyond runs in state mode only (--obs state)"),
 ])
 def test_bad_arguments_give_one_line(argv, expected, capsys):

@@ -199,8 +199,27 @@ def _print_summary(result) -> None:
 
 
 #: Experiments without TRPO runs, and why the figures' resume options do not apply to them.
-PRE_RL_ONLY = {"table1": "pre-trains only (no TRPO runs to resume)",
-               "beyond": "measures pre-trained policies only so far (no TRPO runs)"}
+PRE_RL_ONLY = {"table1": "pre-trains only (no TRPO runs to resume)"}
+
+
+def _beyond(args, backend: str) -> None:
+    """The beyond experiment (chapter 09): the figures' options but the TRPO configuration, which is the paper's."""
+    from vdtutorial.experiments import ResumeError
+    from vdtutorial.experiments.beyond import beyond, format_summary
+
+    if args.obs != "state":
+        raise CommandError("beyond runs in state mode only (--obs state)")
+    if args.fvp_subsample is not None:
+        raise CommandError("beyond fine-tunes with the paper's TRPO settings: --fvp-subsample is an option of the figures")
+    if args.device != "cpu":
+        raise CommandError("beyond runs on the CPU: --device is an option of the figures")
+    resumable = {"checkpoint_every": args.checkpoint_every} if args.checkpoint_every is not None else {}
+    try:
+        record = beyond(seeds=args.seeds, steps=args.steps, out=args.out, workers=args.workers, backend=backend,
+                        address=args.address, restart=args.restart, state_dir=args.state_dir, **resumable)
+    except ResumeError as exc:
+        raise CommandError(str(exc)) from exc
+    print(format_summary(record))
 
 
 def _cmd_experiment(args) -> None:
@@ -220,21 +239,14 @@ def _cmd_experiment(args) -> None:
                                             ("--restart", args.restart or None),
                                             ("--device", None if args.device == "cpu" else args.device))
                    if value is not None]
-        if args.name == "beyond":   # its pre-RL runs are a grid with saved states: --restart discards them
-            ignored = [flag for flag in ignored if flag != "--restart"]
         if ignored:
             raise CommandError(f"{args.name} {PRE_RL_ONLY[args.name]}: {', '.join(ignored)} "
                                f"{'are options' if len(ignored) > 1 else 'is an option'} of the figures")
-        if args.name == "table1":
-            experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting,
-                               out=args.out, workers=args.workers, backend=backend, address=args.address)
-            return
-        from vdtutorial.experiments.beyond import beyond, format_summary
-
-        if args.obs != "state":
-            raise CommandError("beyond runs in state mode only (--obs state)")
-        print(format_summary(beyond(seeds=args.seeds, out=args.out, workers=args.workers, backend=backend,
-                                    address=args.address, restart=args.restart)))
+        experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting,
+                           out=args.out, workers=args.workers, backend=backend, address=args.address)
+        return
+    if args.name == "beyond":
+        _beyond(args, backend)
         return
     _device(args)  # refused before any run starts
     trpo_config = None
@@ -415,7 +427,7 @@ def _add_experiment_commands(sub) -> None:
                        "(learned noise with DART, and DAgger, beside the hand-set Sigma)")
     p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1", "beyond"), help="which figure or table")
     p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0; beyond: 0-4)")
-    p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5)")
+    p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5; beyond: 1e5)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state", help="policy input (default state)")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
     p.add_argument("--out", default=None, help="output folder (default: runs/NAME; data/results/NAME only when named)")

@@ -291,15 +291,17 @@ def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sig
 
 
 def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
-                    initial_sigma: str = PAPER_INITIAL_SIGMA, kl_samples: int | None = None) -> Path:
+                    initial_sigma: str = PAPER_INITIAL_SIGMA, kl_samples: int | None = None,
+                    data_name: str | None = None) -> Path:
     """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma`` or
     ``kl_samples`` is added to the name (``..._seed0_initsigma-demos.pt``, ``..._seed0_kl7200.pt``), so
-    that it never replaces the default checkpoint."""
+    that it never replaces the default checkpoint. ``data_name`` names the data set in place of its
+    ``TASK_nSAMPLES_sigmaSIGMA``: a set made in rounds (DART's, DAgger's) has no Sigma to be named by."""
     m = demos_meta
     sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f"_initsigma-{initial_sigma}"
     kl = "" if kl_samples is None else f"_kl{kl_samples}"
-    return (Path(root or DATA_DIR) / "checkpoints"
-            / f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}_{reg}_{obs_mode}_seed{seed}{kl}{sigma}.pt")
+    data = data_name or f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}"
+    return Path(root or DATA_DIR) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{sigma}.pt"
 
 
 def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> Path:

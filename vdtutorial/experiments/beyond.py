@@ -2,31 +2,30 @@
 
 The paper's Section VI asks for "techniques for learning appropriate expert noise from the data" and calls
 DAgger "computationally quite expensive". This experiment measures both on reaching, in state mode, at an
-equal number of expert labels (``SAMPLES``, Fig. 4's 8000):
+equal number of expert labels (``samples``, Fig. 4's 8000): the paper's hand-set Sigma 0.05, 0.25 and 0.5
+and a too-large ``TOO_LARGE``; DART (:mod:`vdtutorial.dart`) from a poor start (``DART_STARTS``); DAgger
+(:mod:`vdtutorial.dagger`), round 0 noise-free; each cloned with VD and with L2 (DART's and DAgger's rounds
+clone with the regulariser they are measured with). A data set is made once (data seed 0) and shared by the
+seeds; a seed replicates the cloning and the RL stage.
 
-* hand-set Sigma: the paper's 0.05, 0.25 and 0.5 (the shipped data sets) and a too-large ``TOO_LARGE``;
-* DART (:mod:`vdtutorial.dart`) from a poor start, Sigma_0 = 0.05 and ``TOO_LARGE``, ``ROUNDS`` rounds;
-* DAgger (:mod:`vdtutorial.dagger`), ``ROUNDS`` rounds, round 0 noise-free;
-
-each cloned with VD and with L2. DART's and DAgger's rounds clone with the regulariser they are measured
-with, so each makes its own data set per regulariser. As in Figs. 4-7 a data set is made once (data seed
-0) and shared by the seeds; a seed is a replicate of the pre-training (and would be of the RL stage).
-
-Measured per data set and seed: the pre-trained policy's mean-action score before RL, counted as TRPO
-counts an iteration (:func:`vdtutorial.evaluation.mean_action_successes`: successes and finished trajectories
-per 200-step episode, their ratio the success rate), and per data set the expert queries, the wall time
-spent in the expert and the number of clonings it took. The comparisons (the JSON's ``comparisons``) are
-differences of means over seeds with Welch t intervals, Bonferroni-corrected over all comparisons of the
-experiment, read with the verdicts of :mod:`vdtutorial.experiments.effects`.
+Two stages per data set and seed, jobs of one resumable grid: before RL (:class:`PreRLJob`), the pruned
+mean action scored as TRPO counts an iteration (:func:`vdtutorial.evaluation.mean_action_successes`); the
+RL stage (:class:`RLJob`), TRPO with the paper's settings from that clone, with the figures' start sigma and
+pruning (:func:`~vdtutorial.experiments.runs.finetune_steps`), for ``rl_steps`` env steps. Comparisons:
+before RL, differences of means over seeds with Welch intervals, Bonferroni-corrected (:func:`comparisons`);
+after it, the figures' effects (:mod:`vdtutorial.experiments.effects`: final level and area under the curve
+on every measure of :mod:`~vdtutorial.experiments.measures`, Holm-corrected). Per data set the expert
+queries, seconds in the expert and clonings are counted (:func:`dagger_cost` says what DAgger's bought).
 
 Taught in chapter 09.
 """
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,12 +37,15 @@ from vdtutorial.dagger import BETA, dagger
 from vdtutorial.dart import dart
 from vdtutorial.demos import Demos, demo_path, generate_demos
 from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
-from vdtutorial.experiments.curves import CONFIDENCE, mean_band
-from vdtutorial.experiments.effects import verdict, welch_interval
-from vdtutorial.experiments.results import default_out, experiment_command
-from vdtutorial.experiments.runs import METHOD_LABELS, NUM_ENVS, pretrained_policy
+from vdtutorial.experiments.curves import CONFIDENCE, mean_band, smooth_window
+from vdtutorial.experiments.effects import Claim, per_run, run_summaries, verdict, welch_interval
+from vdtutorial.experiments.measures import measures_of
+from vdtutorial.experiments.plots import figure_title
+from vdtutorial.experiments.results import default_out, derive, experiment_command
+from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_trpo_config,
+                                         finetune_steps, pretrained_policy, run_settings)
 from vdtutorial.imitation_rounds import cloning_config
-from vdtutorial.pretrain import CheckpointError, load_checkpoint, pretrain, save_checkpoint
+from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.runner import results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.settings import budget, is_quick, recorded_path
@@ -56,10 +58,11 @@ HAND_SET = (0.05, 0.25, 0.5)
 TOO_LARGE = 1.0
 #: DART's poor starts: the smallest hand-set Sigma and the too-large one.
 DART_STARTS = (0.05, TOO_LARGE)
-#: What the RL stage would be, and why it is not run here.
-RL_STAGE = ("not run yet: TRPO at 1e5 env steps from these policies needs finetune_steps (experiments/runs.py) to "
-            "start from a policy cloned on a DART or DAgger data set, whereas it looks the policy up by the data set's "
-            "(samples, Sigma) name, which those sets do not have")
+#: The ``stage`` column of the experiment's rows: the score before RL, or an iteration of the RL stage.
+PRE_RL, RL = "pre-RL", "RL"
+#: The readings of a comparison's verdict (a against b, in the measure's better direction).
+READINGS = {"confirmed": "a better than b", "contradicted": "a worse than b",
+            "not confirmed": "not distinguishable at this many seeds"}
 
 
 def samples() -> int:
@@ -70,6 +73,12 @@ def samples() -> int:
 def rounds() -> int:
     """Rounds of DART and DAgger: 4 of 2000 labels (quick mode: 3 of 100)."""
     return budget(4, 3)
+
+
+def rl_steps() -> int:
+    """RL env steps per run: the issue's 1e5 (quick mode: 1000, five iterations). ``--steps 300000`` extends the
+    finished runs to the paper's budget (a run's budget is not one of its settings)."""
+    return budget(100_000, 1_000)
 
 
 def pre_rl_episodes() -> int:
@@ -106,17 +115,22 @@ def variants() -> list[Variant]:
         *(Variant("dart", reg, s) for s in DART_STARTS), Variant("dagger", reg))]
 
 
-def data_set(variant: Variant, out: Path, progress: bool = False) -> tuple[Demos, dict]:
-    """The variant's data set and how it was made (rounds, expert time), made once and kept in ``out/demos``.
-    A hand-set one is the shipped file when there is one of this size."""
-    n = samples()
+def data_set_path(variant: Variant, out: Path) -> Path:
+    """Where the variant's data set is: a hand-set one is the shipped file when there is one of this size,
+    else (like DART's and DAgger's) a file of ``out/demos``."""
     if variant.kind == "hand-set":
-        shipped = demo_path(TASK, n, variant.sigma, 0)
-        path = shipped if shipped.exists() else demo_path(TASK, n, variant.sigma, 0, root=out)
+        shipped = demo_path(TASK, samples(), variant.sigma, 0)
+        return shipped if shipped.exists() else demo_path(TASK, samples(), variant.sigma, 0, root=out)
+    return out / "demos" / f"{variant.name}.npz"
+
+
+def data_set(variant: Variant, out: Path, progress: bool = False) -> tuple[Demos, dict]:
+    """The variant's data set (:func:`data_set_path`) and how it was made (rounds, expert time), made once."""
+    n, path = samples(), data_set_path(variant, out)
+    if variant.kind == "hand-set":
         if not path.exists():
             generate_demos(TASK, n, variant.sigma, 0, progress).save(path)
         return Demos.load(path, task=TASK, samples=n), {"source": recorded_path(path), "clonings": 1}
-    path = out / "demos" / f"{variant.name}.npz"
     record_path = path.with_suffix(".json")
     if not (path.exists() and record_path.exists()):
         start = time.perf_counter()
@@ -132,20 +146,17 @@ def data_set(variant: Variant, out: Path, progress: bool = False) -> tuple[Demos
     return Demos.load(path, task=TASK, samples=n), {"source": recorded_path(path), **json.loads(record_path.read_text())}
 
 
-def cloned_policy(variant: Variant, demos: Demos, seed: int, checkpoints: Path):
-    """The policy cloned on the variant's data with ``seed`` (settings of :func:`cloning_config`). A hand-set
-    data set goes through :func:`pretrained_policy` (the shipped checkpoints of seeds 0-2 are reused); a DART
-    or DAgger one is cloned here and kept as ``checkpoints/NAME_seedS.pt``."""
-    cfg = cloning_config(variant.reg)
-    if variant.kind == "hand-set":
-        return pretrained_policy(variant.reg, demos, "state", seed, cfg, checkpoints)
-    path = checkpoints / f"{variant.name}_seed{seed}.pt"
-    try:
-        return load_checkpoint(path, **asdict(cfg))
-    except CheckpointError:
-        policy, _ = pretrain(demos, cfg, seed=seed, progress=False)
-        save_checkpoint(policy, path)
-        return load_checkpoint(path)
+def cloned_policy(variant: Variant, demos: Demos, seed: int, out: Path):
+    """The policy cloned on the variant's data with ``seed`` (settings of :func:`cloning_config`), looked up or
+    made by :func:`pretrained_policy` in ``out/checkpoints`` (a hand-set set's shipped checkpoints of seeds 0-2
+    are reused; a DART or DAgger set's are named after its file). The RL stage starts from this checkpoint."""
+    return pretrained_policy(variant.reg, demos, "state", seed, cloning_config(variant.reg), out,
+                             source=data_set_path(variant, out))
+
+
+def _tags(variant: Variant, seed: int, stage: str) -> dict:
+    return {"label": variant.label, "kind": variant.kind, "method": variant.reg, "sigma": variant.sigma,
+            "seed": seed, "stage": stage}
 
 
 @dataclass(frozen=True)
@@ -187,8 +198,7 @@ class PreRLJob:
         return pre_rl_episodes() * EPISODE_STEPS
 
     def tags(self) -> dict:
-        return {"label": self.variant.label, "kind": self.variant.kind, "method": self.variant.reg,
-                "sigma": self.variant.sigma, "seed": self.seed}
+        return _tags(self.variant, self.seed, PRE_RL)
 
     def summary(self, rows: list[dict]) -> str:
         return f"{rows[0]['successes']:.3g} successes per 200 steps before RL"
@@ -196,7 +206,7 @@ class PreRLJob:
     def compute(self):
         start = time.perf_counter()
         demos, _ = data_set(self.variant, self.out)
-        policy = cloned_policy(self.variant, demos, self.seed, self.out / "checkpoints")
+        policy = cloned_policy(self.variant, demos, self.seed, self.out)
         if self.variant.reg == "vd":
             policy.prune_()
         score = mean_action_successes(policy, TASK, self.seed, pre_rl_episodes(), NUM_ENVS)
@@ -206,28 +216,99 @@ class PreRLJob:
         return rows
 
 
+@dataclass(frozen=True)
+class RLJob:
+    """One variant and seed's RL stage as a grid job: TRPO with the paper's settings (:func:`default_trpo_config`)
+    for ``steps`` env steps from the policy cloned on the variant's data set (:func:`cloned_policy`'s checkpoint),
+    with the start sigma and, for VD, the pruning of the figures' runs
+    (:func:`~vdtutorial.experiments.runs.finetune_policy`). The run is that of
+    :func:`~vdtutorial.experiments.runs.finetune_steps`: its state saved every ``checkpoint_every`` iterations, a
+    rerun continues it to the rows of an uninterrupted run, a larger ``steps`` extends it. ``start_sigma``: the
+    sigma RL starts from (an :class:`~vdtutorial.initial_sigma.InitialSigma` spelling; None: the figures')."""
+
+    variant: Variant
+    seed: int
+    steps: int
+    out: Path
+    state_dir: Path
+    checkpoint_every: int = CHECKPOINT_EVERY
+    start_sigma: str | None = None
+
+    @property
+    def pretrain_config(self) -> PretrainConfig:
+        """The figures' pre-training settings (:func:`default_config`), with ``start_sigma`` if one is given."""
+        config = default_config(self.variant.reg)
+        return config if self.start_sigma is None else replace(config, initial_sigma=self.start_sigma)
+
+    @property
+    def name(self) -> str:
+        return f"rl_{self.variant.name}_seed{self.seed}"
+
+    @property
+    def state_path(self) -> Path:
+        return self.state_dir / f"{self.name}.pt"
+
+    @property
+    def csv_path(self) -> Path:
+        return self.state_dir / f"{self.name}.csv"
+
+    @property
+    def settings(self) -> dict:
+        """What :func:`~vdtutorial.experiments.runs.finetune_steps` saves with the run (its run_settings)."""
+        path = data_set_path(self.variant, self.out)
+        return run_settings(self.variant.reg, TASK, Demos.load(path, task=TASK).meta, "state", self.seed, NUM_ENVS,
+                            self.pretrain_config, default_trpo_config("state"), path)
+
+    @property
+    def rows_expected(self) -> int:
+        return math.ceil(self.steps / default_trpo_config("state").steps_per_iter)
+
+    @property
+    def env_steps(self) -> int:
+        return self.rows_expected * default_trpo_config("state").steps_per_iter
+
+    def tags(self) -> dict:
+        return _tags(self.variant, self.seed, RL)
+
+    def summary(self, rows: list[dict]) -> str:
+        return f"{len(rows)} TRPO iterations, last {rows[-1]['successes']:.3g} successes per 200 steps"
+
+    def compute(self):
+        _, rows = yield from finetune_steps(self.variant.reg, TASK, data_set_path(self.variant, self.out), "state",
+                                            self.seed, self.steps, pretrain_config=self.pretrain_config,
+                                            checkpoints_root=self.out,
+                                            state_path=self.state_path, checkpoint_every=self.checkpoint_every)
+        return rows
+
+
 def _interval(values) -> dict:
     mean, low, high = mean_band(np.asarray(values, dtype=np.float64)[:, None])
     return {"mean": float(mean[0]), "low": float(low[0]), "high": float(high[0]), "n": len(values)}
 
 
+def _questions(reg: str, level) -> list[tuple[str, str, str]]:
+    """The experiment's questions for one regulariser as (question, a, b) labels; ``level(label)`` ranks the
+    paper's three hand-set Sigma values to pick the best one (by its own mean, which favours the hand-set side)."""
+    hand = {s: Variant("hand-set", reg, s).label for s in (*HAND_SET, TOO_LARGE)}
+    best = max(HAND_SET, key=lambda s: level(hand[s]))
+    pairs = []
+    for start in DART_STARTS:
+        learned = Variant("dart", reg, start).label
+        pairs += [("learned noise beats the poor Sigma it started from", learned, hand[start]),
+                  ("learned noise against the best hand-set Sigma", learned, hand[best])]
+    dagger_label = Variant("dagger", reg).label
+    return pairs + [("DAgger against the best hand-set Sigma", dagger_label, hand[best]),
+                    ("DAgger against the paper's Sigma=0.5", dagger_label, hand[0.5])]
+
+
 def comparisons(rows: list[dict]) -> list[dict]:
-    """Per regulariser: does DART beat the poor Sigma it started from; does it match the best hand-set
-    Sigma (the paper's three, best by its own mean, which favours the hand-set side); what did DAgger buy
-    over the best hand-set Sigma and over the paper's 0.5. Welch intervals, Bonferroni-corrected."""
+    """Before RL, per regulariser: does DART beat the poor Sigma it started from; does it match the best hand-set
+    Sigma; what did DAgger buy over the best hand-set Sigma and over the paper's 0.5 (:func:`_questions`). Welch
+    intervals of pre-RL successes, Bonferroni-corrected."""
     by_label: dict[str, list[float]] = {}
     for row in rows:
         by_label.setdefault(row["label"], []).append(row["successes"])
-    pairs = []
-    for reg in ("vd", "l2"):
-        hand = {s: Variant("hand-set", reg, s).label for s in (*HAND_SET, TOO_LARGE)}
-        best = max(HAND_SET, key=lambda s: np.mean(by_label[hand[s]]))
-        for start in DART_STARTS:
-            learned = Variant("dart", reg, start).label
-            pairs += [("learned noise beats the poor Sigma it started from", learned, hand[start]),
-                      ("learned noise against the best hand-set Sigma", learned, hand[best])]
-        pairs += [("DAgger against the best hand-set Sigma", Variant("dagger", reg).label, hand[best]),
-                  ("DAgger against the paper's Sigma=0.5", Variant("dagger", reg).label, hand[0.5])]
+    pairs = [pair for reg in ("vd", "l2") for pair in _questions(reg, lambda label: np.mean(by_label[label]))]
     confidence = 1 - (1 - CONFIDENCE) / len(pairs)
     out = []
     for question, a, b in pairs:
@@ -236,6 +317,55 @@ def comparisons(rows: list[dict]) -> list[dict]:
                     "estimate": estimate, "low": low, "high": high, "confidence": confidence,
                     "reading": {"confirmed": "a above b", "contradicted": "a below b",
                                 "not confirmed": "not distinguishable at this many seeds"}[verdict(low, high, 1)]})
+    return out
+
+
+def rl_claims(rows: list[dict], window: int) -> tuple[Claim, ...]:
+    """The questions of :func:`comparisons` asked of the RL curves, each at the final level and over the whole
+    run (area under the curve); the best hand-set Sigma is the one with the highest final level of successes."""
+    final = {label: float(run_summaries(group, "final", window).mean())
+             for label, group in per_run(rows, "successes").items()}
+    kinds = {"final": "final level", "auc": "area under the curve"}
+    return tuple(Claim("beyond", f"{question}: {a} vs {b} ({kinds[kind]})", kind, a, b)
+                 for reg in ("vd", "l2") for question, a, b in _questions(reg, final.__getitem__) for kind in kinds)
+
+
+def rl_stage(rows: list[dict], seeds, steps: int, configs: dict[str, PretrainConfig]) -> tuple[Figure, dict]:
+    """The RL curves' figure (one panel per measure) and record: each curve's final point and the claims of
+    :func:`rl_claims` on every measure, as the figures derive them (:func:`~vdtutorial.experiments.results.derive`:
+    95% Welch intervals, verdicts and Holm-corrected verdicts), each read in words (``reading``, of the Holm
+    verdict). ``configs``: the RL runs' pre-training settings per regulariser, for the record."""
+    window = smooth_window()
+    title = figure_title("Beyond the paper: TRPO from hand-set Sigma, DART and DAgger (reaching)", "state", steps,
+                         len(seeds))
+    _, figure, summary = derive("beyond", rows, "successes", window, title, rl_claims(rows, window))
+    for effect in summary["claims"]:
+        effect["reading"] = READINGS[effect["holm_verdict"]]
+    return figure, {"steps": steps, "window": window, "metric": "successes", "measures": list(measures_of("successes")),
+                    "trpo_config": asdict(default_trpo_config("state")),
+                    "pretrain_config": {reg: asdict(config) for reg, config in configs.items()}, **summary}
+
+
+def dagger_cost(cost: dict, pre: list[dict], rl: list[dict], steps: int) -> list[dict]:
+    """What DAgger's extra work bought, per regulariser: its expert queries, clonings and seconds in the expert
+    beside the best hand-set Sigma's once-generated set, and the difference it made before RL (Bonferroni) and
+    after ``steps`` RL steps (successes: final level and area under the curve, Holm), with a sentence saying so."""
+    out = []
+    for reg in ("vd", "l2"):
+        label = Variant("dagger", reg).label
+        before = next(c for c in pre if c["a"] == label and c["question"] == "DAgger against the best hand-set Sigma")
+        after = {c["measure"]: c for c in rl if c["a"] == label and c["metric"] == "successes"
+                 and c["text"].startswith("DAgger against the best hand-set Sigma")}
+        made = cost[label]
+        sentence = (f"{label}: {made['expert_queries']} expert queries ({made['expert_seconds']:.0f} s in the expert) "
+                    f"and {made['clonings']} clonings, against one cloning of {before['b']}'s once-generated "
+                    f"{cost[before['b']]['expert_queries']} labels; before RL {before['estimate']:+.2f} successes per "
+                    f"200 steps ({before['reading']})")
+        if after:
+            sentence += "; after {:g} RL steps{}".format(steps, "".join(
+                f", {kind} {after[kind]['estimate']:+.2f} against {after[kind]['b']} ({after[kind]['reading']})"
+                for kind in ("final", "auc")))
+        out.append({"dagger": label, **made, "before_rl": before, "after_rl": after, "statement": sentence})
     return out
 
 
@@ -268,45 +398,55 @@ def plot(rows: list[dict], made: dict[str, dict]) -> Figure:
     return fig
 
 
-def beyond(seeds=None, out=None, workers: int = 1, progress: bool | None = None, backend: str = "local",
-           address: str | None = None, restart: bool = False) -> dict:
+def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, progress: bool | None = None,
+           backend: str = "local", address: str | None = None, restart: bool = False, state_dir=None,
+           checkpoint_every: int = CHECKPOINT_EVERY, start_sigma: str | None = None) -> dict:
     """The experiment (module docstring); returns its JSON record. The data sets are made here, one after
     the other; the runs are a grid (:func:`~vdtutorial.runner.grid.run_grid`: ``workers``, ``backend``,
-    ``address``, ``restart``, ``progress``), their states in ``out/runs``.
+    ``address``, ``restart``, ``progress``): per variant and seed a :class:`PreRLJob` and an :class:`RLJob` of
+    ``steps`` env steps (default :func:`rl_steps`; RL starts from ``start_sigma``, default the figures' start
+    sigma), their states in ``state_dir`` (default ``out/runs``).
 
     Files in ``out`` (default ``runs/beyond``; the shipped results in ``data/results/beyond``): ``demos/`` (the
-    data sets made here, with each DART/DAgger round's record beside it), ``runs/`` (the runs' states), ``checkpoints/``,
-    ``beyond.csv.gz``, ``beyond.png`` and ``beyond.json``.
+    data sets made here, with each DART/DAgger round's record beside it), ``runs/``, ``checkpoints/``,
+    ``beyond.csv.gz`` (all rows, ``stage`` pre-RL or RL), ``beyond.png`` (before RL, and DART's learned Sigma),
+    ``beyond_rl.png`` (the RL curves) and ``beyond.json``.
 
-    Resumable: the data sets and checkpoints are files made once, and the runs are a grid of the runner
-    (:class:`PreRLJob`, :func:`~vdtutorial.runner.grid.run_grid`) with a state file each; running the same command
-    again reads what is there and computes the rest. The RL stage (TRPO at 1e5 steps from these policies) is not run by this
-    module (see ``RL_STAGE``).
+    Resumable: the data sets and checkpoints are files made once, and every run has a state file; running the
+    same command again reads what is there and computes the rest, and a larger ``steps`` extends the RL runs.
     """
     seeds = tuple(budget((0, 1, 2, 3, 4), (0, 1)) if seeds is None else seeds)
+    steps = rl_steps() if steps is None else steps
     out = Path(out) if out is not None else default_out("beyond")
     start = time.perf_counter()
     made = {}
     for variant in variants():  # data sets first, one at a time: later runs only read them
         _, made[variant.label] = data_set(variant, out, bool(progress))
-    state_dir = (out / "runs").resolve()
-    jobs = [PreRLJob(v, s, out.resolve(), state_dir) for v in variants() for s in seeds]
+    state_dir = Path(state_dir).resolve() if state_dir is not None else (out / "runs").resolve()
+    jobs = ([PreRLJob(v, s, out.resolve(), state_dir) for v in variants() for s in seeds]
+            + [RLJob(v, s, steps, out.resolve(), state_dir, checkpoint_every, start_sigma) for v in variants()
+               for s in seeds])
     results = run_grid("beyond", jobs, workers, backend, address, restart, progress)
     rows = [row for result in results for row in result["rows"]]
     write_csv(results_file(out, "beyond"), rows)
-    plot(rows, made).savefig(out / "beyond.png", dpi=110)
-    per_label = {label: {q: _interval([r[q] for r in rows if r["label"] == label])
+    pre = [row for row in rows if row["stage"] == PRE_RL]
+    plot(pre, made).savefig(out / "beyond.png", dpi=110)
+    configs = {job.variant.reg: job.pretrain_config for job in jobs if isinstance(job, RLJob)}
+    rl_figure, rl = rl_stage([row for row in rows if row["stage"] == RL], seeds, steps, configs)
+    rl_figure.savefig(out / "beyond_rl.png", dpi=110)
+    per_label = {label: {q: _interval([r[q] for r in pre if r["label"] == label])
                          for q in ("successes", "trajectories", "success_rate")}
-                 for label in dict.fromkeys(r["label"] for r in rows)}
+                 for label in dict.fromkeys(r["label"] for r in pre)}
     cost = {label: {"expert_queries": samples(), "clonings": data["clonings"],
                     "expert_seconds": data.get("expert_seconds")} for label, data in made.items()}
-    record = {"experiment": "beyond", "command": experiment_command("beyond", seeds=seeds, workers=workers,
+    pre_comparisons = comparisons(pre)
+    record = {"experiment": "beyond", "command": experiment_command("beyond", seeds=seeds, steps=steps, workers=workers,
                                                                     out=out if out != default_out("beyond") else None),
               "quick": is_quick(), "task": TASK, "obs_mode": "state", "seeds": list(seeds), "samples": samples(),
               "rounds": rounds(), "dagger_beta": BETA, "pre_rl_episodes": pre_rl_episodes(), "num_envs": NUM_ENVS,
               "pretrain_config": {reg: asdict(cloning_config(reg)) for reg in ("vd", "l2")},
-              "wall_time_s": time.perf_counter() - start, "rl_stage": RL_STAGE,
-              "data_sets": made, "cost": cost, "pre_rl": per_label, "comparisons": comparisons(rows),
+              "wall_time_s": time.perf_counter() - start, "data_sets": made, "cost": cost, "pre_rl": per_label,
+              "comparisons": pre_comparisons, "rl": rl, "dagger_cost": dagger_cost(cost, pre_comparisons, rl["claims"], steps),
               "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__,
                            "python": sys.version.split()[0]}}
     (out / "beyond.json").write_text(json.dumps(record, indent=1, default=str))
@@ -314,11 +454,19 @@ def beyond(seeds=None, out=None, workers: int = 1, progress: bool | None = None,
 
 
 def format_summary(record: dict) -> str:
-    """The pre-RL scores and the comparisons of a :func:`beyond` record, a line each."""
+    """The pre-RL scores and comparisons of a :func:`beyond` record, the RL stage's final levels and its claims on
+    the paper's metric (every measure: the record's ``rl.claims``), and what DAgger's work bought, a line each."""
     lines = [f"{label:>28}: {band['successes']['mean']:.2f} successes per 200 steps before RL "
              f"(95% interval {band['successes']['low']:.2f} to {band['successes']['high']:.2f}, {band['successes']['n']} seeds); "
              f"{record['cost'][label]['clonings']} cloning(s), {record['cost'][label]['expert_queries']} expert labels"
              for label, band in record["pre_rl"].items()]
     lines += [f"{c['question']} ({c['a']} - {c['b']}): {c['estimate']:+.2f} ({c['confidence']:.1%} interval "
               f"{c['low']:+.2f} to {c['high']:+.2f}): {c['reading']}" for c in record["comparisons"]]
-    return "\n".join(lines)
+    rl = record.get("rl")
+    if rl is None:  # a record written before the RL stage existed
+        return "\n".join(lines + ["no RL stage in this record"])
+    lines += [f"{label:>28}: {final['mean']:.2f} successes per 200 steps after {rl['steps']:g} RL steps (final level, "
+              f"95% band {final['low']:.2f} to {final['high']:.2f}, {final['seeds']} seeds)" for label, final in rl["final"].items()]
+    lines += [f"after RL, {c['text']}: {c['estimate']:+.3g} ({c['confidence']:.0%} interval {c['low']:+.3g} to "
+              f"{c['high']:+.3g}, p {c['p_value']:.2g}): {c['reading']} (Holm)" for c in rl["claims"] if c["metric"] == rl["metric"]]
+    return "\n".join(lines + [entry["statement"] for entry in record["dagger_cost"]])

@@ -243,8 +243,9 @@ def verdict(low: float, high: float, direction: int, threshold: float = 0.0) -> 
 
 
 def claim_effects(name: str, rows: list[dict], metric: str, window: int | None = None,
-                  confidence: float = CONFIDENCE) -> list[dict]:
-    """Every claim of experiment ``name`` whose curves are in ``rows``, on every measure of an experiment
+                  confidence: float = CONFIDENCE, claims: tuple[Claim, ...] | None = None) -> list[dict]:
+    """Every claim of experiment ``name`` (``CLAIMS[name]``, or ``claims``: an experiment whose questions depend
+    on its results, like the beyond experiment's "best hand-set Sigma") whose curves are in ``rows``, on every measure of an experiment
     with paper metric ``metric`` (:func:`~vdtutorial.experiments.measures.measures_of`): estimate,
     interval, p-value, verdict, Holm verdict (over the claims of one measure) and seeds needed, with curves
     smoothed over ``window`` iterations (default :func:`~vdtutorial.experiments.curves.smooth_window`).
@@ -267,7 +268,8 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     results = []
     for measure in measures_of(metric):
         groups = per_run(rows, measure)
-        table = [_claim_effect(claim, groups, measure, window, confidence) for claim in CLAIMS.get(name, ())
+        table = [_claim_effect(claim, groups, measure, window, confidence)
+                 for claim in (CLAIMS.get(name, ()) if claims is None else claims)
                  if claim.a in groups and claim.b in groups]
         for effect, rejected in zip(table, holm_rejections([e["p_value"] for e in table], 1 - confidence)):
             effect["holm_verdict"] = effect["verdict"] if rejected else "not confirmed"

@@ -10,7 +10,7 @@ from vdtutorial.experiments.measures import MEASURES
 
 METRIC_LABELS = {name: measure.label for name, measure in MEASURES.items()}
 _COLOURS = {"vd": "tab:blue", "l2": "tab:orange", "none": "tab:gray", "expert": "black"}
-_LINESTYLES = ("-", "--", ":", "-.")
+_LINESTYLES = ("-", "--", ":", "-.", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)), (0, (1, 3)), (0, (8, 3, 2, 3)))
 
 
 def figure_title(base: str, obs_mode: str, total_steps: int, seeds: int, fvp_subsample: float = 1.0) -> str:

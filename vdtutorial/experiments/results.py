@@ -172,16 +172,18 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     return ExperimentResult(name, out, rows, curves, figure, summary, record)
 
 
-def derive(name: str, rows: list[dict], metric: str, window: int, title: str) -> tuple[dict[str, Curve], Figure, dict]:
+def derive(name: str, rows: list[dict], metric: str, window: int, title: str,
+           claims=None) -> tuple[dict[str, Curve], Figure, dict]:
     """What an experiment's rows say, all of it re-derivable from them: the curves of the paper's ``metric``,
     the figure (one panel per measure, :func:`~vdtutorial.experiments.measures.measures_of`), and the summary:
     each curve's final point on the paper's metric (``final``) and on every measure (``final_by_measure``),
-    and the claims on every measure (:func:`~vdtutorial.experiments.effects.claim_effects`)."""
+    and the claims on every measure (:func:`~vdtutorial.experiments.effects.claim_effects`; ``claims``: other
+    claims than the experiment's own)."""
     by_measure = {measure: curves_from_rows(rows, measure, window) for measure in measures_of(metric)}
     summary = {"final": {label: final_point(curve) for label, curve in by_measure[metric].items()},
                "final_by_measure": {measure: {label: final_point(curve) for label, curve in curves.items()}
                                     for measure, curves in by_measure.items()},
-               "claims": claim_effects(name, rows, metric, window)}
+               "claims": claim_effects(name, rows, metric, window, claims=claims)}
     return by_measure[metric], plot_measures(by_measure, title, window), summary
 
 

@@ -43,6 +43,9 @@ SUBSAMPLED_FISHER_CONFIG = TRPOConfig(fvp_subsample=0.1)
 #: TRPO iterations between two saved states of a resumable run (2000 env steps at 200 per iteration:
 #: seconds in state mode, about 40 s for an image policy with the whole-batch Fisher).
 CHECKPOINT_EVERY = 10
+#: The meta entries that say which data set a checkpoint was cloned on: (task, samples, Sigma, demonstration
+#: seed) for a one-shot set; a set made in rounds (DART's, DAgger's) has no Sigma but a method and its rounds.
+DATA_SET_KEYS = ("task", "samples", "noise", "seed", "method", "rounds_done")
 
 
 def default_trpo_config(obs_mode: str) -> TRPOConfig:
@@ -77,9 +80,14 @@ def load_demos(task: str, demos: Demos | str | Path | None = None, root: Path | 
     return Demos.load(demos if demos is not None else demo_path(task, 8000, SHIPPED_NOISE[task], 0, root=root), task=task)
 
 
+def made_in_rounds(meta: dict) -> bool:
+    """Whether a data set was made in rounds (DART's, DAgger's): its meta has no hand-set Sigma to name it by."""
+    return "noise" not in meta
+
+
 def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int = 0,
                       config: PretrainConfig | None = None, checkpoints_root: Path | None = None,
-                      progress: bool = False) -> GaussianPolicy:
+                      progress: bool = False, source: str | Path | None = None) -> GaussianPolicy:
     """The policy pre-trained with ``reg`` ("vd" or "l2") on ``demos`` with ``config`` and ``seed``.
 
     A checkpoint (``pretrain.checkpoint_path``) is reused when it was made from the same data set (task,
@@ -94,15 +102,23 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     pre-training freezes sigma, the RL phase trains it). It is not pruned yet.
     A non-default ``config.initial_sigma`` is applied on top of the default checkpoint (mu does not
     depend on it; an L2 policy's "spread" follows the VD checkpoint's mu) and saved as a checkpoint of
-    its own (``..._initsigma-OPTION.pt``), so that a resumed run does not fit sigma again."""
+    its own (``..._initsigma-OPTION.pt``), so that a resumed run does not fit sigma again.
+
+    source: the data set's file, needed for a set made in rounds (:func:`made_in_rounds`: DART's, DAgger's),
+    which has no (samples, Sigma) name: its checkpoints are named after the file (``STEM_REG_OBS_seedS.pt``)
+    under ``checkpoints_root`` only (none is shipped)."""
     cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
     meta = demos.meta
+    if made_in_rounds(meta) and source is None:
+        raise ValueError("a data set made in rounds (DART's, DAgger's: no Sigma in its meta) is named by its file: "
+                         "give its path as source")
+    data_name = Path(source).stem if made_in_rounds(meta) else None
     root = Path(checkpoints_root) if checkpoints_root is not None else budget(RUNS_DIR, RUNS_DIR / "quick")
-    names = {"initial_sigma": cfg.initial_sigma, "kl_samples": cfg.kl_samples}
+    names = {"initial_sigma": cfg.initial_sigma, "kl_samples": cfg.kl_samples, "data_name": data_name}
     path = checkpoint_path(meta, reg, obs_mode, seed, root=root, **names)
     shipped = checkpoint_path(meta, reg, obs_mode, seed, **names)
-    candidates = [shipped] if budget(True, False) and shipped != path else []
-    expected = {**{k: meta[k] for k in ("task", "samples", "noise", "seed")}, **asdict(cfg)}
+    candidates = [shipped] if budget(True, False) and shipped != path and data_name is None else []
+    expected = {**{k: meta[k] for k in DATA_SET_KEYS if k in meta}, **asdict(cfg)}
     for candidate in [*candidates, path]:
         if not candidate.exists():
             continue
@@ -117,23 +133,23 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
         # one plain line, not a warning
         action = "pre-training again to replace it" if candidate == path else f"pre-training under {recorded_path(root)}"
         print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): {action}", flush=True)
-    source = demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
+    made_from = Path(source) if data_name else demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
     if cfg.initial_sigma != PAPER_INITIAL_SIGMA:
         base = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
-        policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress)
-        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, base, checkpoints_root, progress).mu
+        policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress, source)
+        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, base, checkpoints_root, progress, source).mu
                       if reg == "l2" and cfg.initial_sigma == "spread" else None)
         policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, spread_net=spread_net)
         policy.pretrain_info["config"] = asdict(cfg)
     else:
         policy, _ = pretrain(demos, cfg, seed=seed, progress=progress)
-    save_checkpoint(policy, path, extra={"command": pretrain_command(reg, source, seed, obs_mode, cfg.initial_sigma)})
+    save_checkpoint(policy, path, extra={"command": pretrain_command(reg, made_from, seed, obs_mode, cfg.initial_sigma)})
     return load_checkpoint(path)
 
 
 def finetune_policy(method: str, env: gym.Env | gym.vector.VectorEnv, demos: Demos | None = None, obs_mode: str = "state",
                     seed: int = 0, config: PretrainConfig | None = None, *, checkpoints_root: Path | None = None,
-                    progress: bool = False, resumed: bool = False) -> GaussianPolicy:
+                    progress: bool = False, resumed: bool = False, source: str | Path | None = None) -> GaussianPolicy:
     """The policy RL starts from, for ``method`` on ``env``: the one home of "pre-trained policy ready for RL".
 
     "vd" and "l2": the policy pre-trained on ``demos`` with ``config`` (looked up or trained by
@@ -144,6 +160,8 @@ def finetune_policy(method: str, env: gym.Env | gym.vector.VectorEnv, demos: Dem
     ``resumed``: the run continues from a saved state that holds every parameter, so the network is built
     from the default checkpoint without fitting the start sigma again (minutes for an image policy) only
     to be overwritten.
+    ``source``: the data set's file, which names a set made in rounds (DART's, DAgger's; see
+    :func:`pretrained_policy`).
     """
     if method not in RL_METHODS:
         raise ValueError(f"method must be one of {RL_METHODS}, got {method!r}")
@@ -154,20 +172,24 @@ def finetune_policy(method: str, env: gym.Env | gym.vector.VectorEnv, demos: Dem
         actions = getattr(env, "single_action_space", env.action_space)
         return make_policy(space, actions.shape[0], variational=False, init_std=InitialSigma.parse(cfg.initial_sigma).value)
     network = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA) if resumed else cfg
-    policy = pretrained_policy(method, demos, obs_mode, seed, network, checkpoints_root, progress)
+    policy = pretrained_policy(method, demos, obs_mode, seed, network, checkpoints_root, progress, source)
     return policy.prune_() if method == "vd" else policy
 
 
 def run_settings(method: str, task: str, demos_meta: dict | None, obs_mode: str, seed: int, num_envs: int,
-                 pretrain_config: PretrainConfig, trpo_config: TRPOConfig) -> dict:
+                 pretrain_config: PretrainConfig, trpo_config: TRPOConfig, source: str | Path | None = None) -> dict:
     """Everything that determines a fine-tuning run's numbers, as plain data: what a saved run state must
     match to be resumed (:mod:`vdtutorial.runner.resume`). The budget is not in it: a run is the same
-    run whatever its length, so a finished run can be extended and a shorter request finds it too long."""
+    run whatever its length, so a finished run can be extended and a shorter request finds it too long.
+    A data set made in rounds (:func:`made_in_rounds`) is named by its method, rounds and file (``source``)."""
     settings = {"method": method, "task": task, "obs_mode": obs_mode, "seed": int(seed), "num_envs": int(num_envs),
                 "image_size": int(pretrain_config.image_size), "trpo_config": asdict(trpo_config)}
     if method != "none":
-        settings["demos"] = {"samples": int(demos_meta["samples"]), "noise": float(demos_meta["noise"]),
-                             "seed": int(demos_meta["seed"])}
+        settings["demos"] = ({"samples": int(demos_meta["samples"]), "seed": int(demos_meta["seed"]),
+                              "method": demos_meta["method"], "rounds_done": int(demos_meta["rounds_done"]),
+                              "file": Path(source).name} if made_in_rounds(demos_meta) else
+                             {"samples": int(demos_meta["samples"]), "noise": float(demos_meta["noise"]),
+                              "seed": int(demos_meta["seed"])})
         settings["pretrain_config"] = asdict(replace(pretrain_config, reg=method, obs_mode=obs_mode))
     else:  # no demonstrations: only the fixed sigma the run starts from comes from the pre-training config
         settings["init_std"] = InitialSigma.parse(pretrain_config.initial_sigma).value
@@ -205,7 +227,8 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     cfg = pretrain_config or default_config(method if method != "none" else "l2", obs_mode)
     trpo_config = trpo_config or default_trpo_config(obs_mode)
     data = None if method == "none" else load_demos(task, demos)
-    settings = run_settings(method, task, data and data.meta, obs_mode, seed, num_envs, cfg, trpo_config)
+    source = Path(demos) if isinstance(demos, (str, Path)) else None
+    settings = run_settings(method, task, data and data.meta, obs_mode, seed, num_envs, cfg, trpo_config, source)
     iterations = math.ceil(total_steps / trpo_config.steps_per_iter)
     saved = None
     if state_path is not None and Path(state_path).exists():
@@ -217,7 +240,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     env = make_vec_env(ENV_IDS[task], num_envs, obs_mode=obs_mode, image_size=cfg.image_size)
     try:
         policy = finetune_policy(method, env, data, obs_mode, seed, cfg, checkpoints_root=checkpoints_root,
-                                 progress=progress, resumed=saved is not None)
+                                 progress=progress, resumed=saved is not None, source=source)
         algo = TRPO(policy, env, trpo_config, seed=seed, device=device)
         if saved is not None:
             algo.restore(saved)
@@ -254,7 +277,8 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
     receives the rows as they come.
 
     demos: the data set of the pre-training (a :class:`Demos` or a path; default the task's shipped
-        8000-sample set); ignored by "none".
+        8000-sample set); ignored by "none". A set made in rounds (DART's, DAgger's) is given by its path,
+        which names its checkpoints and its runs' settings.
     pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
         ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.
     trpo_config: default :func:`default_trpo_config` of ``obs_mode``.
