@@ -113,17 +113,23 @@ def _absolute_paths(text: str) -> list[str]:
 
 
 def _shipped_texts(path: Path):
-    """The text records inside one shipped file: a checkpoint's config and meta, a data set's meta.json, a
-    gzip's content, or the file itself; images carry none of ours."""
+    """The text records inside one file of data/: a checkpoint's config and meta, a run's saved state (all but
+    its tensors; gzip-compressed, as the runner writes it), a data set's meta.json, a gzip's content, or the file
+    itself; images carry none of ours."""
     import gzip
     import zipfile
 
     import torch
 
+    from vdtutorial.runner.resume import GZIP_MAGIC, read_run_state
+
     if path.suffix == ".png":
         return
     if path.suffix == ".pt":
-        blob = torch.load(path, map_location="cpu", weights_only=True)
+        if path.read_bytes()[:2] == GZIP_MAGIC:
+            blob = {key: value for key, value in read_run_state(path).items() if key not in ("policy", "baseline")}
+        else:
+            blob = torch.load(path, map_location="cpu", weights_only=True)
         yield json.dumps({key: value for key, value in blob.items() if key != "state_dict"}, default=str)
     elif path.suffix == ".npz":
         with zipfile.ZipFile(path) as archive:
