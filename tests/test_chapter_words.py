@@ -68,12 +68,14 @@ def _table_floats(path: Path):
 def shipped_results() -> dict[float, str]:
     """Each measured value of each shipped result record and each measured number of each shipped table, with
     the file it comes from."""
+    from vdtutorial.chapters import shipped_files
+
     found = {}
-    results = ROOT / "data" / "results"
-    for path in sorted(results.glob("**/*.json")):
+    shipped = [ROOT / path for path in shipped_files(ROOT) if path.parts[:2] == ("data", "results")]
+    for path in [p for p in shipped if p.suffix == ".json"]:
         for value in _floats(json.loads(path.read_text())):
             found.setdefault(value, str(path.relative_to(ROOT)))
-    for path in sorted(results.glob("**/*.csv")):
+    for path in [p for p in shipped if p.suffix == ".csv"]:
         for value in _table_floats(path):
             found.setdefault(value, str(path.relative_to(ROOT)))
     return found

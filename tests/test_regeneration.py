@@ -282,6 +282,23 @@ def test_seeds_run_apart_merge_into_the_experiment_with_all_of_them(tmp_path):
         merge_seeds(first, _seeds_of("fig4", (7,), tmp_path / "other"))
 
 
+def test_seeds_run_on_another_cpu_merge_only_when_asked_and_the_record_says_so(tmp_path):
+    """The shipped records predate the ``kernels`` entry: seeds run since differ in it and are refused by a plain
+    merge (naming the option), merged with ``other_cpu`` into a record whose kernels are "mixed", and the rows
+    are all the seeds' rows."""
+    first = _seeds_of("fig4_state_fvp0.1", (0, 2), tmp_path / "first")
+    later = _seeds_of("fig4_state_fvp0.1", (1,), tmp_path / "later")
+    record = json.loads((later / "fig4.json").read_text())
+    record["kernels"] = {"torch_cpu_capability": "AVX2"}
+    (later / "fig4.json").write_text(json.dumps(record))
+    with pytest.raises(ValueError, match=r"differs in kernels \(rows from another CPU"):
+        merge_seeds(first, later)
+    merged = merge_seeds(first, later, other_cpu=True)
+    assert merged.record["kernels"] == "mixed" and merged.record["seeds"] == [0, 1, 2]
+    assert [entry["kernels"] for entry in merged.record["merged"]] == [None, {"torch_cpu_capability": "AVX2"}]
+    assert merged.rows == read_rows(results_file(RESULTS / "fig4_state_fvp0.1", "fig4"))
+
+
 def write_image_reference(path: Path = IMAGE_REFERENCE) -> None:
     """Record :data:`IMAGE_REFERENCE` with the code on the import path (see :data:`IMAGE_REFERENCE_COMMAND`)."""
     with tempfile.TemporaryDirectory() as root:

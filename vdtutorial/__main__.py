@@ -303,13 +303,15 @@ def _cmd_rederive(args) -> None:
     """An experiment's figure and JSON summary re-written from its rows (see experiments.results.rederive)."""
     from vdtutorial.experiments import format_summary, merge_seeds, rederive
 
-    for folder in args.folders + args.add:
+    for folder in args.folders + args.add + args.add_other_cpu:
         if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
             raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
-    if args.add and len(args.folders) != 1:
+    if (args.add or args.add_other_cpu) and len(args.folders) != 1:
         raise CommandError("--add merges into one experiment folder: name one")
     for other in args.add:
         merge_seeds(args.folders[0], other)
+    for other in args.add_other_cpu:
+        merge_seeds(args.folders[0], other, other_cpu=True)
     for folder in args.folders:
         print(format_summary(rederive(folder)))
 
@@ -484,6 +486,9 @@ def _add_experiment_commands(sub) -> None:
     p.add_argument("--add", nargs="+", default=[], metavar="OTHER",
                    help="first add the runs of these folders, the same experiment run with other seeds (e.g. "
                         "python -m vdtutorial rederive data/results/fig4 --add runs/fig4_seeds5-9)")
+    p.add_argument("--add-other-cpu", nargs="+", default=[], metavar="OTHER",
+                   help="the same, for runs made with other CPU kernels than the folder's (each seed a valid "
+                        "replicate, but the rows no longer one command's on one CPU; the record says so)")
     p.set_defaults(func=_cmd_rederive)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")

@@ -218,22 +218,29 @@ SAME_EXPERIMENT = ("experiment", "metric", "num_envs", "steps_per_iteration", "w
                    "trpo_config", "quick", "versions", "kernels")
 
 
-def merge_seeds(folder: str | Path, other: str | Path) -> ExperimentResult:
+def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) -> ExperimentResult:
     """Add the runs of ``other`` (the same experiment run with other seeds) to the experiment in ``folder``, then
     :func:`rederive` it: what ``python -m vdtutorial rederive FOLDER --add OTHER`` does. A run is a pure function
     of its settings and seed (docs/results.md, "Regenerable results"), so the merged rows are those one command
     with all the seeds would write on a CPU that rounds alike, in its order (each curve's runs by seed), the
     ``wall_time`` column aside; the
     record's command says so, and ``merged`` keeps each command that ran. Refuses records that differ in anything
-    but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed."""
+    but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed.
+
+    ``other_cpu``: also merge seeds run with other CPU kernels (a ``kernels`` entry that differs, or that one
+    record predates). Each seed stays a valid replicate -- kernels change the last bits, which TRPO amplifies,
+    not what a run computes -- but the merged rows are then no longer one command's on one CPU: ``merged``
+    keeps each part's kernels and the record's ``kernels`` becomes ``"mixed"``."""
     folder, other = Path(folder), Path(other)
     paths = [next(Path(f).glob("*.json")) for f in (folder, other)]
     records = [json.loads(path.read_text()) for path in paths]
-    differ = [key for key in SAME_EXPERIMENT if records[0].get(key) != records[1].get(key)]
+    differ = [key for key in SAME_EXPERIMENT if records[0].get(key) != records[1].get(key)
+              and not (other_cpu and key == "kernels")]
     shape = [{(r["method"], r["obs_mode"], r["total_steps"]) for r in record["runs"]} for record in records]
     if differ or shape[0] != shape[1]:
+        hint = " (rows from another CPU: merge them with other_cpu, rederive --add-other-cpu)" if differ == ["kernels"] else ""
         raise ValueError(f"{other} is not {folder}'s experiment with other seeds: it differs in "
-                         f"{', '.join(differ) or 'its runs (methods, observations or budgets)'}")
+                         f"{', '.join(differ) or 'its runs (methods, observations or budgets)'}{hint}")
     seeds = [{run["seed"] for run in record["runs"]} for record in records]
     if seeds[0] & seeds[1]:
         raise ValueError(f"{folder} and {other} share seeds {sorted(seeds[0] & seeds[1])}")
@@ -245,7 +252,7 @@ def merge_seeds(folder: str | Path, other: str | Path) -> ExperimentResult:
     runs = records[0]["runs"] + records[1]["runs"]
     order = list(dict.fromkeys((run["label"], run["method"]) for run in runs))
     merged = [entry for record in records for entry in record.get("merged") or
-              [{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s")}]]
+              [{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s", "kernels")}]]
     parts = shlex.split(records[0]["command"])
     start = parts.index("--seeds") + 1
     end = next((i for i in range(start, len(parts)) if parts[i].startswith("--")), len(parts))
@@ -253,6 +260,8 @@ def merge_seeds(folder: str | Path, other: str | Path) -> ExperimentResult:
                                          + parts[end:]),
                       runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
                       merged=merged, wall_time_s=sum(entry["wall_time_s"] for entry in merged))
+    if records[0].get("kernels") != records[1].get("kernels"):
+        records[0]["kernels"] = "mixed"
     paths[0].write_text(json.dumps(records[0], indent=1, default=str))
     return rederive(folder)
 
