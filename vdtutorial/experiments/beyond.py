@@ -159,8 +159,20 @@ def _tags(variant: Variant, seed: int, stage: str) -> dict:
             "seed": seed, "stage": stage}
 
 
+class _SavedInStateDir:
+    """A job's files in the grid's folder of states, named after the job: its saved state and its rows."""
+
+    @property
+    def state_path(self) -> Path:
+        return self.state_dir / f"{self.name}.pt"
+
+    @property
+    def csv_path(self) -> Path:
+        return self.state_dir / f"{self.name}.csv"
+
+
 @dataclass(frozen=True)
-class PreRLJob:
+class PreRLJob(_SavedInStateDir):
     """One variant and seed as a job of the grid runner (:class:`~vdtutorial.runner.grid.GridJob`): clone on the
     variant's data set (made first, by :func:`beyond`) and score the mean action before RL. Its state file holds
     the one row and the settings it was made with, so a rerun finds it finished, and a rerun with other settings
@@ -174,14 +186,6 @@ class PreRLJob:
     @property
     def name(self) -> str:
         return f"{self.variant.name}_seed{self.seed}"
-
-    @property
-    def state_path(self) -> Path:
-        return self.state_dir / f"{self.name}.pt"
-
-    @property
-    def csv_path(self) -> Path:
-        return self.state_dir / f"{self.name}.csv"
 
     @property
     def settings(self) -> dict:
@@ -217,7 +221,7 @@ class PreRLJob:
 
 
 @dataclass(frozen=True)
-class RLJob:
+class RLJob(_SavedInStateDir):
     """One variant and seed's RL stage as a grid job: TRPO with the paper's settings (:func:`default_trpo_config`)
     for ``steps`` env steps from the policy cloned on the variant's data set (:func:`cloned_policy`'s checkpoint),
     with the start sigma and, for VD, the pruning of the figures' runs
@@ -243,14 +247,6 @@ class RLJob:
     @property
     def name(self) -> str:
         return f"rl_{self.variant.name}_seed{self.seed}"
-
-    @property
-    def state_path(self) -> Path:
-        return self.state_dir / f"{self.name}.pt"
-
-    @property
-    def csv_path(self) -> Path:
-        return self.state_dir / f"{self.name}.csv"
 
     @property
     def settings(self) -> dict:
