@@ -163,6 +163,15 @@ def test_inputs_are_normalised_from_the_space_bounds():
     assert torch.allclose(state.mu.input_scale, torch.tensor([0.15, 0.25, 1.0]))
 
 
+def test_an_unnormalised_policy_reads_the_observation_as_it_is_and_rebuilds_so():
+    policy = make_policy(pendulum_space(), 1, normalise=False)
+    assert torch.equal(policy.mu.input_scale, torch.ones(3)) and torch.equal(policy.mu.input_centre, torch.zeros(3))
+    obs = torch.tensor([[0.6, -0.8, 7.5]])
+    assert torch.equal(policy.prepare(obs).mu[0], obs)
+    rebuilt = type(policy).from_config(policy.config)
+    assert torch.equal(rebuilt.mu.input_scale, torch.ones(3))
+
+
 def test_compacting_a_trained_and_pruned_policy_keeps_its_outputs():
     torch.manual_seed(5)
     space = state_space()

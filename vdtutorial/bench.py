@@ -16,11 +16,11 @@ from dataclasses import dataclass, replace
 import gymnasium as gym
 import numpy as np
 import torch
-from torch import nn
 from tqdm.auto import tqdm
 
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.expert import IKExpert
+from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.settings import budget
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 
@@ -138,7 +138,7 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
 
     from vdtutorial.demos import Demos, demo_path
     from vdtutorial.pretrain import PretrainConfig, checkpoint_path, demo_observations, load_checkpoint, observation_space, pretrain
-    from vdtutorial.policy import make_policy, obs_to_tensor
+    from vdtutorial.policy import obs_to_tensor
     from vdtutorial.vd import compact, sparsity_report
 
     torch.set_num_threads(1)
@@ -316,24 +316,19 @@ def print_profile(algo: TRPO, iterations: int, top: int = 15) -> None:
 # ----------------------------------------------------------------------------------------------
 # TRPO on a standard task: gymnasium's Pendulum-v1, ours against sb3-contrib's
 # ----------------------------------------------------------------------------------------------
-class _MLPGaussianPolicy(nn.Module):
-    """Minimal Gaussian MLP policy for the benchmark: tanh hidden layers, state-independent std (the
-    shape of sb3's default ``MlpPolicy`` actor; the initialisation is PyTorch's default, not sb3's
-    orthogonal one)."""
+def pendulum_policy(env) -> GaussianPolicy:
+    """The package's own Gaussian policy (:func:`~vdtutorial.policy.make_policy`, kind ``"mlp"``) for a
+    Pendulum-v1 vector env: mu and sigma networks of 64-64 tanh units, sigma a softplus with a floor, starting at
+    1.0 (the start of sb3's MlpPolicy, log std 0; its actor is otherwise its own: one state-independent log std,
+    orthogonal initialisation). The observation is fed unnormalised: its angular velocity's bound, +-8 rad/s, is
+    a clip far wider than a swing's velocities, and dividing by it slowed learning (1e5 steps, seeds 11-13, linear
+    baseline: final return -683 normalised, -269 not)."""
+    return make_policy(env.single_observation_space, env.single_action_space.shape[0], kind="mlp",
+                       init_std=PENDULUM_INIT_STD, normalise=False, scene_hidden=(64, 64))
 
-    def __init__(self, obs_dim: int, action_dim: int, hidden: tuple[int, ...] = (64, 64)):
-        super().__init__()
-        layers, width = [], obs_dim
-        for h in hidden:
-            layers += [nn.Linear(width, h), nn.Tanh()]
-            width = h
-        self.mean = nn.Sequential(*layers, nn.Linear(width, action_dim))
-        self.log_std = nn.Parameter(torch.zeros(action_dim))
 
-    def distribution(self, obs: torch.Tensor) -> torch.distributions.Normal:
-        mean = self.mean(obs)
-        return torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
-
+#: The policy's starting sigma on Pendulum-v1 (actions in [-2, 2]): sb3's default start, exp(0).
+PENDULUM_INIT_STD = 1.0
 
 #: Pendulum-v1 never terminates; its time limit ends every episode after exactly this many steps.
 PENDULUM_EPISODE_STEPS = 200
@@ -425,7 +420,7 @@ def _ours_pendulum(variant: PendulumVariant, seed: int, total_steps: int) -> dic
     env = make_vec_env(lambda: gym.wrappers.RecordEpisodeStatistics(gym.make("Pendulum-v1"), buffer_length=episodes),
                        variant.num_envs)
     torch.manual_seed(seed)
-    policy = _MLPGaussianPolicy(env.single_observation_space.shape[0], env.single_action_space.shape[0])
+    policy = pendulum_policy(env)
     algo = TRPO(policy, env, variant.config, seed=seed)
     start, cpu_start = time.perf_counter(), time.process_time()  # the training only, as for sb3-contrib
     algo.run(total_steps, progress=False)                          # (building Adam imports torch._dynamo once)
@@ -464,7 +459,8 @@ def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int |
     the same seeds, one torch thread: our TRPO with the paper's linear baseline; (a) ours and
     sb3-contrib's with identical settings, value network and time-limit bootstrapping included; (b)
     sb3-contrib with RL Zoo's tuned settings; (c) ours with those settings, without gSDE (which our
-    TRPO does not have). sb3-contrib's rows are skipped if it is not installed or ``with_sb3`` is False.
+    TRPO does not have). Each package trains its own policy (ours: :func:`pendulum_policy`; sb3-contrib: its
+    ``MlpPolicy``). sb3-contrib's rows are skipped if it is not installed or ``with_sb3`` is False.
 
     Returns ``{variant name: {"final_return": [...], "eval_return": [...], "seconds": [...],
     "cpu_seconds": [...]}}``, one entry per seed, and prints the table. final_return: mean return of
@@ -499,7 +495,8 @@ def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int |
             tqdm.write(f"{variant.label:44} {final.mean():8.1f} +- {final.std():5.1f} {evaluation.mean():10.1f} +- "
                        f"{evaluation.std():5.1f} {seconds.mean():11.1f} {cpu.mean():7.1f}")
     print("(c) differs from (b) by gSDE, which our TRPO lacks. Within (a) the remaining differences are the "
-          "initialisation (sb3: orthogonal), the KL direction (sb3: KL(new || old)), the line search's KL test "
+          "policy network (ours: the package's mu and sigma networks, sigma a function of the state; sb3: "
+          "one log std, orthogonal initialisation), the KL direction (sb3: KL(new || old)), the line search's KL test "
           "(sb3: strict <) and Adam's eps (sb3: 1e-5).")
     torch.set_num_threads(threads)
     return results

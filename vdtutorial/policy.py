@@ -450,13 +450,17 @@ class GaussianPolicy(nn.Module):
 
 
 def make_policy(observation_space, action_dim: int, variational: bool = False, kind: str = "auto",
-                init_std: float = 0.3, min_std: float = 0.01, **sizes) -> GaussianPolicy:
+                init_std: float = 0.3, min_std: float = 0.01, normalise: bool = True, **sizes) -> GaussianPolicy:
     """Gaussian policy for a gymnasium observation space.
 
     kind: ``"rgbd"`` (Dict with "rgb", "depth" and "joints"), ``"state"`` (Box of joint angles then cup x, y, z),
     ``"mlp"`` (any Box), or ``"auto"``: Dict -> "rgbd", Box of shape (9,) -> "state" (the Jaco
     environments' state mode: 6 joints + 3 cup coordinates), any other Box -> "mlp". Pass ``kind="mlp"``
     explicitly for a 9-number Box that is not a Jaco state. ``sizes``: see :class:`TwoStreamNet`.
+    normalise: map a vector observation from the space's bounds to [-1, 1] (:class:`TwoStreamNet`); False feeds
+    it as it is. The bounds suit the Jaco tasks, where they are the joints' and the cup's ranges; a bound that is
+    a loose clip shrinks what the policy sees (Pendulum-v1's angular velocity: +-8 rad/s, see
+    :func:`vdtutorial.bench.pendulum_policy`).
     """
     is_dict = isinstance(observation_space, gym.spaces.Dict)
     if kind == "auto":
@@ -470,5 +474,5 @@ def make_policy(observation_space, action_dim: int, variational: bool = False, k
         if is_dict or len(observation_space.shape) != 1:
             raise ValueError(f"kind {kind!r} needs a 1-D Box space, got {observation_space}")
         obs_shape = observation_space.shape
-        bounds = dict(obs_low=observation_space.low, obs_high=observation_space.high)
+        bounds = dict(obs_low=observation_space.low, obs_high=observation_space.high) if normalise else {}
     return GaussianPolicy(kind, obs_shape, action_dim, variational, sizes, init_std, min_std, **bounds)
