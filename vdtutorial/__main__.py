@@ -202,24 +202,40 @@ def _print_summary(result) -> None:
 PRE_RL_ONLY = {"table1": "pre-trains only (no TRPO runs to resume)"}
 
 
-def _beyond(args, backend: str) -> None:
-    """The beyond experiment (chapter 09): the figures' options but the TRPO configuration, which is the paper's."""
-    from vdtutorial.experiments import ResumeError
-    from vdtutorial.experiments.beyond import beyond, format_summary
+#: The experiments beyond the figures, which run in state mode with the paper's TRPO settings on the CPU.
+STATE_ONLY = ("beyond", "free_choices")
 
+
+def _state_only(args, backend: str) -> None:
+    """The beyond experiment (chapter 09) or our free choices (chapter 07): the figures' options but the
+    observation, the TRPO configuration and the device, which are fixed."""
+    from vdtutorial.experiments import ResumeError
+
+    name = args.name
     if args.obs != "state":
-        raise CommandError("beyond runs in state mode only (--obs state)")
+        raise CommandError(f"{name} runs in state mode only (--obs state)")
     if args.fvp_subsample is not None:
-        raise CommandError("beyond fine-tunes with the paper's TRPO settings: --fvp-subsample is an option of the figures")
+        raise CommandError(f"{name} fine-tunes with the paper's TRPO settings: --fvp-subsample is an option of the figures")
     if args.device != "cpu":
-        raise CommandError("beyond runs on the CPU: --device is an option of the figures")
-    resumable = {"checkpoint_every": args.checkpoint_every} if args.checkpoint_every is not None else {}
+        raise CommandError(f"{name} runs on the CPU: --device is an option of the figures")
+    options = dict(seeds=args.seeds, steps=args.steps, out=args.out, workers=args.workers, backend=backend,
+                   address=args.address, restart=args.restart, state_dir=args.state_dir)
+    if args.checkpoint_every is not None:
+        options["checkpoint_every"] = args.checkpoint_every
     try:
-        record = beyond(seeds=args.seeds, steps=args.steps, out=args.out, workers=args.workers, backend=backend,
-                        address=args.address, restart=args.restart, state_dir=args.state_dir, **resumable)
+        if name == "beyond":
+            from vdtutorial.experiments.beyond import beyond, format_summary
+
+            print(format_summary(beyond(**options)))
+        else:
+            from vdtutorial.experiments.free_choices import CHOICE_NAMES, format_table, free_choices
+
+            unknown = sorted(set(args.choices or ()) - set(CHOICE_NAMES))
+            if unknown:
+                raise CommandError(f"--choices: unknown {', '.join(unknown)}; the rows are {', '.join(CHOICE_NAMES)}")
+            print(format_table(free_choices(names=tuple(args.choices or CHOICE_NAMES), **options)))
     except ResumeError as exc:
         raise CommandError(str(exc)) from exc
-    print(format_summary(record))
 
 
 def _cmd_experiment(args) -> None:
@@ -233,6 +249,8 @@ def _cmd_experiment(args) -> None:
     resumable = {"checkpoint_every": args.checkpoint_every} if args.checkpoint_every is not None else {}
     if args.kl_weighting != "per-set" and args.name != "table1":
         raise CommandError("--kl-weighting is an option of table1 (the figures use the pre-training default)")
+    if args.choices is not None and args.name != "free_choices":
+        raise CommandError("--choices is an option of free_choices")
     if args.name in PRE_RL_ONLY:
         ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
                                             ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),
@@ -245,8 +263,8 @@ def _cmd_experiment(args) -> None:
         experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting,
                            out=args.out, workers=args.workers, backend=backend, address=args.address)
         return
-    if args.name == "beyond":
-        _beyond(args, backend)
+    if args.name in STATE_ONLY:
+        _state_only(args, backend)
         return
     _device(args)  # refused before any run starts
     trpo_config = None
@@ -425,11 +443,14 @@ def _add_measurement_commands(sub) -> None:
 
 def _add_experiment_commands(sub) -> None:
     """The paper's experiments and what reads them, the main job, and the chapters written out."""
-    p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1; and beyond "
-                       "(learned noise with DART, and DAgger, beside the hand-set Sigma)")
-    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1", "beyond"), help="which figure or table")
+    p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1; beyond "
+                       "(learned noise with DART, and DAgger, beside the hand-set Sigma); free_choices (our "
+                       "values the paper does not give, each changed alone)")
+    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1", *STATE_ONLY), help="which figure or table")
     p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0; beyond: 0-4)")
-    p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5; beyond: 1e5)")
+    p.add_argument("--choices", nargs="+", default=None, metavar="ROW",
+                   help="free_choices only: the rows to run besides the default one (default: all of them)")
+    p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5; beyond and free_choices: 1e5)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state", help="policy input (default state)")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
     p.add_argument("--out", default=None, help="output folder (default: runs/NAME; data/results/NAME only when named)")

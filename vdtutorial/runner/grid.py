@@ -14,6 +14,7 @@ Taught in chapter 07.
 """
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Generator
 from pathlib import Path
@@ -116,7 +117,7 @@ def run_grid(name: str, jobs: list[GridJob], workers: int = 2, backend: str = "l
     try:
         elsewhere = f", {len(busy)} of them being computed by another grid (waited for last)" if busy else ""
         bar.note(f"{len(jobs)} runs: {len(jobs) - len(pending)} found finished, {partial} to resume, "
-                 f"{len(pending) - partial} to start{elsewhere} (states saved in {jobs[0].state_path.parent})")
+                 f"{len(pending) - partial} to start{elsewhere} (states saved in {Path(os.path.commonpath([job.state_path.parent for job in jobs]))})")
         for i, result in zip(pending, run_jobs(run_job, [jobs[i] for i in pending], workers, backend, address, bar)):
             results[i] = result
     finally:
