@@ -1,26 +1,19 @@
 """Our free choices, measured (issue 32): values the paper does not give, each changed alone, and whether the
 VD-vs-L2 verdict moves.
 
-Behavioural cloning and RL need values the paper does not state. The ones that could decide between VD and L2:
+The rows (:data:`CHOICES`): L2's coefficient (``PretrainConfig.l2``, 1e-4); the KL term's weight in VD's ELBO
+(``kl_samples``, the N dividing it: by default the training split's size, as eq. 3 reads) and its warm-up
+(``beta_warmup``); the sigma L2's policy starts RL from (``initial_sigma``; the figures fit it to VD's predictive
+spread). The likelihood's sigma, 0.3 (the sigma network's output, frozen while mu is cloned), is no row of its
+own: the loss is sum (a - mu)^2 / (2 sigma^2) plus the regulariser, and Adam's steps do not change when a loss is
+multiplied by a constant, so a sigma s weighs the regulariser as the default does times (s / 0.3)^2. A sigma of
+0.1 is the L2 coefficient / 9 and the KL weight / 9; a sigma of 1.0 multiplies both by 11.1: those are the rows.
 
-- L2's coefficient (``PretrainConfig.l2``, 1e-4): how hard the baseline is regularised;
-- the KL term's weight in VD's ELBO (``kl_samples``: the N dividing it, by default the training split's size,
-  as eq. 3 reads) and its warm-up (``beta_warmup``: the fraction of the epochs over which beta rises to 1);
-- the likelihood's sigma, 0.3: the sigma network's initial output, frozen while mu is cloned. It is not a row of
-  its own, because it is one of the two above in disguise: the loss is sum (a - mu)^2 / (2 sigma^2) plus the
-  regulariser, and Adam's steps do not change when the loss is multiplied by a constant, so a sigma s weighs
-  the regulariser as the default does times (s / 0.3)^2. A sigma of 0.1 is the L2 coefficient / 9 and the KL
-  weight / 9 (N times 9); a sigma of 1.0 multiplies both by 11.1. The rows below are those values;
-- the sigma L2's policy starts RL from (``initial_sigma``): the figures fit it to the VD network's predictive
-  spread (:data:`vdtutorial.pretrain.RL_START_SIGMA`), which favours neither; the paper's fixed 0.3 and the fit
-  to the demonstrations are the alternatives.
-
-Each row (:data:`CHOICES`) changes one value for the one method it belongs to; the other method keeps the figures'
-settings (:func:`~vdtutorial.pretrain.default_config`). Every run is Fig. 4's (reaching, 8000 demonstrations,
-Sigma 0.5, state mode) for :func:`rl_steps` env steps. Per row, VD against L2 on every measure at the final
-level and over the whole run (area under the curve), Holm-corrected with all rows' comparisons; a row's verdict
-is then set beside the default's. The default row's runs use the shipped checkpoints; a changed row pre-trains
-into its own checkpoint folder (the checkpoint's name does not hold ``l2`` or ``beta_warmup``).
+A row changes one value for the method it belongs to; the other method keeps the figures' settings. Every run is
+Fig. 4's (reaching, 8000 demonstrations, Sigma 0.5, state mode) for :func:`rl_steps` env steps. Per row, VD
+against L2 at the final level and over the whole run, Holm-corrected over all rows, beside the default's verdict.
+A changed row pre-trains into its own checkpoint folder (a checkpoint's name holds neither ``l2`` nor
+``beta_warmup``).
 
 Taught in chapter 07.
 """
