@@ -7,8 +7,8 @@ import torch
 from vdtutorial.demos import generate_demos
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.evaluation import PolicyController, successes_per_episode
-from vdtutorial.pretrain import (CheckpointError, PretrainConfig, checkpoint_path, demo_observations,
-                                 load_checkpoint, pretrain, save_checkpoint, split_by_episode)
+from vdtutorial.pretrain import (CheckpointError, HeldOutStop, PretrainConfig, checkpoint_path, demo_observations,
+                                 evaluate_imitation, load_checkpoint, pretrain, save_checkpoint, split_by_episode)
 from vdtutorial.vd import LinearSVDO, sparsity_report
 
 
@@ -100,3 +100,41 @@ def test_bad_configuration():
         PretrainConfig(reg="dropout")
     with pytest.raises(ValueError, match="obs_mode"):
         PretrainConfig(obs_mode="pixels")
+
+
+def test_the_held_out_stop_waits_for_the_warm_up_and_keeps_the_best_epoch():
+    net = torch.nn.Linear(1, 1)
+    stop = HeldOutStop(patience=2, after=3)
+    losses = [0.1, 0.05, 0.5, 0.4, 0.3, 0.35, 0.32, 0.2]  # epochs 1-2 fall inside the warm-up: not counted
+    stopped = None
+    for epoch, mse in enumerate(losses, start=1):
+        with torch.no_grad():
+            net.weight.fill_(epoch)
+        if stop.should_stop(epoch, mse, net):
+            stopped = epoch
+            break
+    assert (stopped, stop.best_epoch, stop.best_mse) == (7, 5, 0.3)
+    stop.restore(net)
+    assert net.weight.item() == 5.0
+
+
+def test_cloning_with_patience_stops_on_the_held_out_mse_and_returns_the_best_mu(demos):
+    torch.set_num_threads(1)
+    config = PretrainConfig(reg="l2", epochs=80, patience=3)
+    policy, history = pretrain(demos, config, seed=0, progress=False)
+    mses = [row["val_mse"] for row in history]
+    best = int(np.argmin(mses)) + 1
+    assert policy.pretrain_info["best_epoch"] == best and policy.pretrain_info["epochs_run"] == len(history)
+    assert len(history) == min(best + 3, 80) and len(history) < 80  # it stopped before the cap
+    obs = demo_observations(demos, "state")
+    _, val_idx = split_by_episode(demos, config.val_fraction, 0)
+    again = evaluate_imitation(policy, obs, torch.as_tensor(demos.actions, dtype=torch.float32), val_idx)
+    assert again["val_mse"] == pytest.approx(mses[best - 1], rel=1e-6)
+    assert checkpoint_path(demos.meta, "l2", "state", 0, patience=3).name.endswith("_seed0_stop3.pt")
+
+
+def test_patience_needs_a_held_out_split():
+    with pytest.raises(ValueError, match="patience"):
+        PretrainConfig(patience=5, val_fraction=0.0)
+    with pytest.raises(ValueError, match="patience"):
+        PretrainConfig(patience=0)

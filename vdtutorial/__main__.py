@@ -116,9 +116,9 @@ def _cmd_pretrain(args) -> None:
     config = default_config(args.reg, args.obs)
     if args.epochs:
         config = dataclasses.replace(config, epochs=args.epochs)
-    config = dataclasses.replace(config, initial_sigma=args.sigma)
+    config = dataclasses.replace(config, initial_sigma=args.sigma, patience=args.patience)
     out = output_path(args.out, checkpoint_path(demos.meta, args.reg, args.obs, args.seed, root=RUNS_DIR,
-                                                initial_sigma=config.initial_sigma), args.force)
+                                                initial_sigma=config.initial_sigma, patience=config.patience), args.force)
     spread_net = None
     if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
         spread_net = load_checkpoint(checkpoint_path(demos.meta, "vd", args.obs, args.seed), variational=True).mu
@@ -126,9 +126,16 @@ def _cmd_pretrain(args) -> None:
                                device=device)
     command = (pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
                + (f" --epochs {args.epochs}" if args.epochs else "")
+               + (f" --patience {args.patience}" if args.patience else "")
                + (f" --device {args.device}" if args.device != "cpu" else ""))
     save_checkpoint(policy, out, {"command": command})
-    print(f"held-out imitation MSE {history[-1]['val_mse']:.4f}")
+    kept = history[-1]
+    if args.patience:
+        info = policy.pretrain_info
+        kept = history[info["best_epoch"] - 1]
+        print(f"stopped on the held-out MSE after {info['epochs_run']} of at most {config.epochs} epochs; "
+              f"mu is epoch {info['best_epoch']}'s")
+    print(f"held-out imitation MSE {kept['val_mse']:.4f}")
     if args.reg == "vd":
         print(sparsity_report(policy.mu))
     print(f"wrote {out}")
@@ -394,6 +401,9 @@ def _add_pipeline_commands(sub) -> None:
     p.add_argument("--obs", choices=("state", "rgbd"), default="state",
                    help="policy input: joint angles + cup position, or the paper's RGBD image + joints (default state)")
     p.add_argument("--epochs", type=positive_int, default=None, help=_epochs_help())
+    p.add_argument("--patience", type=positive_int, default=None, metavar="P",
+                   help="stop when the held-out MSE has not improved for P epochs (after VD's KL warm-up); "
+                        "--epochs is then a cap and mu is the best epoch's (default: run all epochs)")
     p.add_argument("--sigma", default="0.3",
                    help="sigma the checkpoint starts RL from: a number (fixed; default 0.3, the network's initial "
                         "value, which the paper leaves untouched and the shipped checkpoints hold; the experiments "

@@ -79,6 +79,11 @@ class PretrainConfig:
     initial_sigma: sigma at the start of RL, set after mu is cloned (:mod:`vdtutorial.initial_sigma`):
         a number (option (a), that fixed sigma), "demos" (b) or "spread" (c). Default: the paper's fixed
         0.3. It does not change mu.
+    patience: stop on the held-out loss. ``None`` (the default, the shipped checkpoints' setting): run all
+        ``epochs``. A number P: ``epochs`` becomes a cap, and cloning stops once the held-out MSE of the mean
+        action has not improved for P epochs; mu is then the best epoch's. For VD the count starts when the KL
+        warm-up is over (before it, the objective itself is still changing). The paper does not say how long it
+        cloned; this is how issue 32 asks whether our fixed 40 image epochs stopped short.
     """
 
     reg: str = "vd"
@@ -92,6 +97,7 @@ class PretrainConfig:
     image_size: int = 128
     kl_samples: int | None = None
     initial_sigma: str = PAPER_INITIAL_SIGMA
+    patience: int | None = None
 
     def __post_init__(self):
         if self.epochs is None:
@@ -105,6 +111,9 @@ class PretrainConfig:
             raise ValueError("epochs and batch_size must be >= 1 and val_fraction in [0, 1)")
         if self.kl_samples is not None and self.kl_samples < 1:
             raise ValueError(f"kl_samples must be None or a positive integer, got {self.kl_samples!r}")
+        if self.patience is not None and (self.patience < 1 or self.val_fraction == 0):
+            raise ValueError(f"patience must be None or a positive integer, with a held-out split (val_fraction > 0); "
+                             f"got patience={self.patience!r}, val_fraction={self.val_fraction!r}")
 
 
 def rgbd_settings() -> dict:
@@ -167,6 +176,28 @@ def split_by_episode(demos: Demos, val_fraction: float, seed: int) -> tuple[np.n
     return np.flatnonzero(~is_val), np.flatnonzero(is_val)
 
 
+class HeldOutStop:
+    """Early stopping on the held-out MSE (``PretrainConfig.patience``): remembers the best epoch's mu (counted
+    from ``after`` epochs on, the end of VD's KL warm-up) and says when ``patience`` epochs have not beaten it."""
+
+    def __init__(self, patience: int, after: int = 0):
+        self.patience, self.after = patience, after
+        self.best_mse, self.best_epoch, self.best_state = math.inf, None, None
+
+    def should_stop(self, epoch: int, val_mse: float, net: torch.nn.Module) -> bool:
+        if epoch < self.after:
+            return False
+        if val_mse < self.best_mse:
+            self.best_mse, self.best_epoch = val_mse, epoch
+            self.best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        return epoch - self.best_epoch >= self.patience
+
+    def restore(self, net: torch.nn.Module) -> None:
+        """Put the best epoch's parameters back into ``net`` (nothing to do if no epoch counted)."""
+        if self.best_state is not None:
+            net.load_state_dict(self.best_state)
+
+
 def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
              observations=None, spread_net=None,
              device: torch.device | str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
@@ -208,6 +239,8 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
         history = []
         bar = tqdm(range(cfg.epochs), desc=f"pre-training ({cfg.reg}, {cfg.obs_mode})", disable=not progress)
         step, total_steps = 0, cfg.epochs * math.ceil(n_train / cfg.batch_size)
+        warmup_epochs = math.ceil(cfg.beta_warmup * cfg.epochs) if cfg.reg == "vd" else 0
+        stop = None if cfg.patience is None else HeldOutStop(cfg.patience, warmup_epochs)
         for epoch in bar:
             policy.train()
             losses = []
@@ -231,11 +264,16 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
                 row["weights_pruned"] = sparsity_report(policy.mu).weight_fraction
             history.append(row)
             bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
+            if stop is not None and stop.should_stop(epoch + 1, row["val_mse"], policy.mu):
+                break
+        if stop is not None:
+            stop.restore(policy.mu)
     policy.eval()
     policy.sigma.requires_grad_(True)  # frozen for behavioural cloning only: the RL phase trains sigma too
     sigma_record = set_initial_sigma(policy, demos, cfg, seed, obs, spread_net)
     policy.pretrain_info = {"config": asdict(cfg), "seed": seed, "demos": dict(demos.meta), "history": history,
-                            "initial_sigma": sigma_record}
+                            "initial_sigma": sigma_record,
+                            **({} if stop is None else {"epochs_run": len(history), "best_epoch": stop.best_epoch})}
     return policy, history
 
 
@@ -292,16 +330,17 @@ def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sig
 
 def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
                     initial_sigma: str = PAPER_INITIAL_SIGMA, kl_samples: int | None = None,
-                    data_name: str | None = None) -> Path:
-    """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma`` or
-    ``kl_samples`` is added to the name (``..._seed0_initsigma-demos.pt``, ``..._seed0_kl7200.pt``), so
-    that it never replaces the default checkpoint. ``data_name`` names the data set in place of its
+                    data_name: str | None = None, patience: int | None = None) -> Path:
+    """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma``, ``kl_samples``
+    or ``patience`` is added to the name (``..._seed0_initsigma-demos.pt``, ``..._seed0_kl7200.pt``,
+    ``..._seed0_stop10.pt``), so that it never replaces the default checkpoint. ``data_name`` names the data set in place of its
     ``TASK_nSAMPLES_sigmaSIGMA``: a set made in rounds (DART's, DAgger's) has no Sigma to be named by."""
     m = demos_meta
     sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f"_initsigma-{initial_sigma}"
     kl = "" if kl_samples is None else f"_kl{kl_samples}"
+    stop = "" if patience is None else f"_stop{patience}"
     data = data_name or f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}"
-    return Path(root or DATA_DIR) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{sigma}.pt"
+    return Path(root or DATA_DIR) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
 
 
 def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> Path:

@@ -206,3 +206,23 @@ def format_table(record: dict) -> str:
         f"({r['low']:+.2f} to {r['high']:+.2f}), Holm: {r['holm_verdict']}"
         + ("" if r["row"] == DEFAULT else ("; same as the default" if r["same_as_default"] else "; CHANGED"))
         for r in record["table"])
+
+
+def markdown_table(record: dict) -> str:
+    """The record's table for the results page: a line per row, VD - L2 on the paper's metric at the final level
+    and over the run (95% interval over seeds, Holm verdict), whether both verdicts are the default row's, and the
+    command that makes the row."""
+    lines = ["| row | what changes | value | final: VD - L2 | Holm | area: VD - L2 | Holm | "
+             "verdicts as the default's | command |", "|---|---|---|---|---|---|---|---|---|"]
+    entries = {(r["row"], r["kind"]): r for r in record["table"]}
+    for row in dict.fromkeys(r["row"] for r in record["table"]):
+        final, auc = entries[row, "final"], entries[row, "auc"]
+        method = f"{METHOD_LABELS[final['method']]}: " if final["method"] else ""
+        value = f"{final['value']}; default {final['default']}" if final["value"] else "-"
+        same = "-" if row == DEFAULT else "yes" if final["same_as_default"] and auc["same_as_default"] else "**no**"
+        cells = [row, method + final["choice"], value,
+                 f"{final['estimate']:+.2f} ({final['low']:+.2f} to {final['high']:+.2f})", final["holm_verdict"],
+                 f"{auc['estimate']:+.2f} ({auc['low']:+.2f} to {auc['high']:+.2f})", auc["holm_verdict"], same,
+                 f"`{final['command']}`"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)

@@ -114,7 +114,8 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
                          "give its path as source")
     data_name = Path(source).stem if made_in_rounds(meta) else None
     root = Path(checkpoints_root) if checkpoints_root is not None else budget(RUNS_DIR, RUNS_DIR / "quick")
-    names = {"initial_sigma": cfg.initial_sigma, "kl_samples": cfg.kl_samples, "data_name": data_name}
+    names = {"initial_sigma": cfg.initial_sigma, "kl_samples": cfg.kl_samples, "data_name": data_name,
+             "patience": cfg.patience}
     path = checkpoint_path(meta, reg, obs_mode, seed, root=root, **names)
     shipped = checkpoint_path(meta, reg, obs_mode, seed, **names)
     candidates = [shipped] if budget(True, False) and shipped != path and data_name is None else []
