@@ -7,6 +7,7 @@ import os
 import signal
 import time
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -97,6 +98,17 @@ def test_stale_checkpoint_is_regenerated_with_one_plain_line(tmp_path, capsys):
     assert len(said) == 1 and f"epochs={TINY.epochs}, expected 2" in said[0] and "pre-training again" in said[0]
     reused = pretrained_policy("l2", demos, "state", 0, PretrainConfig(epochs=2), tmp_path)
     assert reused.pretrain_info["config"]["epochs"] == 2 and capsys.readouterr().out == ""
+
+
+def test_l2s_coefficient_does_not_make_another_vd_network_for_l2s_spread(tmp_path):
+    """L2 starting from VD's spread follows the VD network cloned with the same settings; its own coefficient is
+    not one of them, so two L2 coefficients share one VD checkpoint (free_choices' L2 rows)."""
+    demos = Demos.load(DEMOS)
+    pretrained_policy("l2", demos, "state", 0, replace(TINY, initial_sigma="spread"), tmp_path)
+    vd_file = checkpoint_path(demos.meta, "vd", "state", 0, root=tmp_path)
+    made = vd_file.stat().st_mtime_ns
+    pretrained_policy("l2", demos, "state", 0, replace(TINY, l2=1e-3, initial_sigma="spread"), tmp_path)
+    assert vd_file.stat().st_mtime_ns == made
 
 
 def test_results_do_not_depend_on_the_number_of_workers_or_the_backend(tmp_path):

@@ -211,6 +211,8 @@ PRE_RL_ONLY = {"table1": "pre-trains only (no TRPO runs to resume)"}
 
 #: The experiments beyond the figures, which run in state mode with the paper's TRPO settings on the CPU.
 STATE_ONLY = ("beyond", "free_choices")
+#: Experiments of our own settings that take only the grid's options (seeds, workers, out, backend, restart).
+GRID_ONLY = {"pretrain_stop": "image pre-training stopped on the held-out loss against the fixed 40 epochs"}
 
 
 def _state_only(args, backend: str) -> None:
@@ -245,6 +247,24 @@ def _state_only(args, backend: str) -> None:
         raise CommandError(str(exc)) from exc
 
 
+def _grid_only(args, backend: str) -> None:
+    """An experiment of :data:`GRID_ONLY`: it fixes its observation, budget and TRPO settings itself."""
+    from vdtutorial.experiments import ResumeError
+    from vdtutorial.experiments.pretrain_stop import format_comparison, pretrain_stop
+
+    fixed = [flag for flag, value in (("--steps", args.steps), ("--obs", None if args.obs == "state" else args.obs),
+                                      ("--fvp-subsample", args.fvp_subsample), ("--checkpoint-every", args.checkpoint_every),
+                                      ("--device", None if args.device == "cpu" else args.device)) if value is not None]
+    if fixed:
+        raise CommandError(f"{args.name} sets {', '.join(fixed)} itself (it compares {GRID_ONLY[args.name]})")
+    try:
+        record = pretrain_stop(seeds=args.seeds, out=args.out, workers=args.workers, backend=backend,
+                               address=args.address, restart=args.restart, state_dir=args.state_dir)
+    except ResumeError as exc:
+        raise CommandError(str(exc)) from exc
+    print(format_comparison(record))
+
+
 def _cmd_experiment(args) -> None:
     import warnings
 
@@ -272,6 +292,9 @@ def _cmd_experiment(args) -> None:
         return
     if args.name in STATE_ONLY:
         _state_only(args, backend)
+        return
+    if args.name in GRID_ONLY:
+        _grid_only(args, backend)
         return
     _device(args)  # refused before any run starts
     trpo_config = None
@@ -455,8 +478,10 @@ def _add_experiment_commands(sub) -> None:
     """The paper's experiments and what reads them, the main job, and the chapters written out."""
     p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1; beyond "
                        "(learned noise with DART, and DAgger, beside the hand-set Sigma); free_choices (our "
-                       "values the paper does not give, each changed alone)")
-    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1", *STATE_ONLY), help="which figure or table")
+                       "values the paper does not give, each changed alone); pretrain_stop (image pre-training stopped on the "
+                       "held-out loss)")
+    p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1", *STATE_ONLY, *GRID_ONLY),
+                   help="which figure or table")
     p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0; beyond: 0-4)")
     p.add_argument("--choices", nargs="+", default=None, metavar="ROW",
                    help="free_choices only: the rows to run besides the default one (default: all of them)")

@@ -66,12 +66,13 @@ def successes_per_episode(env: gym.Env, controller, steps: int = EPISODE_STEPS, 
     return out
 
 
-def mean_action_successes(policy, task: str, seed: int, episodes: int, num_envs: int) -> dict:
+def mean_action_successes(policy, task: str, seed: int, episodes: int, num_envs: int, obs_mode: str = "state",
+                          image_size: int = 128) -> dict:
     """A pre-trained policy's score before RL, counted as TRPO counts an iteration: per 200-step episode,
     ``num_envs`` fresh runs of ``200 / num_envs`` steps with the policy's mean action (reset seeds derived
-    from (seed, k) for episode k). Returns the successes and the finished trajectories per episode,
-    averaged over ``episodes`` episodes."""
-    env = gym.make(ENV_IDS[task], obs_mode="state")
+    from (seed, k) for episode k), on the observations the policy reads (``obs_mode``, ``image_size``).
+    Returns the successes and the finished trajectories per episode, averaged over ``episodes`` episodes."""
+    env = gym.make(ENV_IDS[task], obs_mode=obs_mode, image_size=image_size)
     controller, totals = PolicyController(policy, deterministic=True), {"successes": 0, "trajectories": 0}
     for k in range(episodes):
         for reset_seed in np.random.SeedSequence([seed, k]).generate_state(num_envs):

@@ -138,8 +138,9 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     if cfg.initial_sigma != PAPER_INITIAL_SIGMA:
         base = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
         policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress, source)
-        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, base, checkpoints_root, progress, source).mu
-                      if reg == "l2" and cfg.initial_sigma == "spread" else None)
+        # the VD network whose spread L2 follows; L2's coefficient is no setting of VD's, so it is the default one's
+        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, replace(base, l2=PretrainConfig.l2), checkpoints_root,
+                                        progress, source).mu if reg == "l2" and cfg.initial_sigma == "spread" else None)
         policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, spread_net=spread_net)
         policy.pretrain_info["config"] = asdict(cfg)
     else:
