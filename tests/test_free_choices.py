@@ -1,13 +1,17 @@
 """Our free choices, each changed alone (vdtutorial.experiments.free_choices): the rows, their comparisons,
 the likelihood-sigma equivalence the module relies on, and one small run end to end."""
 import json
+from pathlib import Path
 
 import pytest
 import torch
 
 from vdtutorial.experiments import free_choices as fc
+from vdtutorial.experiments import read_rows
+from vdtutorial.experiments.effects import claim_effects
+from vdtutorial.experiments.results import results_file
 from vdtutorial.experiments.runs import METHOD_LABELS
-from vdtutorial.settings import QUICK
+from vdtutorial.settings import DATA_DIR, QUICK
 
 
 def test_each_row_changes_one_value_of_one_method():
@@ -73,3 +77,20 @@ def test_a_small_sweep_writes_its_table_and_resumes(tmp_path):
     assert {p.parts[-3] for p in (out / "checkpoints").rglob("*.pt")} >= {"l2_small"}
     again = fc.free_choices(names=("l2_small",), seeds=(0, 1), steps=400, out=out, workers=1, progress=False)
     assert again["table"] == record["table"]
+
+
+SHIPPED = DATA_DIR / "results" / "free_choices"
+
+
+def test_the_shipped_table_is_rederived_from_its_rows_and_is_on_the_results_page():
+    record = json.loads((SHIPPED / "free_choices.json").read_text())
+    assert not record["quick"] and record["steps"] == 100_000 and len(record["seeds"]) >= 3
+    names = [c["name"] for c in record["choices"]]
+    assert names == list(fc.CHOICE_NAMES)  # every row ran
+    rows = read_rows(results_file(SHIPPED, "free_choices"))
+    effects = claim_effects("free_choices", rows, "successes", record["window"], claims=fc.claims(names))
+    derived = fc.table(effects, names, lambda row: "")
+    assert [{k: v for k, v in r.items() if k != "command"} for r in derived] == \
+        [{k: v for k, v in r.items() if k != "command"} for r in record["table"]]
+    page = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
+    assert fc.markdown_table(record) in page
