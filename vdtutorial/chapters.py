@@ -46,9 +46,11 @@ class WrittenBook:
     solutions: int = 0
 
 
-#: What an experiment writes beside its results while it runs (its per-run logs, saved states, the checkpoints
-#: it made, locks): never shipped (.gitignore), so never copied out or packed.
-_SCRATCH = ("runs", "state", "checkpoints")
+#: What an experiment writes beside its results while it runs (its per-run logs, saved states, the checkpoints and
+#: the data sets it made, locks): never shipped, so never copied out or packed. Some are committed (a grid's states,
+#: the beyond experiment's data sets) so that a rerun of its command continues rather than starts again; the results
+#: themselves (NAME.csv.gz, NAME.json, NAME.png) hold everything a chapter reads.
+_SCRATCH = ("runs", "state", "checkpoints", "demos")
 
 
 def _shipped_data(path: Path, data: Path) -> bool:
