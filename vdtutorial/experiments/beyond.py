@@ -46,7 +46,7 @@ from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_EN
                                          finetune_steps, pretrained_policy, run_settings)
 from vdtutorial.imitation_rounds import cloning_config
 from vdtutorial.pretrain import PretrainConfig, default_config
-from vdtutorial.runner import results_file, run_grid, write_csv
+from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.settings import budget, is_quick, recorded_path
 
@@ -159,20 +159,8 @@ def _tags(variant: Variant, seed: int, stage: str) -> dict:
             "seed": seed, "stage": stage}
 
 
-class _SavedInStateDir:
-    """A job's files in the grid's folder of states, named after the job: its saved state and its rows."""
-
-    @property
-    def state_path(self) -> Path:
-        return self.state_dir / f"{self.name}.pt"
-
-    @property
-    def csv_path(self) -> Path:
-        return self.state_dir / f"{self.name}.csv"
-
-
 @dataclass(frozen=True)
-class PreRLJob(_SavedInStateDir):
+class PreRLJob(SavedInStateDir):
     """One variant and seed as a job of the grid runner (:class:`~vdtutorial.runner.grid.GridJob`): clone on the
     variant's data set (made first, by :func:`beyond`) and score the mean action before RL. Its state file holds
     the one row and the settings it was made with, so a rerun finds it finished, and a rerun with other settings
@@ -221,7 +209,7 @@ class PreRLJob(_SavedInStateDir):
 
 
 @dataclass(frozen=True)
-class RLJob(_SavedInStateDir):
+class RLJob(SavedInStateDir):
     """One variant and seed's RL stage as a grid job: TRPO with the paper's settings (:func:`default_trpo_config`)
     for ``steps`` env steps from the policy cloned on the variant's data set (:func:`cloned_policy`'s checkpoint),
     with the start sigma and, for VD, the pruning of the figures' runs

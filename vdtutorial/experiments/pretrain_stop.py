@@ -32,7 +32,7 @@ from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_seeds,
                                          default_trpo_config, pretrained_policy)
 from vdtutorial.pretrain import PretrainConfig, default_config
-from vdtutorial.runner import results_file, run_grid, write_csv
+from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.settings import DATA_DIR, budget, is_quick
 
@@ -67,7 +67,7 @@ def pre_rl_episodes() -> int:
 
 
 @dataclass(frozen=True)
-class PreRLJob:
+class PreRLJob(SavedInStateDir):
     """Clone (or find) one checkpoint and score its mean action before RL, as a job of the grid runner; its one
     row records the epochs the cloning ran and the epoch whose mu it kept."""
 
@@ -80,14 +80,6 @@ class PreRLJob:
     @property
     def name(self) -> str:
         return f"pre-rl/{self.kind.replace(' ', '-')}_{self.reg}_seed{self.seed}"
-
-    @property
-    def state_path(self) -> Path:
-        return self.state_dir / f"{self.name}.pt"
-
-    @property
-    def csv_path(self) -> Path:
-        return self.state_dir / f"{self.name}.csv"
 
     @property
     def settings(self) -> dict:

@@ -11,8 +11,8 @@ files).
 Taught in chapter 07.
 """
 from vdtutorial.runner.backends import run_jobs
-from vdtutorial.runner.grid import GridJob, run_grid
+from vdtutorial.runner.grid import GridJob, SavedInStateDir, run_grid
 from vdtutorial.runner.resume import ResumeError
 from vdtutorial.runner.rows import read_rows, results_file, write_csv
 
-__all__ = ["GridJob", "ResumeError", "read_rows", "results_file", "run_grid", "run_jobs", "write_csv"]
+__all__ = ["GridJob", "ResumeError", "SavedInStateDir", "read_rows", "results_file", "run_grid", "run_jobs", "write_csv"]

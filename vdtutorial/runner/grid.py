@@ -44,6 +44,19 @@ class GridJob(Protocol):
     def compute(self) -> Generator[dict, None, list[dict]]: ...
 
 
+class SavedInStateDir:
+    """A job's files in its grid's folder of states (``state_dir``), named after the job (``name``): its saved
+    state and its rows. Mixed into a job that has both attributes."""
+
+    @property
+    def state_path(self) -> Path:
+        return self.state_dir / f"{self.name}.pt"
+
+    @property
+    def csv_path(self) -> Path:
+        return self.state_dir / f"{self.name}.csv"
+
+
 def _result(job: GridJob, rows: list[dict], seconds: float, resumed_at: int | None = 0) -> dict:
     """A job's rows labelled with its tags, its compute time, and a one-line summary. ``resumed_at``: the
     iteration this invocation continued it from (0: started now; None: found finished, its history is
