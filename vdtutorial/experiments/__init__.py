@@ -34,4 +34,4 @@ from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, METHOD
                                          pretrained_policy)
 from vdtutorial.experiments.sparsity_table import (KL_WEIGHTINGS, TABLE1, format_table1, seeds_with_trend,
                                                    sparsity_trends, table1, table_means)
-from vdtutorial.runner import ResumeError, read_rows, results_file, run_grid, run_jobs, write_csv
+from vdtutorial.runner import ResumeError, read_rows, results_file, run_grid, run_jobs, stored_rows, write_csv

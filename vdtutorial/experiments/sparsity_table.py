@@ -20,7 +20,7 @@ from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.runner.backends import run_jobs
 from vdtutorial.experiments.curves import mean_band
 from vdtutorial.experiments.results import default_out, experiment_command
-from vdtutorial.runner.rows import write_csv
+from vdtutorial.runner.rows import stored_rows, write_csv
 from vdtutorial.experiments.runs import pretrained_policy
 from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, default_config
 from vdtutorial.vd import sparsity_report
@@ -130,9 +130,9 @@ def table1(obs_mode: str = "state", seeds=(0,), kl_weighting: str = "per-set", o
     jobs = [_SparsityJob(demo_path(task, samples, noise, 0, root=demos_root).resolve(), obs_mode, seed,
                          checkpoints_root, config) for (_, task, samples, noise, _), seed in plan]
     measured = run_jobs(_sparsity_job, jobs, workers, backend, address)
-    rows = [{"experiment": row, "task": task, "samples": samples, "noise": noise, "obs_mode": obs_mode, "seed": seed,
+    rows = stored_rows([{"experiment": row, "task": task, "samples": samples, "noise": noise, "obs_mode": obs_mode, "seed": seed,
              "kl_weighting": kl_weighting, "kl_samples": config.kl_samples, **m, "neuron_fraction_paper": paper}
-            for ((row, task, samples, noise, paper), seed), m in zip(plan, measured)]
+            for ((row, task, samples, noise, paper), seed), m in zip(plan, measured)])
     write_csv(out / f"table1_{kl_weighting}.csv", rows)
     text = format_table1(rows)
     command = experiment_command("table1", obs=obs_mode, seeds=seeds, kl_weighting=kl_weighting, workers=workers,

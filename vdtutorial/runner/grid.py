@@ -23,7 +23,7 @@ from typing import Protocol
 from vdtutorial.runner.backends import run_jobs
 from vdtutorial.runner.progress import GridProgress
 from vdtutorial.runner.resume import ResumeError, check_resumable, read_run_state
-from vdtutorial.runner.rows import write_csv
+from vdtutorial.runner.rows import stored_rows, write_csv
 from vdtutorial.runner.run_lock import WAIT_S, RunLock, holder_alive, lock_path
 
 
@@ -60,9 +60,10 @@ class SavedInStateDir:
 def _result(job: GridJob, rows: list[dict], seconds: float, resumed_at: int | None = 0) -> dict:
     """A job's rows labelled with its tags, its compute time, and a one-line summary. ``resumed_at``: the
     iteration this invocation continued it from (0: started now; None: found finished, its history is
-    that of earlier invocations)."""
+    that of earlier invocations). The rows are rounded as a CSV stores them (:func:`~vdtutorial.runner.rows.stored_rows`)."""
     tags = job.tags()
-    return {"rows": [{**tags, **row} for row in rows], "seconds": seconds, "resumed_at": resumed_at,
+    # rounded as the CSVs store them: an experiment derives what its shipped CSV gives back (runner.rows)
+    return {"rows": stored_rows([{**tags, **row} for row in rows]), "seconds": seconds, "resumed_at": resumed_at,
             "summary": job.summary(rows)}
 
 
