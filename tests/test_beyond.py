@@ -164,6 +164,22 @@ def test_the_record_holds_the_rl_comparisons_with_holm_verdicts(small_run):
     assert "successes per 200 steps after 400 RL steps" in beyond_module.format_summary(saved)
 
 
+def test_the_results_page_tables_hold_every_data_set_and_question(small_run):
+    """markdown_tables: a line per data set with its cost and a score per measure, a line per question with both
+    stages' differences; the numbers are the record's."""
+    _, record = small_run
+    tables = beyond_module.markdown_tables(record)
+    first, second = tables.split("\n\n")
+    data_lines, question_lines = first.splitlines()[2:], second.splitlines()[2:]
+    assert [line.split(" | ")[0].lstrip("| ") for line in data_lines] == [v.label for v in variants()]
+    assert all(line.count(" | ") == 4 + len(record["rl"]["measures"]) for line in data_lines)
+    assert len(question_lines) == len(record["comparisons"]) == 12
+    for line, c in zip(question_lines, record["comparisons"]):
+        cells = line.strip("| ").split(" | ")
+        assert cells[:3] == [c["question"], c["a"], c["b"]] and cells[3].startswith(f"{c['estimate']:+.2f}")
+        assert cells[7] in ("confirmed", "contradicted", "not confirmed") and cells[5].startswith(("VD", "L2"))
+
+
 def test_a_data_set_made_in_rounds_is_named_by_its_file(tmp_path):
     demos = Demos(meta={"task": "reach", "samples": 3, "seed": 0, "method": "dart", "rounds_done": 1},
                   joints=np.zeros((3, 6)), cup=np.zeros((3, 3)), actions=np.zeros((3, 6)), episode=np.zeros(3, int),

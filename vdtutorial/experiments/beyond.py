@@ -437,6 +437,44 @@ def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, pro
     return record
 
 
+def _band(point: dict, digits: int = 2) -> str:
+    return f"{point['mean']:.{digits}f} ({point['low']:.{digits}f} to {point['high']:.{digits}f})"
+
+
+def markdown_tables(record: dict) -> str:
+    """The results page's two tables of a :func:`beyond` record (tests/test_beyond.py checks that the page holds
+    them). First, per data set: what it cost (expert labels, clonings, seconds in the expert) and how its clones
+    scored before RL and at the end of the RL stage on every measure (mean and 95% interval over seeds). Then each
+    question of :func:`comparisons` with its difference a - b before RL (Bonferroni) and after RL on the paper's
+    metric (final level and area under the curve, Holm), each with its verdict."""
+    rl, measures = record["rl"], record["rl"]["measures"]
+    names = {"successes": "successes", "success_rate": "success rate", "steps_per_trajectory": "steps per trajectory"}
+    lines = ["| data set | expert labels | clonings | s in the expert | before RL: successes | "
+             + " | ".join(f"after RL, {names.get(m, m)}" for m in measures) + " |",
+             "|---|---|---|---|---|" + "---|" * len(measures)]
+    for label, before in record["pre_rl"].items():
+        cost = record["cost"][label]
+        seconds = "-" if cost["expert_seconds"] is None else f"{cost['expert_seconds']:.0f}"
+        finals = [_band(rl["final_by_measure"][m][label], 3 if m == "success_rate" else 2) for m in measures]
+        lines.append(f"| {label} | {cost['expert_queries']} | {cost['clonings']} | {seconds} | "
+                     f"{_band(before['successes'])} | " + " | ".join(finals) + " |")
+    # the RL stage picks the best hand-set Sigma by its final level, the pre-RL stage by its pre-RL mean: b may differ
+    after = {}
+    for c in rl["claims"]:
+        if c["metric"] == rl["metric"]:
+            after[c["text"].split(":")[0], c["a"], c["measure"]] = c
+    lines += ["", "| question | a | before RL: b | a - b | reading | after RL: b | final level: a - b | Holm | "
+              "area: a - b | Holm |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for c in record["comparisons"]:
+        final, auc = after[c["question"], c["a"], "final"], after[c["question"], c["a"], "auc"]
+        cells = [c["question"], c["a"], c["b"], f"{c['estimate']:+.2f} ({c['low']:+.2f} to {c['high']:+.2f})",
+                 c["reading"], final["b"]]
+        for effect in (final, auc):
+            cells += [f"{effect['estimate']:+.3g} ({effect['low']:+.3g} to {effect['high']:+.3g})", effect["holm_verdict"]]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def format_summary(record: dict) -> str:
     """The pre-RL scores and comparisons of a :func:`beyond` record, the RL stage's final levels and its claims on
     the paper's metric (every measure: the record's ``rl.claims``), and what DAgger's work bought, a line each."""
