@@ -157,6 +157,9 @@ def test_the_record_holds_the_rl_comparisons_with_holm_verdicts(small_run):
         assert c["holm_verdict"] in ("confirmed", "contradicted", "not confirmed")
         assert c["reading"] == beyond_module.READINGS[c["holm_verdict"]]
     assert len(saved["comparisons"]) == 12  # the pre-RL ones, still there
+    # what the experiment cost, summed over every invocation that made a part of it (a resumed grid's wall time is not)
+    made = sum(d.get("wall_time_s", 0) for d in saved["data_sets"].values())
+    assert saved["run_seconds"] > 0 and made > 0 and saved["data_set_seconds"] == pytest.approx(made)
     assert {c["dagger"] for c in saved["dagger_cost"]} == {"VD, DAgger", "L2, DAgger"}
     for entry in saved["dagger_cost"]:
         assert entry["expert_queries"] == LABELS and entry["clonings"] == beyond_module.rounds()
@@ -188,3 +191,21 @@ def test_a_data_set_made_in_rounds_is_named_by_its_file(tmp_path):
         pretrained_policy("l2", demos, checkpoints_root=tmp_path)
     assert checkpoint_path(demos.meta, "l2", "state", 2, tmp_path, data_name="dart_l2_sigma1").name == \
         "dart_l2_sigma1_l2_state_seed2.pt"
+
+
+def test_the_shipped_experiment_has_five_seeds_intervals_and_is_on_the_results_page():
+    """Issue 33's record: at least 5 seeds at the full budget; every question before RL and after it with an
+    interval and a verdict; what DAgger's queries bought; and the results page shows the record's tables."""
+    from pathlib import Path
+
+    from vdtutorial.settings import DATA_DIR
+
+    record = json.loads((DATA_DIR / "results" / "beyond" / "beyond.json").read_text())
+    assert not record["quick"] and len(record["seeds"]) >= 5 and record["rl"]["steps"] == 100_000
+    assert record["samples"] == 8000 and len(record["pre_rl"]) == len(variants())
+    for c in record["comparisons"] + record["rl"]["claims"]:
+        readings = {*beyond_module.READINGS.values(), "a above b", "a below b"}  # after RL / before RL
+        assert c["low"] <= c["estimate"] <= c["high"] and c["reading"] in readings
+    assert {e["dagger"] for e in record["dagger_cost"]} == {"VD, DAgger", "L2, DAgger"}
+    page = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
+    assert beyond_module.markdown_tables(record) in page

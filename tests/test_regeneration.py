@@ -313,3 +313,43 @@ def write_image_reference(path: Path = IMAGE_REFERENCE) -> None:
 
 if __name__ == "__main__":
     write_image_reference(Path(sys.argv[1]) if len(sys.argv) > 1 else IMAGE_REFERENCE)
+
+
+def test_a_shipped_beyond_run_regenerates(tolerance, tmp_path, monkeypatch):
+    """Chapter 09's experiment as shipped: for the hand-set VD Sigma = 0.5 data set and seed 0 (the shipped data set
+    and checkpoint), the pre-RL score and the first ITERATIONS iterations of the RL stage are what its grid jobs
+    compute now, with the full experiment's budgets (quick mode switched off for this test)."""
+    from vdtutorial import settings
+    from vdtutorial.experiments import beyond
+
+    record = json.loads((RESULTS / "beyond" / "beyond.json").read_text())
+    assert not record["quick"]
+    monkeypatch.setattr(settings, "QUICK", False)  # the shipped budgets; the shipped checkpoint is then read
+    assert (beyond.samples(), beyond.pre_rl_episodes()) == (record["samples"], record["pre_rl_episodes"])
+    variant = beyond.Variant("hand-set", "vd", 0.5)
+    shipped = [r for r in read_rows(results_file(RESULTS / "beyond", "beyond"))
+               if r["label"] == variant.label and r["seed"] == 0]
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        jobs = [beyond.PreRLJob(variant, 0, tmp_path, tmp_path / "runs"),
+                beyond.RLJob(variant, 0, ITERATIONS * 200, tmp_path, tmp_path / "runs")]
+        (tmp_path / "runs").mkdir()
+        again = []
+        for job in jobs:
+            steps = job.compute()
+            try:
+                while True:
+                    next(steps)
+            except StopIteration as done:
+                again.append(done.value)
+    finally:
+        torch.set_num_threads(threads)
+    pre, rl = again
+    then_pre = next(r for r in shipped if r["stage"] == beyond.PRE_RL)
+    assert (pre[0]["successes"], pre[0]["trajectories"]) == (then_pre["successes"], then_pre["trajectories"])
+    then_rl = [r for r in shipped if r["stage"] == beyond.RL][:ITERATIONS]
+    for a, b in zip(rl, then_rl, strict=True):
+        assert {k: a[k] for k in COUNTS if k in a} == {k: b[k] for k in COUNTS if k in a}
+        differ = {k: (a[k], b[k]) for k in FLOATS if k in a and not _close(a[k], b[k], tolerance)}
+        assert not differ, f"beyond iteration {a['iteration']}: {differ}"

@@ -39,7 +39,7 @@ from vdtutorial.demos import Demos, demo_path, generate_demos
 from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.curves import CONFIDENCE, mean_band, smooth_window
 from vdtutorial.experiments.effects import Claim, per_run, run_summaries, verdict, welch_interval
-from vdtutorial.experiments.measures import measures_of
+from vdtutorial.experiments.measures import MEASURES, measures_of
 from vdtutorial.experiments.plots import figure_title
 from vdtutorial.experiments.results import default_out, derive, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_trpo_config,
@@ -429,7 +429,10 @@ def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, pro
               "quick": is_quick(), "task": TASK, "obs_mode": "state", "seeds": list(seeds), "samples": samples(),
               "rounds": rounds(), "dagger_beta": BETA, "pre_rl_episodes": pre_rl_episodes(), "num_envs": NUM_ENVS,
               "pretrain_config": {reg: asdict(cloning_config(reg)) for reg in ("vd", "l2")},
-              "wall_time_s": time.perf_counter() - start, "data_sets": made, "cost": cost, "pre_rl": per_label,
+              "wall_time_s": time.perf_counter() - start,  # this invocation's; a resumed run's cost is in the next two
+              "run_seconds": sum(result["seconds"] for result in results),  # every job's, over all invocations
+              "data_set_seconds": sum(data.get("wall_time_s", 0.0) for data in made.values()),  # DART's, DAgger's
+              "data_sets": made, "cost": cost, "pre_rl": per_label,
               "comparisons": pre_comparisons, "rl": rl, "dagger_cost": dagger_cost(cost, pre_comparisons, rl["claims"], steps),
               "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__,
                            "python": sys.version.split()[0]}}
@@ -437,14 +440,17 @@ def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, pro
     return record
 
 
-def _band(point: dict, digits: int = 2) -> str:
-    return f"{point['mean']:.{digits}f} ({point['low']:.{digits}f} to {point['high']:.{digits}f})"
+def _band(point: dict, digits: int = 2, feasible=(float("-inf"), float("inf"))) -> str:
+    """Mean (interval), the interval clipped to the values the measure can take, as the figures' bands are."""
+    low, high = max(point["low"], feasible[0]), min(point["high"], feasible[1])
+    return f"{point['mean']:.{digits}f} ({low:.{digits}f} to {high:.{digits}f})"
 
 
 def markdown_tables(record: dict) -> str:
     """The results page's two tables of a :func:`beyond` record (tests/test_beyond.py checks that the page holds
     them). First, per data set: what it cost (expert labels, clonings, seconds in the expert) and how its clones
-    scored before RL and at the end of the RL stage on every measure (mean and 95% interval over seeds). Then each
+    scored before RL and at the end of the RL stage on every measure (mean and 95% interval over seeds, clipped to
+    the measure's possible values). Then each
     question of :func:`comparisons` with its difference a - b before RL (Bonferroni) and after RL on the paper's
     metric (final level and area under the curve, Holm), each with its verdict."""
     rl, measures = record["rl"], record["rl"]["measures"]
@@ -455,9 +461,10 @@ def markdown_tables(record: dict) -> str:
     for label, before in record["pre_rl"].items():
         cost = record["cost"][label]
         seconds = "-" if cost["expert_seconds"] is None else f"{cost['expert_seconds']:.0f}"
-        finals = [_band(rl["final_by_measure"][m][label], 3 if m == "success_rate" else 2) for m in measures]
+        finals = [_band(rl["final_by_measure"][m][label], 3 if m == "success_rate" else 2, MEASURES[m].feasible)
+                  for m in measures]
         lines.append(f"| {label} | {cost['expert_queries']} | {cost['clonings']} | {seconds} | "
-                     f"{_band(before['successes'])} | " + " | ".join(finals) + " |")
+                     f"{_band(before['successes'], feasible=MEASURES['successes'].feasible)} | " + " | ".join(finals) + " |")
     # the RL stage picks the best hand-set Sigma by its final level, the pre-RL stage by its pre-RL mean: b may differ
     after = {}
     for c in rl["claims"]:
