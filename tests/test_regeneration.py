@@ -169,6 +169,14 @@ def image_rows(tmp_path_factory) -> list[dict]:
     return _run_again(*IMAGE_RUN, IMAGE_ITERATIONS, tmp_path_factory.mktemp("image_run"))
 
 
+def _assert_iterations_equal(again: list[dict], then: list[dict], tolerance, what: str) -> None:
+    """Counts exactly, floats within ``tolerance``, iteration by iteration."""
+    for a, b in zip(again, then, strict=True):
+        assert {k: a[k] for k in COUNTS if k in a} == {k: b[k] for k in COUNTS if k in a}
+        differ = {k: (a[k], b[k]) for k in FLOATS if k in a and not _close(a[k], b[k], tolerance)}
+        assert not differ, f"{what} iteration {a['iteration']}: {differ}"
+
+
 @pytest.mark.parametrize("folder, method, seed", RUNS)
 def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_path, tolerance, request):
     shipped = _shipped(folder, method, seed)[2]
@@ -176,10 +184,7 @@ def test_first_iterations_of_a_shipped_run_regenerate(folder, method, seed, tmp_
         rows = request.getfixturevalue("image_rows")[:ITERATIONS]
     else:
         rows = _run_again(folder, method, seed, ITERATIONS, tmp_path)
-    for again, then in zip(rows, shipped[:ITERATIONS], strict=True):
-        assert {k: again[k] for k in COUNTS if k in again} == {k: then[k] for k in COUNTS if k in again}
-        differ = {k: (again[k], then[k]) for k in FLOATS if k in again and not _close(again[k], then[k], tolerance)}
-        assert not differ, f"{folder} {method} seed {seed} iteration {again['iteration']}: {differ}"
+    _assert_iterations_equal(rows, shipped[:ITERATIONS], tolerance, f"{folder} {method} seed {seed}")
 
 
 def test_image_updates_match_the_code_before_the_speed_ups(probe, image_rows):
@@ -315,6 +320,25 @@ if __name__ == "__main__":
     write_image_reference(Path(sys.argv[1]) if len(sys.argv) > 1 else IMAGE_REFERENCE)
 
 
+def _computed(jobs) -> list[list[dict]]:
+    """Each grid job's rows, computed here on one torch thread without a grid (which would look into a state
+    folder): a job's ``compute`` yields its progress and returns its rows."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    rows = []
+    try:
+        for job in jobs:
+            steps = job.compute()
+            try:
+                while True:
+                    next(steps)
+            except StopIteration as done:
+                rows.append(done.value)
+    finally:
+        torch.set_num_threads(threads)
+    return rows
+
+
 def test_a_shipped_beyond_run_regenerates(tolerance, tmp_path, monkeypatch):
     """Chapter 09's experiment as shipped: for the hand-set VD Sigma = 0.5 data set and seed 0 (the shipped data set
     and checkpoint), the pre-RL score and the first ITERATIONS iterations of the RL stage are what its grid jobs
@@ -329,27 +353,45 @@ def test_a_shipped_beyond_run_regenerates(tolerance, tmp_path, monkeypatch):
     variant = beyond.Variant("hand-set", "vd", 0.5)
     shipped = [r for r in read_rows(results_file(RESULTS / "beyond", "beyond"))
                if r["label"] == variant.label and r["seed"] == 0]
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        jobs = [beyond.PreRLJob(variant, 0, tmp_path, tmp_path / "runs"),
-                beyond.RLJob(variant, 0, ITERATIONS * 200, tmp_path, tmp_path / "runs")]
-        (tmp_path / "runs").mkdir()
-        again = []
-        for job in jobs:
-            steps = job.compute()
-            try:
-                while True:
-                    next(steps)
-            except StopIteration as done:
-                again.append(done.value)
-    finally:
-        torch.set_num_threads(threads)
-    pre, rl = again
+    (tmp_path / "runs").mkdir()
+    pre, rl = _computed([beyond.PreRLJob(variant, 0, tmp_path, tmp_path / "runs"),
+                         beyond.RLJob(variant, 0, ITERATIONS * 200, tmp_path, tmp_path / "runs")])
     then_pre = next(r for r in shipped if r["stage"] == beyond.PRE_RL)
     assert (pre[0]["successes"], pre[0]["trajectories"]) == (then_pre["successes"], then_pre["trajectories"])
-    then_rl = [r for r in shipped if r["stage"] == beyond.RL][:ITERATIONS]
-    for a, b in zip(rl, then_rl, strict=True):
-        assert {k: a[k] for k in COUNTS if k in a} == {k: b[k] for k in COUNTS if k in a}
-        differ = {k: (a[k], b[k]) for k in FLOATS if k in a and not _close(a[k], b[k], tolerance)}
-        assert not differ, f"beyond iteration {a['iteration']}: {differ}"
+    _assert_iterations_equal(rl, [r for r in shipped if r["stage"] == beyond.RL][:ITERATIONS], tolerance, "beyond")
+
+
+def test_a_shipped_pretrain_stop_run_regenerates(tolerance, tmp_path, monkeypatch):
+    """Chapter 05's image comparison as shipped, for the checkpoint it ships (L2, seed 0, stopped on the held-out
+    loss, and its fitted start sigma, in data/checkpoints): the checkpoint records the epochs the record gives,
+    and its pre-RL score and the first ITERATIONS iterations of its RL run are what the grid's jobs compute now
+    (the figures' budgets: quick mode switched off for this test)."""
+    from dataclasses import replace as replaced
+
+    from vdtutorial import settings
+    from vdtutorial.experiments import pretrain_stop as ps
+    from vdtutorial.pretrain import load_checkpoint
+
+    folder = RESULTS / "pretrain_stop"
+    record = json.loads((folder / "pretrain_stop.json").read_text())
+    assert not record["quick"]
+    monkeypatch.setattr(settings, "QUICK", False)
+    assert ps.pre_rl_episodes() == record["pre_rl_episodes"]
+    shipped = [r for r in read_rows(results_file(folder, "pretrain_stop"))
+               if (r["kind"], r["method"], r["seed"]) == (ps.STOPPED, "l2", 0)]
+    then_pre = next(r for r in shipped if r["stage"] == "pre-RL")
+    checkpoint = load_checkpoint(checkpoint_path({"task": ps.TASK, "samples": ps.SAMPLES, "noise": ps.NOISE}, "l2",
+                                                 ps.OBS, 0, patience=ps.PATIENCE))
+    assert (len(checkpoint.pretrain_info["history"]), checkpoint.pretrain_info["best_epoch"]) == (
+        then_pre["epochs_run"], then_pre["best_epoch"])
+    jobs = ps.jobs((0,), tmp_path, tmp_path / "runs")
+    pre = next(j for j in jobs if isinstance(j, ps.PreRLJob) and (j.kind, j.reg) == (ps.STOPPED, "l2"))
+    rl = next(j for j in jobs if not isinstance(j, ps.PreRLJob) and (j.kind, j.spec.method) == (ps.STOPPED, "l2"))
+    rl = replaced(rl, spec=replaced(rl.spec, total_steps=ITERATIONS * 200))
+    for path in (pre.state_path, rl.state_path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+    pre_rows, rl_rows = _computed([pre, rl])
+    assert (pre_rows[0]["successes"], pre_rows[0]["trajectories"]) == (then_pre["successes"], then_pre["trajectories"])
+    assert _close(pre_rows[0]["val_mse"], then_pre["val_mse"], tolerance)
+    _assert_iterations_equal(rl_rows, [r for r in shipped if r["stage"] == "RL"][:ITERATIONS], tolerance,
+                             "pretrain_stop")

@@ -8,7 +8,8 @@ and both kinds of checkpoint are measured the same way: the mean action's succes
 (:func:`~vdtutorial.evaluation.mean_action_successes`) and the first :func:`rl_steps` env steps of TRPO with the
 figures' settings (the fixed checkpoints' runs are then the first iterations of ``fig4_rgbd``'s). Per method,
 the difference stopped - fixed at the pre-RL level and over the early RL curve, 95% Welch intervals over seeds.
-If it is material, ``fig4_rgbd`` is to be made again from the stopped checkpoints; if not, this is its control.
+If it is material (:func:`is_material`), ``fig4_rgbd`` is to be made again from the stopped checkpoints; if not,
+this is its control.
 
 Taught in chapter 05.
 """
@@ -26,7 +27,12 @@ import torch
 import vdtutorial
 from vdtutorial.demos import Demos, demo_path
 from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
+from matplotlib.figure import Figure
+
+from vdtutorial.experiments.curves import curves_from_rows
 from vdtutorial.experiments.effects import welch_interval
+from vdtutorial.experiments.measures import measures_of
+from vdtutorial.experiments.plots import figure_title, plot_measures
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_seeds,
@@ -41,6 +47,9 @@ TASK, SAMPLES, NOISE, OBS = "reach", 8000, 0.5, "rgbd"
 PATIENCE, CAP = 10, 200
 #: The two kinds of checkpoint: the figures' fixed epochs, and stopped on the held-out loss.
 FIXED, STOPPED = "fixed 40 epochs", "held-out stop"
+#: Iterations of the RL curves' trailing mean in the figure: the runs are 50 iterations long, too short for the
+#: figures' 25.
+RL_WINDOW = 5
 
 
 def stop_config(reg: str) -> PretrainConfig:
@@ -147,10 +156,15 @@ def jobs(seeds, out: Path, state_dir: Path) -> list:
     return pre + rl
 
 
+def _rl_steps_of(rows: list[dict]) -> int:
+    """The env steps of the RL runs in ``rows`` (not :func:`rl_steps`, which depends on the mode a reader is in)."""
+    return max(r["env_steps"] for r in rows if r["stage"] == "RL")
+
+
 def compare(rows: list[dict], seeds) -> list[dict]:
     """Per method: stopped - fixed in the epochs, the pre-RL successes, and the mean successes per iteration of
     the RL runs (95% Welch intervals over seeds)."""
-    out = []
+    out, steps = [], _rl_steps_of(rows)
     for reg in ("vd", "l2"):
         def values(kind, stage, key):
             picked = [r for r in rows if r["method"] == reg and r["kind"] == kind and r["stage"] == stage]
@@ -160,7 +174,7 @@ def compare(rows: list[dict], seeds) -> list[dict]:
         for stage, key, what in (("pre-RL", "epochs_run", "epochs of cloning"),
                                  ("pre-RL", "val_mse", "held-out MSE of the kept mu"),
                                  ("pre-RL", "successes", "successes per 200 steps before RL (mean action)"),
-                                 ("RL", "successes", f"successes per 200 steps, mean over the first {rl_steps():g} RL steps")):
+                                 ("RL", "successes", f"successes per 200 steps, mean over the first {steps:g} RL steps")):
             stopped, fixed = values(STOPPED, stage, key), values(FIXED, stage, key)
             estimate, low, high = welch_interval(stopped, fixed, 0.95)
             out.append({"method": reg, "measure": what, "stopped": stopped, "fixed": fixed, "estimate": estimate,
@@ -168,10 +182,27 @@ def compare(rows: list[dict], seeds) -> list[dict]:
     return out
 
 
+def is_material(comparison: list[dict]) -> bool:
+    """Whether the stop changed what RL starts from: for either method, the 95% interval of stopped - fixed of the
+    successes (before RL, or over the early RL curve) excludes zero. The epochs and the held-out MSE are how
+    the stop got there, not a difference a learner of Fig. 4 would see, so they do not count."""
+    return any(c["low"] > 0 or c["high"] < 0 for c in comparison if c["measure"].startswith("successes"))
+
+
+def plot(rows: list[dict], seeds) -> Figure:
+    """The RL runs from both kinds of checkpoint, one panel per measure (the paper's count, the success rate,
+    the length of a successful trajectory), per seed thin behind the mean; the stopped checkpoints dashed."""
+    rl = [r for r in rows if r["stage"] == "RL"]
+    title = figure_title("Image pre-training stopped on the held-out loss against the fixed 40 epochs: the first "
+                         "TRPO iterations (reaching)", OBS, _rl_steps_of(rows), len(seeds))
+    return plot_measures({m: curves_from_rows(rl, m, RL_WINDOW) for m in measures_of("successes")}, title, RL_WINDOW)
+
+
 def pretrain_stop(seeds=None, out=None, workers: int = 2, progress: bool | None = None, backend: str = "local",
                   address: str | None = None, restart: bool = False, state_dir=None) -> dict:
-    """Run the comparison (module docstring) as one resumable grid; write ``pretrain_stop.csv.gz`` and
-    ``pretrain_stop.json`` into ``out`` (default ``runs/pretrain_stop``; shipped: ``data/results/pretrain_stop``)."""
+    """Run the comparison (module docstring) as one resumable grid; write ``pretrain_stop.csv.gz``,
+    ``pretrain_stop.png`` (:func:`plot`) and ``pretrain_stop.json`` into ``out`` (default ``runs/pretrain_stop``;
+    shipped: ``data/results/pretrain_stop``)."""
     seeds = tuple(default_seeds() if seeds is None else seeds)
     out = Path(out) if out is not None else default_out("pretrain_stop")
     state_dir = Path(state_dir).resolve() if state_dir is not None else (out / "runs").resolve()
@@ -181,13 +212,17 @@ def pretrain_stop(seeds=None, out=None, workers: int = 2, progress: bool | None 
     rows = [row for result in results for row in result["rows"]]
     out.mkdir(parents=True, exist_ok=True)
     write_csv(results_file(out, "pretrain_stop"), rows)
+    plot(rows, seeds).savefig(out / "pretrain_stop.png", dpi=110)
+    comparison = compare(rows, seeds)
     shown_out = out if out != default_out("pretrain_stop") else None
     record = {"experiment": "pretrain_stop",
               "command": experiment_command("pretrain_stop", seeds=seeds, workers=workers, out=shown_out),
               "quick": is_quick(), "task": TASK, "samples": SAMPLES, "noise": NOISE, "obs_mode": OBS, "seeds": list(seeds),
               "rl_steps": rl_steps(), "pre_rl_episodes": pre_rl_episodes(), "patience": PATIENCE, "cap": CAP,
               "pretrain_config": {kind: {reg: asdict(c) for reg, c in per.items()} for kind, per in configs().items()},
-              "comparison": compare(rows, seeds), "wall_time_s": time.perf_counter() - start,
+              "comparison": comparison, "material": is_material(comparison),
+              "run_seconds": sum(result["seconds"] for result in results),  # every job's, over all invocations
+              "wall_time_s": time.perf_counter() - start,
               "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__,
                            "python": sys.version.split()[0]}}
     (out / "pretrain_stop.json").write_text(json.dumps(record, indent=1, default=str))
@@ -195,7 +230,12 @@ def pretrain_stop(seeds=None, out=None, workers: int = 2, progress: bool | None 
 
 
 def format_comparison(record: dict) -> str:
-    """A line per method and measure: stopped and fixed per seed, and the difference with its interval."""
-    return "\n".join(f"{METHOD_LABELS[c['method']]:>3} {c['measure']}: stopped {np.round(c['stopped'], 3).tolist()}, "
+    """A line per method and measure: stopped and fixed per seed, and the difference with its interval; then
+    what that means for ``fig4_rgbd`` (:func:`is_material`)."""
+    consequence = ("material: fig4_rgbd is to be made again from the stopped checkpoints" if record["material"] else
+                   "not material (no interval of the successes excludes zero): fig4_rgbd keeps its fixed 40 epochs "
+                   "and this comparison is its control")
+    return "\n".join([*(f"{METHOD_LABELS[c['method']]:>3} {c['measure']}: stopped {np.round(c['stopped'], 3).tolist()}, "
                      f"fixed {np.round(c['fixed'], 3).tolist()}; stopped - fixed {c['estimate']:+.3g} "
-                     f"({c['low']:+.3g} to {c['high']:+.3g})" for c in record["comparison"])
+                     f"({c['low']:+.3g} to {c['high']:+.3g})" for c in record["comparison"]),
+                      f"{len(record['seeds'])} seeds, 95% Welch intervals; {consequence}"])
