@@ -304,6 +304,28 @@ def test_seeds_run_on_another_cpu_merge_only_when_asked_and_the_record_says_so(t
     assert merged.rows == read_rows(results_file(RESULTS / "fig4_state_fvp0.1", "fig4"))
 
 
+def test_a_setting_added_since_a_record_was_written_is_read_as_its_default(tmp_path):
+    """Seeds run after ``PretrainConfig.patience`` existed record it (None, the default); the shipped seeds
+    predate it. They merge, the merged record holds the field, and another value of it is refused."""
+    first = _seeds_of("fig4_state_fvp0.1", (0, 2), tmp_path / "first")
+    later = _seeds_of("fig4_state_fvp0.1", (1,), tmp_path / "later")
+    for folder, patience in ((first, "absent"), (later, None)):
+        record = json.loads((folder / "fig4.json").read_text())
+        record["pretrain_config"].pop("patience", None)
+        if patience != "absent":
+            record["pretrain_config"]["patience"] = patience
+        (folder / "fig4.json").write_text(json.dumps(record))
+    stopped = tmp_path / "stopped"
+    shutil.copytree(later, stopped)
+    record = json.loads((stopped / "fig4.json").read_text())
+    record["pretrain_config"]["patience"] = 10
+    (stopped / "fig4.json").write_text(json.dumps(record))
+    with pytest.raises(ValueError, match="differs in pretrain_config"):
+        merge_seeds(first, stopped)
+    merged = merge_seeds(first, later)
+    assert merged.record["pretrain_config"]["patience"] is None and merged.record["seeds"] == [0, 1, 2]
+
+
 def write_image_reference(path: Path = IMAGE_REFERENCE) -> None:
     """Record :data:`IMAGE_REFERENCE` with the code on the import path (see :data:`IMAGE_REFERENCE_COMMAND`)."""
     with tempfile.TemporaryDirectory() as root:

@@ -7,7 +7,7 @@ import os
 import shlex
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 
 import gymnasium as gym
@@ -216,6 +216,19 @@ def rederive(folder: str | Path) -> ExperimentResult:
 #: What two records must agree on for their rows to be one experiment's (everything that shapes a run but its seed).
 SAME_EXPERIMENT = ("experiment", "metric", "num_envs", "steps_per_iteration", "window", "pretrain_config",
                    "trpo_config", "quick", "versions", "kernels")
+#: The settings a record holds as a dataclass's fields. A field added since a record was written is absent from
+#: it; a new field's default is what the code did before the field existed (``PretrainConfig.patience``: None,
+#: no early stop), so a missing field is read as its default.
+CONFIGS = {"pretrain_config": PretrainConfig, "trpo_config": TRPOConfig}
+
+
+def with_defaults(key: str, value):
+    """``value`` of a record's ``key`` with the fields it predates filled in (:data:`CONFIGS`); other keys as
+    they are."""
+    if key not in CONFIGS or not isinstance(value, dict):
+        return value
+    defaults = {f.name: f.default for f in fields(CONFIGS[key]) if f.default is not MISSING}
+    return {**defaults, **value}
 
 
 def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) -> ExperimentResult:
@@ -234,7 +247,8 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     folder, other = Path(folder), Path(other)
     paths = [next(Path(f).glob("*.json")) for f in (folder, other)]
     records = [json.loads(path.read_text()) for path in paths]
-    differ = [key for key in SAME_EXPERIMENT if records[0].get(key) != records[1].get(key)
+    differ = [key for key in SAME_EXPERIMENT
+              if with_defaults(key, records[0].get(key)) != with_defaults(key, records[1].get(key))
               and not (other_cpu and key == "kernels")]
     shape = [{(r["method"], r["obs_mode"], r["total_steps"]) for r in record["runs"]} for record in records]
     if differ or shape[0] != shape[1]:
@@ -259,7 +273,8 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     records[0].update(command=shlex.join(parts[:start] + [str(seed) for seed in sorted(seeds[0] | seeds[1])]
                                          + parts[end:]),
                       runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
-                      merged=merged, wall_time_s=sum(entry["wall_time_s"] for entry in merged))
+                      merged=merged, wall_time_s=sum(entry["wall_time_s"] for entry in merged),
+                      **{key: with_defaults(key, records[0][key]) for key in CONFIGS if key in records[0]})
     if records[0].get("kernels") != records[1].get("kernels"):
         records[0]["kernels"] = "mixed"
     paths[0].write_text(json.dumps(records[0], indent=1, default=str))
