@@ -324,6 +324,7 @@ def test_a_setting_added_since_a_record_was_written_is_read_as_its_default(tmp_p
         merge_seeds(first, stopped)
     merged = merge_seeds(first, later)
     assert merged.record["pretrain_config"]["patience"] is None and merged.record["seeds"] == [0, 1, 2]
+    assert set(merged.record["pretrain_config"]) == set(record["pretrain_config"])  # no field neither record held
 
 
 def write_image_reference(path: Path = IMAGE_REFERENCE) -> None:

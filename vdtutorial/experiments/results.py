@@ -222,13 +222,18 @@ SAME_EXPERIMENT = ("experiment", "metric", "num_envs", "steps_per_iteration", "w
 CONFIGS = {"pretrain_config": PretrainConfig, "trpo_config": TRPOConfig}
 
 
-def with_defaults(key: str, value):
-    """``value`` of a record's ``key`` with the fields it predates filled in (:data:`CONFIGS`); other keys as
-    they are."""
+def with_defaults(key: str, value, names) -> dict:
+    """``value`` of a record's ``key`` with those of the fields ``names`` that it predates filled in with their
+    defaults (:data:`CONFIGS`); other keys as they are."""
     if key not in CONFIGS or not isinstance(value, dict):
         return value
-    defaults = {f.name: f.default for f in fields(CONFIGS[key]) if f.default is not MISSING}
-    return {**defaults, **value}
+    return {**{f.name: f.default for f in fields(CONFIGS[key]) if f.name in names and f.default is not MISSING},
+            **value}
+
+
+def _names(records: list[dict], key: str) -> set:
+    """The field names either record holds under ``key``."""
+    return {name for record in records if isinstance(record.get(key), dict) for name in record[key]}
 
 
 def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) -> ExperimentResult:
@@ -248,7 +253,8 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     paths = [next(Path(f).glob("*.json")) for f in (folder, other)]
     records = [json.loads(path.read_text()) for path in paths]
     differ = [key for key in SAME_EXPERIMENT
-              if with_defaults(key, records[0].get(key)) != with_defaults(key, records[1].get(key))
+              if with_defaults(key, records[0].get(key), _names(records, key))
+              != with_defaults(key, records[1].get(key), _names(records, key))
               and not (other_cpu and key == "kernels")]
     shape = [{(r["method"], r["obs_mode"], r["total_steps"]) for r in record["runs"]} for record in records]
     if differ or shape[0] != shape[1]:
@@ -274,7 +280,8 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
                                          + parts[end:]),
                       runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
                       merged=merged, wall_time_s=sum(entry["wall_time_s"] for entry in merged),
-                      **{key: with_defaults(key, records[0][key]) for key in CONFIGS if key in records[0]})
+                      **{key: with_defaults(key, records[0][key], _names(records, key)) for key in CONFIGS
+                         if key in records[0]})
     if records[0].get("kernels") != records[1].get("kernels"):
         records[0]["kernels"] = "mixed"
     paths[0].write_text(json.dumps(records[0], indent=1, default=str))
