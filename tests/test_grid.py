@@ -335,3 +335,15 @@ def test_stored_rows_round_floats_to_what_the_csv_gives_back(tmp_path):
             return ""
 
     assert _result(_Job(), [{k: v for k, v in r.items() if k != "label"} for r in rows], 1.0)["rows"] == stored
+
+
+def test_timing_columns_are_stored_to_three_digits_and_nothing_else_is():
+    """The seconds a row records (runner.rows.TIMING_COLUMNS, the ones the regeneration tests leave out) keep 3
+    significant digits; a column of the same value under another name keeps 8."""
+    from vdtutorial.runner.rows import TIMING_COLUMNS, TIMING_DIGITS, stored_rows
+    from vdtutorial.trpo import TIMING_COLUMNS as TRPO_TIMING
+
+    assert TRPO_TIMING == TIMING_COLUMNS == ("collect_s", "update_s", "wall_time") and TIMING_DIGITS == 3
+    row = {"collect_s": 0.123456789, "update_s": 1234.5678, "wall_time": 98765.4321, "mean_kl": 0.123456789}
+    assert stored_rows([row]) == [{"collect_s": 0.123, "update_s": 1230.0, "wall_time": 98800.0,
+                                   "mean_kl": 0.12345679}]

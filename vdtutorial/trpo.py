@@ -44,13 +44,12 @@ from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, MLPBaseline, 
 from vdtutorial.fisher import GaussNewtonFisher
 from vdtutorial.fisher import supports as supports_gauss_newton
 from vdtutorial.policy import obs_to_tensor, on_device, torch_device
+from vdtutorial.runner.rows import TIMING_COLUMNS  # the columns of a log row that measure time (stored to 3 digits)
 from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search
 
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
 #: The ways :class:`TRPO` can compute Fisher-vector products (its ``fisher`` argument).
 FISHER_PRODUCTS = ("auto", "gauss_newton", "double_backward")
-#: The columns of a log row that measure time, so differ between two runs of the same iterations.
-TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -7,7 +7,9 @@ the same bytes.
 Floats are stored to :data:`SIGNIFICANT_DIGITS` significant digits (:func:`stored_rows`): a relative rounding of
 at most 5e-8, below the 1e-6 within which a re-run is compared with the shipped rows (tests/test_regeneration.py),
 and it shrinks the shipped CSVs by 41% (with all 17 digits: 12.0 MB; with 8: 7.1 MB; 7 would give 6.4 MB;
-measured 2026-12-03 on the results then shipped). The grid
+measured 2026-12-03 on the results then shipped). The timing columns are stored to 3 digits
+(:data:`TIMING_COLUMNS`): all shipped CSVs together took 10.4 MB with them at 8 digits and 8.7 MB at 3
+(measured 2026-12-03). The grid
 hands experiments their rows already rounded (:func:`vdtutorial.runner.grid.run_grid`), so what an experiment
 derives from its rows is what :func:`read_rows` gives back from its CSV.
 
@@ -28,17 +30,25 @@ def results_file(folder: str | Path, name: str) -> Path:
 
 #: Significant digits of a stored float (module docstring).
 SIGNIFICANT_DIGITS = 8
+#: The columns that time a row (TRPO's seconds collecting and updating, and the run's seconds so far). They
+#: measure the machine's load, which moves them by far more than a part in a thousand from one run to the next,
+#: so they are stored to :data:`TIMING_DIGITS` significant digits; no result is derived from them, and the
+#: regeneration tests leave them out.
+TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
+TIMING_DIGITS = 3
 
 
-def stored_value(value):
-    """``value`` as a CSV stores it: a float rounded to :data:`SIGNIFICANT_DIGITS` significant digits, anything
-    else as it is. Rounding again changes nothing."""
-    return float(f"{value:.{SIGNIFICANT_DIGITS}g}") if isinstance(value, float) else value
+def stored_value(value, digits: int = SIGNIFICANT_DIGITS):
+    """``value`` as a CSV stores it: a float rounded to ``digits`` significant digits, anything else as it is.
+    Rounding again changes nothing."""
+    return float(f"{value:.{digits}g}") if isinstance(value, float) else value
 
 
 def stored_rows(rows: list[dict]) -> list[dict]:
-    """``rows`` as :func:`write_csv` stores them and :func:`read_rows` reads them back (:func:`stored_value`)."""
-    return [{key: stored_value(value) for key, value in row.items()} for row in rows]
+    """``rows`` as :func:`write_csv` stores them and :func:`read_rows` reads them back (:func:`stored_value`;
+    :data:`TIMING_COLUMNS` to :data:`TIMING_DIGITS` digits)."""
+    return [{key: stored_value(value, TIMING_DIGITS if key in TIMING_COLUMNS else SIGNIFICANT_DIGITS)
+             for key, value in row.items()} for row in rows]
 
 
 def write_csv(path: Path, rows: list[dict]) -> Path:
