@@ -23,17 +23,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from matplotlib.figure import Figure
 
 import vdtutorial
 from vdtutorial.demos import Demos, demo_path
 from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
-from matplotlib.figure import Figure
-
 from vdtutorial.experiments.curves import curves_from_rows
 from vdtutorial.experiments.effects import welch_interval
+from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.measures import measures_of
 from vdtutorial.experiments.plots import figure_title, plot_measures
-from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_seeds,
                                          default_trpo_config, pretrained_policy)
@@ -191,7 +190,7 @@ def is_material(comparison: list[dict]) -> bool:
 
 def plot(rows: list[dict], seeds) -> Figure:
     """The RL runs from both kinds of checkpoint, one panel per measure (the paper's count, the success rate,
-    the length of a successful trajectory), per seed thin behind the mean; the stopped checkpoints dashed."""
+    the env steps per trajectory), per seed thin behind the mean; the stopped checkpoints dashed."""
     rl = [r for r in rows if r["stage"] == "RL"]
     title = figure_title("Image pre-training stopped on the held-out loss against the fixed 40 epochs: the first "
                          "TRPO iterations (reaching)", OBS, _rl_steps_of(rows), len(seeds))
@@ -235,7 +234,7 @@ def format_comparison(record: dict) -> str:
     consequence = ("material: fig4_rgbd is to be made again from the stopped checkpoints" if record["material"] else
                    "not material (no interval of the successes excludes zero): fig4_rgbd keeps its fixed 40 epochs "
                    "and this comparison is its control")
-    return "\n".join([*(f"{METHOD_LABELS[c['method']]:>3} {c['measure']}: stopped {np.round(c['stopped'], 3).tolist()}, "
-                     f"fixed {np.round(c['fixed'], 3).tolist()}; stopped - fixed {c['estimate']:+.3g} "
-                     f"({c['low']:+.3g} to {c['high']:+.3g})" for c in record["comparison"]),
-                      f"{len(record['seeds'])} seeds, 95% Welch intervals; {consequence}"])
+    lines = [f"{METHOD_LABELS[c['method']]:>3} {c['measure']}: stopped {np.round(c['stopped'], 3).tolist()}, "
+             f"fixed {np.round(c['fixed'], 3).tolist()}; stopped - fixed {c['estimate']:+.3g} "
+             f"({c['low']:+.3g} to {c['high']:+.3g})" for c in record["comparison"]]
+    return "\n".join([*lines, f"{len(record['seeds'])} seeds, 95% Welch intervals; {consequence}"])
