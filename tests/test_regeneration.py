@@ -43,9 +43,10 @@ RESULTS = DATA_DIR / "results"
 #: One run per shipped figure and control: (folder, method, seed); the run's data set is the figure's first.
 #: The two image results are covered by their runs without pre-training: the image pipeline end to end (camera,
 #: RGBD encoding, convolutional policy, TRPO with the whole-batch Gauss-Newton Fisher and with the 10% one)
-#: without a start-sigma fit, which would cost about 10 minutes per pre-trained image run.
+#: without a start-sigma fit, which would cost about 10 minutes per pre-trained image run. One run of the seeds 5-9
+#: merged into Figs. 4-7 from another CPU (only seeds 0-2 have shipped checkpoints, so one without pre-training).
 RUNS = [("fig4", "vd", 0), ("fig5", "vd", 0), ("fig6", "vd", 0), ("fig7", "vd", 0), ("fig4", "none", 1),
-        ("fig4_state_fvp0.1", "l2", 0), ("fig4_rgbd", "none", 0), ("fig4_rgbd_fvp0.1", "none", 0)]
+        ("fig4_state_fvp0.1", "l2", 0), ("fig4_rgbd", "none", 0), ("fig4_rgbd_fvp0.1", "none", 0), ("fig7", "none", 5)]
 COUNTS = ("iteration", "env_steps", "successes", "episodes", "failures")
 FLOATS = ("mean_return", "mean_kl", "entropy", "surrogate_improvement", "line_search")
 #: The image run whose first :data:`IMAGE_ITERATIONS` iterations pin the exact speed-ups of the image update
