@@ -68,6 +68,20 @@ def test_experiment_fvp_subsample_reaches_the_runs_and_the_record(tmp_path, caps
     assert "--fvp-subsample 0.5" in record["command"]
 
 
+def test_experiment_methods_runs_only_those_and_records_them(tmp_path, capsys):
+    """More seeds of some curves (issue 44's image VD and L2) run without the figure's other methods, and the
+    record's command names the methods, so that it remakes this folder and no more."""
+    from vdtutorial.experiments.figures import figure_specs
+
+    specs = figure_specs("fig4", seeds=(3, 4), obs_mode="rgbd", methods=("l2", "vd"))
+    assert [(spec.method, spec.seed) for spec in specs] == [("vd", 3), ("vd", 4), ("l2", 3), ("l2", 4)]
+    main(["experiment", "fig4", "--seeds", "0", "--steps", "200", "--methods", "expert", "--workers", "1",
+          "--out", str(tmp_path)])
+    record = json.loads((tmp_path / "fig4.json").read_text())
+    assert {run["method"] for run in record["runs"]} == {"expert"}
+    assert "--methods expert" in record["command"]
+
+
 # -- errors: one line, exit code 2, no traceback ----------------------------------------------------------
 def _one_line_error(capsys, argv) -> str:
     try:
@@ -83,6 +97,8 @@ def _one_line_error(capsys, argv) -> str:
 @pytest.mark.parametrize("argv, expected", [
     (["demos", "--samples", "-5"], "--samples: expected a positive integer, got '-5'"),
     (["demos", "--samples", "0"], "expected a positive integer"),
+    (["experiment", "fig5", "--methods", "none"], "fig5 has no method none: its methods are vd, l2"),
+    (["experiment", "table1", "--methods", "vd"], "--methods is an option of the figures"),
     (["demos", "--noise", "-0.1"], "--noise: expected a finite number >= 0"),
     (["demos", "--noise", "nan"], "--noise: expected a finite number >= 0"),
     (["demos", "--task", "push"], "invalid choice: 'push'"),

@@ -278,6 +278,15 @@ def _cmd_experiment(args) -> None:
         raise CommandError("--kl-weighting is an option of table1 (the figures use the pre-training default)")
     if args.choices is not None and args.name != "free_choices":
         raise CommandError("--choices is an option of free_choices")
+    if args.methods is not None:
+        from vdtutorial.experiments.figures import FIGURES
+
+        if args.name not in FIGURES:
+            raise CommandError("--methods is an option of the figures")
+        unknown = sorted(set(args.methods) - set(FIGURES[args.name][1]))
+        if unknown:
+            raise CommandError(f"{args.name} has no method {', '.join(unknown)}: its methods are "
+                               f"{', '.join(FIGURES[args.name][1])}")
     if args.name in PRE_RL_ONLY:
         ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
                                             ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),
@@ -306,7 +315,7 @@ def _cmd_experiment(args) -> None:
             result = getattr(experiments, args.name)(
                 seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs, out=args.out, workers=args.workers,
                 trpo_config=trpo_config, backend=backend, address=args.address, state_dir=args.state_dir,
-                restart=args.restart, device=args.device, **resumable)
+                restart=args.restart, device=args.device, methods=args.methods, **resumable)
         except experiments.ResumeError as exc:
             raise CommandError(str(exc)) from exc
     _print_summary(result)
@@ -483,6 +492,9 @@ def _add_experiment_commands(sub) -> None:
     p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1", *STATE_ONLY, *GRID_ONLY),
                    help="which figure or table")
     p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0; beyond: 0-4)")
+    p.add_argument("--methods", nargs="+", choices=("vd", "l2", "none", "expert"), default=None,
+                   help="figures only: run only these of the figure's methods (default: all; e.g. more seeds of "
+                        "vd and l2, merged later with rederive --add)")
     p.add_argument("--choices", nargs="+", default=None, metavar="ROW",
                    help="free_choices only: the rows to run besides the default one (default: all of them)")
     p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5; beyond and free_choices: 1e5)")

@@ -22,11 +22,21 @@ FIGURES = {
 }
 
 
-def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode: str = "state") -> list[RunSpec]:
+def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode: str = "state",
+                 methods=None) -> list[RunSpec]:
     """The runs of a figure: each pre-training method on each data set, the other methods once, every one
     for every seed (defaults: :func:`~vdtutorial.experiments.runs.default_seeds`,
-    :func:`~vdtutorial.experiments.runs.default_total_steps`)."""
-    _, methods, task, datasets, label = FIGURES[name]
+    :func:`~vdtutorial.experiments.runs.default_total_steps`). ``methods`` keeps only those of the figure's
+    methods (``"vd"``, ``"l2"``, ``"none"``, ``"expert"``): extra seeds of some curves, merged later with
+    ``rederive --add``."""
+    _, all_methods, task, datasets, label = FIGURES[name]
+    if methods is None:
+        methods = all_methods
+    else:
+        unknown = sorted(set(methods) - set(all_methods))
+        if unknown:
+            raise ValueError(f"{name} has no method {', '.join(unknown)}: its methods are {', '.join(all_methods)}")
+        methods = tuple(method for method in all_methods if method in methods)
     seeds = tuple(default_seeds() if seeds is None else seeds)
     total_steps = default_total_steps() if total_steps is None else total_steps
     specs = []
@@ -40,16 +50,17 @@ def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode
     return specs
 
 
-def _figure(name: str, seeds, total_steps, obs_mode, out, workers, **kwargs) -> ExperimentResult:
+def _figure(name: str, seeds, total_steps, obs_mode, out, workers, methods=None, **kwargs) -> ExperimentResult:
     """The runs of figure ``name`` (:func:`figure_specs`) handed to :func:`run_experiment`."""
-    specs = figure_specs(name, seeds, total_steps, obs_mode)
+    specs = figure_specs(name, seeds, total_steps, obs_mode, methods)
     trpo_config = kwargs.get("trpo_config")
     fvp_subsample = None  # in the command only when it is not the default
     if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config(obs_mode).fvp_subsample:
         fvp_subsample = trpo_config.fvp_subsample
     command = experiment_command(name, seeds=tuple(dict.fromkeys(spec.seed for spec in specs)),
                                  steps=specs[0].total_steps, obs=obs_mode, workers=workers, out=out,
-                                 fvp_subsample=fvp_subsample)
+                                 fvp_subsample=fvp_subsample,
+                                 methods=None if methods is None else tuple(dict.fromkeys(s.method for s in specs)))
     return run_experiment(name, specs, FIGURES[name][0], out, workers, command=command, **kwargs)
 
 
@@ -61,7 +72,14 @@ def fig4(seeds=None, total_steps: int | None = None, obs_mode: str = "state", ou
     ``kwargs`` go to :func:`run_experiment` (``demos_root``, ``checkpoints_root``, configs, ``window``, and
     where and how the runs execute: ``backend``, ``address``, ``state_dir``, ``restart``, ``progress``)."""
     return _figure("fig4", seeds, total_steps, obs_mode, out, workers,
-                   summarise=lambda curves: {"vd_reaches_l2_final": vd_reaches_l2_final(curves)}, **kwargs)
+                   summarise=_headline, **kwargs)
+
+
+def _headline(curves) -> dict:
+    """Fig. 4's headline comparison, where the experiment ran both VD and L2 (``methods`` may leave one out)."""
+    if not {METHOD_LABELS["vd"], METHOD_LABELS["l2"]} <= set(curves):
+        return {}
+    return {"vd_reaches_l2_final": vd_reaches_l2_final(curves)}
 
 
 def fig5(seeds=None, total_steps: int | None = None, obs_mode: str = "state", out=None, workers: int = 2,
