@@ -108,16 +108,42 @@ def test_a_missing_pybullet_says_how_to_get_it_on_this_machine():
     assert f"pybullet is not installed: {install_check.missing_pybullet()}" in run.stderr.splitlines()[-1]
 
 
-@pytest.mark.parametrize("system, machine, version, advice", [
-    ("Linux", "x86_64", (3, 11), "a prebuilt wheel"), ("Linux", "x86_64", (3, 13), "--no-build-isolation"),
-    ("Linux", "aarch64", (3, 11), "--no-build-isolation"), ("Darwin", "arm64", (3, 12), "conda-forge"),
-    ("Windows", "AMD64", (3, 11), "conda-forge"),
+@pytest.mark.parametrize("system, machine, version, route, advice", [
+    ("Linux", "x86_64", (3, 11), "Linux x86_64", "a prebuilt wheel"),
+    ("Linux", "x86_64", (3, 13), "Linux x86_64", "--no-build-isolation"),
+    ("Linux", "aarch64", (3, 11), "Linux aarch64", "pip install --no-deps -e ."),
+    ("Darwin", "arm64", (3, 12), "macOS arm64", "conda env create -f environment.yml"),
+    ("Darwin", "x86_64", (3, 12), "macOS x86_64", "conda env create -f environment.yml"),
+    ("Windows", "AMD64", (3, 11), "Windows", "conda env create -f environment.yml"),
 ])
-def test_the_advice_for_a_missing_pybullet_follows_the_platform(monkeypatch, system, machine, version, advice):
+def test_the_advice_for_a_missing_pybullet_follows_the_platform(monkeypatch, system, machine, version, route, advice):
     monkeypatch.setattr(install_check.platform, "system", lambda: system)
     monkeypatch.setattr(install_check.platform, "machine", lambda: machine)
     monkeypatch.setattr(install_check.sys, "version_info", (*version, 0, "final", 0))
+    monkeypatch.setattr(install_check, "on_colab", lambda: False)
+    assert install_check.platform_route() == route
     assert advice in install_check.missing_pybullet()
+
+
+def test_colab_is_sent_to_the_readme_cell(monkeypatch):
+    monkeypatch.setattr(install_check, "on_colab", lambda: True)
+    assert install_check.platform_route() == "Google Colab"
+    assert "Colab cell" in install_check.missing_pybullet()
+
+
+def test_install_check_and_the_readme_give_each_platform_the_same_route():
+    """One route per platform, the same in the README's table and in chapter 00's check."""
+    readme = (ROOT / "README.md").read_text()
+    for name, route in install_check.ROUTES.items():
+        row = next((line for line in readme.splitlines() if line.startswith(f"| {name} |")), None)
+        assert row is not None, f"the README's install table has no row for {name}"
+        cell = row.split("|")[2]
+        if route.startswith("conda-forge"):
+            assert "conda-forge" in cell and install_check.CONDA_ROUTE in readme
+        elif name == "Google Colab":
+            assert "cell" in cell
+        else:
+            assert "pip" in cell
 
 
 def test_an_image_env_without_numpy_support_warns_once(monkeypatch):

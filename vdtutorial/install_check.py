@@ -4,10 +4,11 @@ Each check returns ``(status, item, message)`` rows: ``ok``, ``note`` (worth kno
 ``FIX`` (with the command that fixes it). Nothing raises, so a learner sees every problem at once.
 
 pybullet is the piece that differs most between machines. Its last release (3.2.7) has prebuilt wheels
-only for Linux x86_64 and CPython up to 3.11; elsewhere pip compiles it from source (a few minutes, a C++
-compiler and the Python headers needed), or conda-forge supplies a build. A source build made in pip's
-isolated build environment has no numpy in it, so ``pybullet.isNumpyEnabled()`` is 0 and every camera
-image comes back as Python lists, about 3x slower (chapter 01 renders them).
+only for Linux x86_64 and CPython up to 3.11. So each platform has one route (:func:`platform_route`, the
+README's table): pip on Linux x86_64 (compiling pybullet once on Python 3.12+), the README's cell on Colab,
+and conda-forge's build on macOS, Windows and Linux aarch64. A source build made in pip's isolated build
+environment has no numpy in it, so ``pybullet.isNumpyEnabled()`` is 0 and every camera image comes back as
+Python lists, which costs time on every image (docs/install.md gives the measured cost).
 
 Taught in chapter 00.
 """
@@ -26,11 +27,27 @@ PYBULLET_RELEASE = "3.2.7"
 #: and pip's cache must not hand back a wheel an earlier isolated build left there.
 NUMPY_BUILD = ("pip install numpy setuptools wheel && pip install --force-reinstall --no-cache-dir "
                f"--no-build-isolation pybullet=={PYBULLET_RELEASE}")
+#: The conda-forge route (environment.yml), for the platforms where PyPI has no pybullet wheel: the package goes
+#: in with --no-deps, so that pip never replaces a conda package.
+CONDA_ROUTE = "conda env create -f environment.yml && conda activate vdtutorial && pip install --no-deps -e ."
+#: Each platform's route, as the README's install table names the platform.
+ROUTES = {
+    "Linux x86_64": "pip (README: the two commands)",
+    "Google Colab": "the README's Colab cell",
+    "macOS arm64": f"conda-forge: `{CONDA_ROUTE}`",
+    "macOS x86_64": f"conda-forge: `{CONDA_ROUTE}`",
+    "Windows": f"conda-forge: `{CONDA_ROUTE}`",
+    "Linux aarch64": f"conda-forge: `{CONDA_ROUTE}`",
+}
 
 
 def on_colab() -> bool:
-    """Whether this kernel runs on Google Colab (its ``google.colab`` module is importable)."""
-    return importlib.util.find_spec("google.colab") is not None
+    """Whether this kernel runs on Google Colab (its ``google.colab`` module is importable). Looking for it
+    imports the ``google`` namespace package, which an environment without any Google package lacks."""
+    try:
+        return importlib.util.find_spec("google.colab") is not None
+    except ModuleNotFoundError:
+        return False
 
 
 def pybullet_route(distribution=None) -> str:
@@ -51,17 +68,29 @@ def _conda_record(name: str) -> bool:
     return any((Path(sys.prefix) / "conda-meta").glob(f"{name}-[0-9]*.json"))
 
 
+def platform_route() -> str:
+    """This machine's row of :data:`ROUTES`: ``"Google Colab"``, ``"Linux x86_64"``, ``"macOS arm64"``, ..."""
+    if on_colab():
+        return "Google Colab"
+    system, machine = platform.system(), platform.machine().lower()
+    if system == "Darwin":
+        return "macOS arm64" if machine == "arm64" else "macOS x86_64"
+    if system == "Windows":
+        return "Windows"
+    return "Linux x86_64" if machine in ("x86_64", "amd64") else "Linux aarch64"
+
+
 def missing_pybullet() -> str:
     """What to run when pybullet is missing, for this platform and Python (the package's import says it too)."""
-    system, machine, minor = platform.system(), platform.machine(), sys.version_info[:2]
-    if system == "Linux" and machine == "x86_64" and minor <= (3, 11):
+    route = platform_route()
+    if route == "Google Colab":
+        return "run the README's Colab cell (it compiles pybullet with numpy support, about 5 minutes)"
+    if route == "Linux x86_64" and sys.version_info[:2] <= (3, 11):
         return f"`pip install pybullet=={PYBULLET_RELEASE}` (a prebuilt wheel)"
-    if system == "Linux":
+    if route == "Linux x86_64":
         return (f"build it once (about 3-7 minutes on 2 cores; it needs g++ and the Python headers, e.g. "
-                f"`sudo apt install g++ python3-dev`): `{NUMPY_BUILD}`; or use conda-forge: "
-                "`conda install -c conda-forge pybullet`")
-    return ("use conda-forge, which has builds for macOS and Windows: `conda env create -f environment.yml` "
-            "(or `conda install -c conda-forge pybullet`)")
+                f"`sudo apt install g++ python3-dev`): `{NUMPY_BUILD}`")
+    return f"PyPI has no pybullet wheel for {route}: use conda-forge's build, `{CONDA_ROUTE}`"
 
 
 def pybullet_checks() -> list[tuple[str, str, str]]:
@@ -77,10 +106,13 @@ def pybullet_checks() -> list[tuple[str, str, str]]:
     if pybullet.isNumpyEnabled():
         rows.append(("ok", "pybullet numpy", "built with numpy support (fast camera images)"))
     else:
-        fix = NUMPY_BUILD if route == "source" or sys.version_info[:2] > (3, 11) else \
-            "pip install --force-reinstall --no-cache-dir pybullet"
-        rows.append(("FIX", "pybullet numpy", f"built WITHOUT numpy support: camera images are about 3x slower. "
-                     f"Rebuild it: `{fix}`"))
+        if route == "conda" or platform_route() not in ("Linux x86_64", "Google Colab"):
+            fix = "conda install -c conda-forge --force-reinstall pybullet"
+        elif route == "source" or sys.version_info[:2] > (3, 11):
+            fix = NUMPY_BUILD
+        else:
+            fix = "pip install --force-reinstall --no-cache-dir pybullet"
+        rows.append(("FIX", "pybullet numpy", f"built WITHOUT numpy support: {NO_NUMPY_COST} Rebuild it: `{fix}`"))
     return rows
 
 
@@ -104,13 +136,11 @@ def package_checks(names=("numpy", "torch", "gymnasium", "meshcat", "matplotlib"
 
 
 def python_check() -> tuple[str, str, str]:
-    """The Python version, and the pybullet route it implies."""
+    """The Python version, and this platform's route."""
     version = platform.python_version()
     if sys.version_info[:2] < (3, 11):
         return ("FIX", "python", f"{version}: vdtutorial needs Python 3.11 or newer")
-    detail = "pybullet has a prebuilt wheel here" if sys.version_info[:2] == (3, 11) else \
-        "pybullet is built from source once (or comes from conda-forge)"
-    return ("ok", "python", f"{version} ({sys.executable}); {detail}")
+    return ("ok", "python", f"{version} ({sys.executable}); {platform_route()}: {ROUTES[platform_route()]}")
 
 
 def front_end_checks() -> list[tuple[str, str, str]]:
