@@ -483,6 +483,28 @@ def _add_measurement_commands(sub) -> None:
     p.set_defaults(func=_cmd_bench)
 
 
+def _add_execution_options(p) -> None:
+    """Where and how an experiment's runs execute: the backend, saved states, the device."""
+    p.add_argument("--backend", choices=("local", "ray"), default=None,
+                   help="where the runs execute: local worker processes (default), or Ray, one task per run "
+                        "with one CPU (pip install -e '.[cluster]'); without --address Ray starts locally "
+                        "with --workers CPUs")
+    p.add_argument("--address", default=None,
+                   help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); the nodes "
+                        "need the same install and the same paths (shared storage)")
+    p.add_argument("--state-dir", default=None,
+                   help="folder of the runs' saved states, which make the experiment resumable: rerun the same "
+                        "command to continue it (default: OUT/runs; on a cluster, a folder on shared storage)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard the saved states of this experiment's runs and start them again")
+    p.add_argument("--checkpoint-every", type=positive_int, default=None, metavar="K",
+                   help="TRPO iterations between two saved states of a run (default 10)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                   help="figures only: where the runs' TRPO updates run (default cpu; cuda: a CUDA GPU, shared by the "
+                        "workers). Rollouts and pre-training stay on the CPU. Results on a GPU differ from the CPU's "
+                        "by floating-point rounding, so the rows are not the shipped ones bit for bit")
+
+
 def _add_experiment_commands(sub) -> None:
     """The paper's experiments and what reads them, the main job, and the chapters written out."""
     p = sub.add_parser("experiment", help="the paper's experiments: fig4, fig5, fig6, fig7, table1; beyond "
@@ -507,24 +529,7 @@ def _add_experiment_commands(sub) -> None:
     p.add_argument("--kl-weighting", choices=("per-set", "fixed"), default="per-set",
                    help="table1 only: the N dividing the KL term, each data set's own (per-set, eq. 3 as written; "
                         "default) or the 8000-sample set's for all (fixed)")
-    p.add_argument("--backend", choices=("local", "ray"), default=None,
-                   help="where the runs execute: local worker processes (default), or Ray, one task per run "
-                        "with one CPU (pip install -e '.[cluster]'); without --address Ray starts locally "
-                        "with --workers CPUs")
-    p.add_argument("--address", default=None,
-                   help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); the nodes "
-                        "need the same install and the same paths (shared storage)")
-    p.add_argument("--state-dir", default=None,
-                   help="folder of the runs' saved states, which make the experiment resumable: rerun the same "
-                        "command to continue it (default: OUT/runs; on a cluster, a folder on shared storage)")
-    p.add_argument("--restart", action="store_true",
-                   help="discard the saved states of this experiment's runs and start them again")
-    p.add_argument("--checkpoint-every", type=positive_int, default=None, metavar="K",
-                   help="TRPO iterations between two saved states of a run (default 10)")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
-                   help="figures only: where the runs' TRPO updates run (default cpu; cuda: a CUDA GPU, shared by the "
-                        "workers). Rollouts and pre-training stay on the CPU. Results on a GPU differ from the CPU's "
-                        "by floating-point rounding, so the rows are not the shipped ones bit for bit")
+    _add_execution_options(p)
     p.set_defaults(func=_cmd_experiment, on_interrupt="the finished runs and the saved states of the others are "
                    "kept: rerun the same command (without --restart) to continue")
 
