@@ -20,10 +20,10 @@ CONDA_NAMES = {"pytorch-cpu": "torch", "meshcat-python": "meshcat", "ray-default
 
 
 def _conda_requirements() -> dict[str, str]:
-    """environment.yml's conda-forge packages (not its pip section), by their PyPI names, with their ranges."""
+    """environment.yml's conda-forge packages, by their PyPI names, with their ranges."""
     text = (ROOT / "environment.yml").read_text()
     listed = {}
-    for line in text[text.index("dependencies:"):text.index("- pip:")].splitlines():
+    for line in text[text.index("dependencies:"):].splitlines():
         if m := re.match(r"\s*-\s+([A-Za-z0-9_.\-]+)(\S*)", line):
             listed[CONDA_NAMES.get(m[1], m[1])] = m[2]
     return {name: spec for name, spec in listed.items() if name not in ("python", "pip")}
@@ -37,8 +37,6 @@ def test_environment_yml_matches_pyproject():
     listed = _conda_requirements()
     assert set(listed) == set(wanted)
     assert {k: v for k, v in listed.items() if k != "pybullet"} == {k: v for k, v in wanted.items() if k != "pybullet"}
-    pip_section = (ROOT / "environment.yml").read_text().split("- pip:")[1]
-    assert [line.strip() for line in pip_section.splitlines() if line.strip()] == ["- -e ."]
 
 
 def test_the_lock_pins_every_requirement_within_its_range():
