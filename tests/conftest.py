@@ -29,6 +29,18 @@ def require_recorded_numerics(record_path: Path) -> None:
                     f"({', '.join(f'{k} {made[k]}' for k in here)}); this is {', '.join(f'{k} {v}' for k, v in here.items())}")
 
 
+def require_locked(package: str) -> None:
+    """Skip, naming both versions, unless ``package`` is the version constraints-py311.txt locks: the shipped
+    statistics (intervals from scipy's t, "seeds needed" from its noncentral t) were computed under it, and
+    another release may round them otherwise (CI's Colab leg has scipy 1.16)."""
+    import importlib.metadata as md
+
+    lock = Path(__file__).resolve().parent.parent / "constraints-py311.txt"
+    locked = dict(line.split("==") for line in lock.read_text().splitlines() if "==" in line and not line.startswith("#"))
+    if md.version(package) != locked[package]:
+        pytest.skip(f"the shipped statistics were computed with {package} {locked[package]}; this is {md.version(package)}")
+
+
 @pytest.fixture(autouse=True)
 def one_thread():
     """Tiny tensors: one torch thread avoids synchronisation costs on a shared 2-core machine."""

@@ -13,6 +13,7 @@ from vdtutorial.experiments.effects import (CLAIMS, claim_effects, claim_table, 
                                             seeds_needed,
                                             steps_to_reach_interval, verdict, welch_interval, welch_p_value)
 from vdtutorial.settings import DATA_DIR
+from conftest import require_locked
 
 
 def test_welch_interval_matches_scipy():
@@ -112,6 +113,7 @@ SHIPPED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig
 
 @pytest.mark.parametrize("folder", SHIPPED)
 def test_results_page_claim_tables_are_generated_from_the_shipped_rows(folder):
+    require_locked("scipy")
     record = json.loads((DATA_DIR / "results" / folder / f"{folder.split('_')[0]}.json").read_text())
     rows = read_rows(results_file(DATA_DIR / "results" / folder, record['experiment']))
     window = int(re.search(r"over (\d+) iterations", record["smoothing"])[1])

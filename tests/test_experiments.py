@@ -1,6 +1,7 @@
 """Tests of vdtutorial.experiments: tiny real runs of each method (seeded, no writes to data/), and the
 numbers the figures and Table I report, on hand-made inputs."""
 import csv
+import importlib.util
 import json
 import math
 import os
@@ -116,7 +117,8 @@ def test_results_do_not_depend_on_the_number_of_workers_or_the_backend(tmp_path)
     specs = [RunSpec("l2", "reach", 2000, 0.5, seed, "state", STEPS, "L2") for seed in (0, 1)]
     specs.append(RunSpec("none", "reach", None, None, 0, "state", STEPS, "none"))
     results = {}
-    for backend, workers in (("local", 1), ("local", 2), ("ray", 2)):
+    backends = (("local", 1), ("local", 2)) + ((("ray", 2),) if importlib.util.find_spec("ray") else ())
+    for backend, workers in backends:
         out = tmp_path / f"{backend}{workers}"
         results[backend, workers] = run_experiment("tiny", specs, "tiny", out, workers, checkpoints_root=out,
                                                    pretrain_config=TINY, window=2, command="test", backend=backend,
@@ -125,10 +127,11 @@ def test_results_do_not_depend_on_the_number_of_workers_or_the_backend(tmp_path)
         assert len(list((out / "runs").glob("*.csv"))) == 3 and len(list((out / "runs").glob("*.pt"))) == 3
     reference = _without_wall_time(results["local", 1].rows)
     assert _without_wall_time(results["local", 2].rows) == reference
-    assert _without_wall_time(results["ray", 2].rows) == reference
     record = json.loads((tmp_path / "local2" / "tiny.json").read_text())
     assert record["command"] == "test" and len(record["runs"]) == 3 and record["pretrain_config"]["epochs"] == 1
-    assert json.loads((tmp_path / "ray2" / "tiny.json").read_text())["backend"] == "ray"
+    if ("ray", 2) in results:  # Ray is an extra (cluster, test): Colab's leg goes without it
+        assert _without_wall_time(results["ray", 2].rows) == reference
+        assert json.loads((tmp_path / "ray2" / "tiny.json").read_text())["backend"] == "ray"
     # the combined CSV reads back into the same curves
     rows = read_rows(results_file(tmp_path / "local2", "tiny"))
     again = curves_from_rows(rows, "successes", window=2)["L2"]

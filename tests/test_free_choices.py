@@ -12,6 +12,7 @@ from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.results import results_file
 from vdtutorial.experiments.runs import METHOD_LABELS
 from vdtutorial.settings import DATA_DIR, QUICK
+from conftest import require_locked
 
 
 def test_each_row_changes_one_value_of_one_method():
@@ -83,6 +84,7 @@ SHIPPED = DATA_DIR / "results" / "free_choices"
 
 
 def test_the_shipped_table_is_rederived_from_its_rows_and_is_on_the_results_page():
+    require_locked("scipy")
     record = json.loads((SHIPPED / "free_choices.json").read_text())
     assert not record["quick"] and record["steps"] == 100_000 and len(record["seeds"]) >= 3
     names = [c["name"] for c in record["choices"]]

@@ -7,6 +7,7 @@ import pytest
 
 from vdtutorial.experiments import pretrain_stop as ps
 from vdtutorial.pretrain import default_config
+from conftest import require_locked
 
 
 @pytest.mark.parametrize("reg", ["vd", "l2"])
@@ -75,6 +76,7 @@ def shipped():
 
 
 def test_the_shipped_comparison_is_its_rows_and_its_verdict_follows_the_rule(shipped):
+    require_locked("scipy")
     record, rows = shipped
     assert not record["quick"] and record["seeds"] == [0, 1, 2] and record["rl_steps"] == 50 * 200
     assert record["comparison"] == ps.compare(rows, record["seeds"])
