@@ -12,7 +12,9 @@ Taught in chapter 01.
 """
 from __future__ import annotations
 
+import functools
 import math
+import struct
 from importlib import resources
 
 import numpy as np
@@ -51,6 +53,26 @@ CAMERA_NEAR, CAMERA_FAR = 0.1, 3.0
 def arm_urdf_path() -> str:
     """Path of the shipped arm URDF (primitive shapes, Jaco 2 link lengths and joint limits)."""
     return str(resources.files("vdtutorial") / "assets" / "jaco6.urdf")
+
+
+@functools.cache
+def _c_floats(n: int) -> struct.Struct:
+    return struct.Struct(f"{n}f")
+
+
+def camera_buffers(rgba, zbuf) -> tuple[np.ndarray, np.ndarray]:
+    """Flat uint8 and float32 arrays of ``pybullet.getCameraImage``'s RGBA and z-buffer when pybullet
+    returns them as flat sequences of Python ints and floats (a build without numpy support, such as a
+    source build in pip's isolated environment; a build with it returns numpy arrays already).
+
+    numpy converts such sequences one element at a time (``np.asarray``, ``np.fromiter``); C buffers are
+    cheaper: ``bytearray`` packs the 0-255 ints into bytes, ``struct`` packs the floats as C floats, and
+    numpy wraps the bytes without another pass. The values are identical bit for bit: the colours are
+    bytes in pybullet, and its depths are C floats widened to Python floats, so narrowing them back to
+    float32 is exact. The z-buffer's array is read-only (:meth:`JacoScene.render_rgbd` only reads it).
+    """
+    return (np.frombuffer(bytearray(rgba), dtype=np.uint8),
+            np.frombuffer(_c_floats(len(zbuf)).pack(*zbuf), dtype=np.float32))
 
 
 class JacoScene:
@@ -166,6 +188,8 @@ class JacoScene:
             s, s, self._view, self._proj, shadow=0, renderer=p.ER_TINY_RENDERER,
             flags=p.ER_NO_SEGMENTATION_MASK, physicsClientId=self.client,
         )
+        if not isinstance(rgba, np.ndarray):  # pybullet without numpy support: flat tuples
+            rgba, zbuf = camera_buffers(rgba, zbuf)
         rgba = np.asarray(rgba, dtype=np.uint8).reshape(s, s, 4)
         zbuf = np.asarray(zbuf, dtype=np.float32).reshape(s, s)
         depth = CAMERA_FAR * CAMERA_NEAR / (CAMERA_FAR - (CAMERA_FAR - CAMERA_NEAR) * zbuf)
