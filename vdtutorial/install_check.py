@@ -27,6 +27,9 @@ PYBULLET_RELEASE = "3.2.7"
 #: and pip's cache must not hand back a wheel an earlier isolated build left there.
 NUMPY_BUILD = ("pip install numpy setuptools wheel && pip install --force-reinstall --no-cache-dir "
                f"--no-build-isolation pybullet=={PYBULLET_RELEASE}")
+#: What images without numpy support cost a learner (docs/install.md: the rgbd env at 128 px, one process,
+#: with and without numpy inside pybullet, on the project's 2-core machine).
+NO_NUMPY_COST = "the image environments step about 1.6x slower (docs/install.md)."
 #: The conda-forge route (environment.yml), for the platforms where PyPI has no pybullet wheel: the package goes
 #: in with --no-deps, so that pip never replaces a conda package.
 CONDA_ROUTE = "conda env create -f environment.yml && conda activate vdtutorial && pip install --no-deps -e ."

@@ -47,10 +47,10 @@ pybullet = _import_quietly()
 @functools.cache
 def warn_if_images_are_slow() -> None:
     """Warn once per process when this pybullet has no numpy support: camera images then come back as
-    Python sequences, about 3x slower (a source build made in pip's isolated environment, see
-    :mod:`vdtutorial.install_check`, which prints the command that rebuilds it)."""
+    Python sequences, which cost time on every image (a source build made in pip's isolated environment, see
+    :mod:`vdtutorial.install_check`, which prints the cost and the command that rebuilds it)."""
     if not pybullet.isNumpyEnabled():
-        from vdtutorial.install_check import NUMPY_BUILD
+        from vdtutorial.install_check import NO_NUMPY_COST, NUMPY_BUILD
 
-        warnings.warn("pybullet was built without numpy support: camera images are about 3x slower. "
+        warnings.warn(f"pybullet was built without numpy support: {NO_NUMPY_COST} "
                       f"Rebuild it with: {NUMPY_BUILD}", stacklevel=3)
