@@ -279,14 +279,14 @@ def _cmd_experiment(args) -> None:
     if args.choices is not None and args.name != "free_choices":
         raise CommandError("--choices is an option of free_choices")
     if args.methods is not None:
-        from vdtutorial.experiments.figures import FIGURES
+        from vdtutorial.experiments.figures import FIGURES, figure_methods
 
         if args.name not in FIGURES:
             raise CommandError("--methods is an option of the figures")
-        unknown = sorted(set(args.methods) - set(FIGURES[args.name][1]))
-        if unknown:
-            raise CommandError(f"{args.name} has no method {', '.join(unknown)}: its methods are "
-                               f"{', '.join(FIGURES[args.name][1])}")
+        try:
+            figure_methods(args.name, args.methods)
+        except ValueError as exc:
+            raise CommandError(str(exc)) from exc
     if args.name in PRE_RL_ONLY:
         ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
                                             ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),

@@ -22,6 +22,18 @@ FIGURES = {
 }
 
 
+def figure_methods(name: str, methods=None) -> tuple[str, ...]:
+    """Figure ``name``'s methods in its own order, only those of ``methods`` when given (ValueError for a
+    method the figure does not have)."""
+    all_methods = FIGURES[name][1]
+    if methods is None:
+        return all_methods
+    unknown = sorted(set(methods) - set(all_methods))
+    if unknown:
+        raise ValueError(f"{name} has no method {', '.join(unknown)}: its methods are {', '.join(all_methods)}")
+    return tuple(method for method in all_methods if method in methods)
+
+
 def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode: str = "state",
                  methods=None) -> list[RunSpec]:
     """The runs of a figure: each pre-training method on each data set, the other methods once, every one
@@ -29,14 +41,8 @@ def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode
     :func:`~vdtutorial.experiments.runs.default_total_steps`). ``methods`` keeps only those of the figure's
     methods (``"vd"``, ``"l2"``, ``"none"``, ``"expert"``): extra seeds of some curves, merged later with
     ``rederive --add``."""
-    _, all_methods, task, datasets, label = FIGURES[name]
-    if methods is None:
-        methods = all_methods
-    else:
-        unknown = sorted(set(methods) - set(all_methods))
-        if unknown:
-            raise ValueError(f"{name} has no method {', '.join(unknown)}: its methods are {', '.join(all_methods)}")
-        methods = tuple(method for method in all_methods if method in methods)
+    _, _, task, datasets, label = FIGURES[name]
+    methods = figure_methods(name, methods)
     seeds = tuple(default_seeds() if seeds is None else seeds)
     total_steps = default_total_steps() if total_steps is None else total_steps
     specs = []
