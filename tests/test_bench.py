@@ -1,5 +1,9 @@
 """The fine-tuning benchmark: real TRPO iterations on the shipped pruned VD policy, timed."""
+import pytest
+
 from vdtutorial.bench import bench_finetune
+
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 
 
 def test_bench_finetune_times_both_fisher_products_and_the_subsample(capsys):

@@ -20,6 +20,8 @@ from vdtutorial.runner.rows import read_rows, results_file
 from vdtutorial.settings import QUICK
 from vdtutorial.trpo import TIMING_COLUMNS
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 
 def _rows(level):
     rng = np.random.default_rng(0)

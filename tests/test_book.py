@@ -26,6 +26,8 @@ from vdtutorial import html_book, offline_assets, viz
 from vdtutorial.__main__ import build_parser
 from vdtutorial.settings import SHIPPED_DIR
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 ROOT = Path(__file__).resolve().parent.parent
 SCREENSHOTS = ROOT / "book-screenshots"
 TESTED_CHAPTERS = ("00", "04", "07")
@@ -121,27 +123,39 @@ def test_book_command_line():
 # -- the book in a browser -------------------------------------------------------------------------------
 class Chromium:
     """Headless Chromium driven over the DevTools protocol, with every request recorded and the network
-    blocked (no name resolves, and every connection goes to a closed local port)."""
+    blocked (no name resolves, and every connection goes to a closed local port). One browser per page: in a
+    browser that has already shown a page with meshcat scenes, the next page's first screenshot took 25-30 s on
+    a quiet 2-core machine and over 120 s under load (a fresh browser: under 1 s)."""
 
-    def __init__(self, executable: str, profile: Path):
+    def __init__(self, executable: str):
         import websocket
 
+        self.profile = Path(tempfile.mkdtemp(prefix="vdtutorial-chromium-"))
         self.process = subprocess.Popen(
             [executable, "--headless", "--no-sandbox", "--no-first-run", "--remote-debugging-port=0",
-             f"--user-data-dir={profile}", "--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9",
+             f"--user-data-dir={self.profile}", "--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9",
              "--window-size=1280,900", "--enable-unsafe-swiftshader", "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        port_file, deadline = profile / "DevToolsActivePort", time.monotonic() + 60
+        port_file, deadline = self.profile / "DevToolsActivePort", time.monotonic() + 60
         while not (port_file.is_file() and len(port_file.read_text().split()) == 2):
             assert self.process.poll() is None and time.monotonic() < deadline, "chromium did not start"
             time.sleep(0.1)
         port, path = port_file.read_text().split()
-        self.socket = websocket.create_connection(f"ws://127.0.0.1:{port}{path}", timeout=120, suppress_origin=True)
+        self.socket = websocket.create_connection(f"ws://127.0.0.1:{port}{path}", timeout=300, suppress_origin=True)
         self.calls, self.requests = 0, []
         target = self.call("Target.createTarget", url="about:blank")["targetId"]
         self.session = self.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
         self.call("Network.enable")
         self.call("Page.enable")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.socket.close()
+        self.process.kill()
+        self.process.wait()
+        shutil.rmtree(self.profile, ignore_errors=True)
 
     def call(self, method, **params):
         self.calls += 1
@@ -168,14 +182,15 @@ class Chromium:
             assert time.monotonic() < deadline, f"timed out waiting for {what}"
             time.sleep(0.5)
 
+    def show(self, page: Path, what: str):
+        """Open ``page`` and wait until it has loaded and is READY (equations, widgets, scenes)."""
+        self.call("Page.navigate", url=page.as_uri())
+        self.wait_for("document.readyState === 'complete'", f"{page.name} to load")
+        self.wait_for(READY, what)
+
     def screenshot(self, clip=None) -> bytes:
         params = {"format": "png", **({"clip": {**clip, "scale": 1}} if clip else {})}
         return base64.b64decode(self.call("Page.captureScreenshot", **params)["data"])
-
-    def close(self):
-        self.socket.close()
-        self.process.kill()
-        self.process.wait()
 
 
 #: Everything the page shows that MathJax should have typeset: the rendered Markdown cells' text.
@@ -225,55 +240,51 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
         assert f'href="{chapter.page}"' in index and chapter.title in index
         assert html.escape(html_book.learning_goals(SHIPPED_DIR / "notebooks" / "TEACHING.md")[chapter.number]) in index
     SCREENSHOTS.mkdir(exist_ok=True)
-    profile = Path(tempfile.mkdtemp(prefix="vdtutorial-chromium-"))
-    browser = Chromium(executable, profile)
-    try:
-        browser.call("Page.navigate", url=book.index.as_uri())
-        browser.wait_for("document.readyState === 'complete'", "the index to load")
-        browser.wait_for(READY, "the index's titles typeset")
+    with Chromium(executable) as browser:
+        browser.show(book.index, "the index's titles typeset")
         assert not RAW_TEX.findall(browser.evaluate("document.body.innerText")), "the index shows raw TeX"
         assert not [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
-        for k, chapter in enumerate(book.chapters):
-            page = book.index.parent / chapter.page
-            source = page.read_text()
-            assert not re.search(r"""<(?:script|link|img|iframe)\b[^>]*\b(?:src|href)\s*=\s*["']?(?:https?:)?//""", source)
-            browser.requests.clear()
-            browser.call("Page.navigate", url=page.as_uri())
-            browser.wait_for("document.readyState === 'complete'", f"{chapter.page} to load")
-            browser.wait_for(READY, f"{chapter.page}'s equations, widgets and scenes")
-
-            remote = [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
-            assert not remote, f"{chapter.page} asked the network for {remote}"
-            assert browser.evaluate("document.querySelectorAll('.MathJax').length") > 0, "no equation typeset"
-            assert browser.evaluate("document.querySelectorAll('.MathJax_Error, .merror').length") == 0
-            leftover = RAW_TEX.findall(browser.evaluate(MARKDOWN_TEXT))
-            assert not leftover, f"{chapter.page} shows raw TeX: {leftover[:5]}"
-            previous = book.chapters[k - 1].page if k else None
-            links = browser.evaluate("[...document.querySelectorAll('nav.vdbook a')].map(a => a.getAttribute('href'))")
-            assert "index.html" in links and (previous is None or previous in links)
-
-            scenes = browser.evaluate("document.querySelectorAll('iframe').length")
-            for frame in range(scenes):
-                pixels = _scene_pixels(browser, frame)
-                red, green, blue = np.moveaxis(pixels, 2, 0)
-                arm = np.mean(pixels.max(axis=2) < 0.2)  # the arm's dark links; the sky is lighter
-                cup = np.mean((red > 0.6) & (green < 0.35) & (blue < 0.35))
-                table = np.mean((red > 0.4) & (red - blue > 0.15) & (green > blue))  # lit tan, not the blue sky
-                assert arm > 0.005 and cup > 0.001 and table > 0.05, \
-                    f"scene {frame} of {chapter.page}: arm {arm:.1%}, cup {cup:.2%}, table {table:.1%} of the picture"
-            if chapter.number in ("00", "07"):
-                assert scenes > 0, f"{chapter.page} shows a meshcat scene"
-            if chapter.number == "07":
-                assert browser.evaluate("document.querySelectorAll('.jupyter-widgets .widget-slider').length") > 0, \
-                    "chapter 07's smoothing slider is drawn"
-                assert browser.evaluate("document.querySelectorAll('.vdbook-needs-kernel').length") > 0
-                assert browser.evaluate(
-                    "[...document.querySelectorAll('.jupyter-widgets img')].every(i => i.naturalWidth > 100)")
-
-            first = ("iframe" if scenes else ".jupyter-widgets" if chapter.number == "07" else ".MathJax_Display, .MathJax")
-            browser.evaluate(f"document.querySelector('{first}').scrollIntoView({{block: 'center'}})")
-            time.sleep(1.0)
+    for k, chapter in enumerate(book.chapters):
+        page = book.index.parent / chapter.page
+        assert not re.search(r"""<(?:script|link|img|iframe)\b[^>]*\b(?:src|href)\s*=\s*["']?(?:https?:)?//""",
+                             page.read_text())
+        with Chromium(executable) as browser:
+            browser.show(page, f"{chapter.page}'s equations, widgets and scenes")
+            _check_chapter_page(browser, chapter, previous=book.chapters[k - 1].page if k else None)
             (SCREENSHOTS / f"{page.stem}.png").write_bytes(browser.screenshot())
-    finally:
-        browser.close()
-        shutil.rmtree(profile, ignore_errors=True)
+
+
+def _check_chapter_page(browser, chapter, previous):
+    """What a reader must see on a chapter's page: no network, typeset equations, the book's links, meshcat
+    scenes with the arm, the cup and the table in them, and chapter 07's slider; it ends scrolled to the first
+    scene, widget or equation, for the screenshot."""
+    remote = [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
+    assert not remote, f"{chapter.page} asked the network for {remote}"
+    assert browser.evaluate("document.querySelectorAll('.MathJax').length") > 0, "no equation typeset"
+    assert browser.evaluate("document.querySelectorAll('.MathJax_Error, .merror').length") == 0
+    leftover = RAW_TEX.findall(browser.evaluate(MARKDOWN_TEXT))
+    assert not leftover, f"{chapter.page} shows raw TeX: {leftover[:5]}"
+    links = browser.evaluate("[...document.querySelectorAll('nav.vdbook a')].map(a => a.getAttribute('href'))")
+    assert "index.html" in links and (previous is None or previous in links)
+
+    scenes = browser.evaluate("document.querySelectorAll('iframe').length")
+    for frame in range(scenes):
+        pixels = _scene_pixels(browser, frame)
+        red, green, blue = np.moveaxis(pixels, 2, 0)
+        arm = np.mean(pixels.max(axis=2) < 0.2)  # the arm's dark links; the sky is lighter
+        cup = np.mean((red > 0.6) & (green < 0.35) & (blue < 0.35))
+        table = np.mean((red > 0.4) & (red - blue > 0.15) & (green > blue))  # lit tan, not the blue sky
+        assert arm > 0.005 and cup > 0.001 and table > 0.05, \
+            f"scene {frame} of {chapter.page}: arm {arm:.1%}, cup {cup:.2%}, table {table:.1%} of the picture"
+    if chapter.number in ("00", "07"):
+        assert scenes > 0, f"{chapter.page} shows a meshcat scene"
+    if chapter.number == "07":
+        assert browser.evaluate("document.querySelectorAll('.jupyter-widgets .widget-slider').length") > 0, \
+            "chapter 07's smoothing slider is drawn"
+        assert browser.evaluate("document.querySelectorAll('.vdbook-needs-kernel').length") > 0
+        assert browser.evaluate(
+            "[...document.querySelectorAll('.jupyter-widgets img')].every(i => i.naturalWidth > 100)")
+
+    first = ("iframe" if scenes else ".jupyter-widgets" if chapter.number == "07" else ".MathJax_Display, .MathJax")
+    browser.evaluate(f"document.querySelector('{first}').scrollIntoView({{block: 'center'}})")
+    time.sleep(1.0)

@@ -19,6 +19,8 @@ pytest.importorskip("nbgrader", reason="nbgrader is the classroom extra (Colab's
 from vdtutorial import classroom, sandbox
 from vdtutorial.__main__ import main
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 CHAPTERS = [name for name in classroom.chapters() if name != "00_start_here"]
 SOLUTION = re.compile(r"### BEGIN SOLUTION\n(.*?)### END SOLUTION", re.S)
 HIDDEN = re.compile(r"### BEGIN HIDDEN TESTS\n(.*?)### END HIDDEN TESTS", re.S)

@@ -15,6 +15,8 @@ from vdtutorial.__main__ import build_parser, main
 from vdtutorial.demos import Demos
 from vdtutorial.settings import DATA_DIR, QUICK
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 REPO = Path(__file__).resolve().parent.parent
 
 

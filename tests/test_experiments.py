@@ -25,6 +25,8 @@ from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.trpo import TIMING_COLUMNS
 from vdtutorial.vd import svdo_layers
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 #: A shipped data set (read only) and budgets that keep each run to about a second.
 DEMOS = demo_path("reach", 2000, 0.5, 0)
 TINY = PretrainConfig(epochs=1)

@@ -14,6 +14,8 @@ from vdtutorial.experiments.runs import METHOD_LABELS
 from vdtutorial.settings import DATA_DIR, QUICK
 from conftest import require_locked
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 
 def test_each_row_changes_one_value_of_one_method():
     for choice in fc.CHOICES:

@@ -27,6 +27,8 @@ from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import QUICK
 from vdtutorial.trpo import TIMING_COLUMNS, TRPOConfig
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 #: 20 iterations per TRPO run, a state saved after each: a wide window in which to kill the grid.
 COMMAND = [sys.executable, "-m", "vdtutorial", "experiment", "fig4", "--seeds", "0", "--steps", "4000",
            "--workers", "2", "--checkpoint-every", "1"]

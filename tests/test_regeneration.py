@@ -38,6 +38,8 @@ from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.settings import DATA_DIR
 from vdtutorial.trpo import TRPOConfig
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 ITERATIONS = 3
 RESULTS = DATA_DIR / "results"
 #: One run per shipped figure and control: (folder, method, seed); the run's data set is the figure's first.

@@ -12,6 +12,8 @@ from vdtutorial.__main__ import main
 from vdtutorial.chapters import EditedFilesError, shipped_files
 from vdtutorial.settings import BOOK_RECORD, SHIPPED_DIR
 
+pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
+
 
 def _sources(path):
     return [(c.cell_type, c.source) for c in nbformat.read(path, as_version=4).cells]
