@@ -255,7 +255,7 @@ def test_settings_differences_name_nested_settings():
 
 
 def test_the_whole_batch_fisher_is_the_default_everywhere_and_10_percent_the_control():
-    assert default_trpo_config("state") == default_trpo_config("rgbd") == TRPOConfig()
+    assert default_trpo_config() == TRPOConfig()  # one setting for state and images: the function takes no mode
     assert TRPOConfig().fvp_subsample == 1.0 and SUBSAMPLED_FISHER_CONFIG.fvp_subsample == 0.1
 
 

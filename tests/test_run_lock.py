@@ -84,7 +84,7 @@ def test_a_job_waits_while_another_process_holds_its_run_then_continues_from_its
     plain = _grid(tmp_path / "plain")
     spec = _specs()[0]
     state = tmp_path / "runs" / f"{spec.name}.pt"
-    job = Job(spec, state, state.with_suffix(".csv"), None, None, None, default_trpo_config("state"), 1)
+    job = Job(spec, state, state.with_suffix(".csv"), None, None, None, default_trpo_config(), 1)
     other = RunLock(state)
     assert other.acquire()
     steps = grid_module.run_job(job)

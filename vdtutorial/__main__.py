@@ -308,7 +308,7 @@ def _cmd_experiment(args) -> None:
     _device(args)  # refused before any run starts
     trpo_config = None
     if args.fvp_subsample is not None:
-        trpo_config = dataclasses.replace(experiments.default_trpo_config(args.obs), fvp_subsample=args.fvp_subsample)
+        trpo_config = dataclasses.replace(experiments.default_trpo_config(), fvp_subsample=args.fvp_subsample)
     with warnings.catch_warnings():
         warnings.simplefilter("default")
         try:

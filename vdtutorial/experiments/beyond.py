@@ -241,15 +241,15 @@ class RLJob(SavedInStateDir):
         """What :func:`~vdtutorial.experiments.runs.finetune_steps` saves with the run (its run_settings)."""
         path = data_set_path(self.variant, self.out)
         return run_settings(self.variant.reg, TASK, Demos.load(path, task=TASK).meta, "state", self.seed, NUM_ENVS,
-                            self.pretrain_config, default_trpo_config("state"), path)
+                            self.pretrain_config, default_trpo_config(), path)
 
     @property
     def rows_expected(self) -> int:
-        return math.ceil(self.steps / default_trpo_config("state").steps_per_iter)
+        return math.ceil(self.steps / default_trpo_config().steps_per_iter)
 
     @property
     def env_steps(self) -> int:
-        return self.rows_expected * default_trpo_config("state").steps_per_iter
+        return self.rows_expected * default_trpo_config().steps_per_iter
 
     def tags(self) -> dict:
         return _tags(self.variant, self.seed, RL)
@@ -326,7 +326,7 @@ def rl_stage(rows: list[dict], seeds, steps: int, configs: dict[str, PretrainCon
     for effect in summary["claims"]:
         effect["reading"] = READINGS[effect["holm_verdict"]]
     return figure, {"steps": steps, "window": window, "metric": "successes", "measures": list(measures_of("successes")),
-                    "trpo_config": asdict(default_trpo_config("state")),
+                    "trpo_config": asdict(default_trpo_config()),
                     "pretrain_config": {reg: asdict(config) for reg, config in configs.items()}, **summary}
 
 

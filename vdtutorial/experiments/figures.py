@@ -61,7 +61,7 @@ def _figure(name: str, seeds, total_steps, obs_mode, out, workers, methods=None,
     specs = figure_specs(name, seeds, total_steps, obs_mode, methods)
     trpo_config = kwargs.get("trpo_config")
     fvp_subsample = None  # in the command only when it is not the default
-    if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config(obs_mode).fvp_subsample:
+    if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config().fvp_subsample:
         fvp_subsample = trpo_config.fvp_subsample
     command = experiment_command(name, seeds=tuple(dict.fromkeys(spec.seed for spec in specs)),
                                  steps=specs[0].total_steps, obs=obs_mode, workers=workers, out=out,

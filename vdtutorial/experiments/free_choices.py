@@ -103,7 +103,7 @@ def _job(method: str, label: str, seed: int, steps: int, config: PretrainConfig,
     spec = RunSpec(method, TASK, SAMPLES, NOISE, seed, "state", steps, label)
     folder = state_dir / row
     return _RowJob(spec, folder / f"{spec.name}.pt", folder / f"{spec.name}.csv", DATA_DIR.resolve(),
-                   (out / "checkpoints" / row).resolve(), config, default_trpo_config("state"),
+                   (out / "checkpoints" / row).resolve(), config, default_trpo_config(),
                    CHECKPOINT_EVERY if checkpoint_every is None else checkpoint_every, row=row)
 
 
@@ -190,7 +190,7 @@ def free_choices(names=CHOICE_NAMES, seeds=None, steps: int | None = None, out=N
               "seeds": list(seeds), "steps": steps, "window": window, "num_envs": NUM_ENVS,
               "choices": [asdict(c) for c in CHOICES if c.name in names],
               "pretrain_config": {m: asdict(default_config(m)) for m in ("vd", "l2")},
-              "trpo_config": asdict(default_trpo_config("state")), "wall_time_s": time.perf_counter() - start,
+              "trpo_config": asdict(default_trpo_config()), "wall_time_s": time.perf_counter() - start,
               "table": table(summary["claims"], names, command), **summary,
               "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__,
                            "python": sys.version.split()[0]}}

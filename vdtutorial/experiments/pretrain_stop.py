@@ -66,7 +66,7 @@ def configs() -> dict[str, dict[str, PretrainConfig]]:
 
 def rl_steps() -> int:
     """RL env steps per run: 50 TRPO iterations (quick mode: 2)."""
-    return budget(50, 2) * default_trpo_config(OBS).steps_per_iter
+    return budget(50, 2) * default_trpo_config().steps_per_iter
 
 
 def pre_rl_episodes() -> int:
@@ -150,7 +150,7 @@ def jobs(seeds, out: Path, state_dir: Path) -> list:
                 spec = RunSpec(reg, TASK, SAMPLES, NOISE, seed, OBS, rl_steps(), f"{METHOD_LABELS[reg]}, {kind}")
                 stem = state_dir / "rl" / f"{kind.replace(' ', '-')}_{spec.name}"
                 rl.append(_RLJob(spec, Path(f"{stem}.pt"), Path(f"{stem}.csv"), DATA_DIR.resolve(),
-                                 out.resolve(), config, default_trpo_config(OBS), CHECKPOINT_EVERY,
+                                 out.resolve(), config, default_trpo_config(), CHECKPOINT_EVERY,
                                  kind=kind))
     return pre + rl
 

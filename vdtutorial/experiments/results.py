@@ -131,7 +131,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     # absolute paths: a worker (a Ray task on another node, say) may start elsewhere
     demos_root = Path(demos_root or DATA_DIR).resolve()
     checkpoints_root = Path(checkpoints_root if checkpoints_root is not None else out).resolve()
-    trpo_config = trpo_config or default_trpo_config(specs[0].obs_mode)
+    trpo_config = trpo_config or default_trpo_config()
     task = specs[0].task
     metric = METRIC[task]
     jobs = [Job(spec, state_dir.resolve() / f"{spec.name}.pt", state_dir.resolve() / f"{spec.name}.csv", demos_root,

@@ -48,9 +48,9 @@ CHECKPOINT_EVERY = 10
 DATA_SET_KEYS = ("task", "samples", "noise", "seed", "method", "rounds_done")
 
 
-def default_trpo_config(obs_mode: str) -> TRPOConfig:
-    """TRPO settings of the experiments: ``TRPOConfig()`` in every observation mode, i.e. Fisher-vector
-    products on the whole batch, as rllab (which the paper used) has computed them since 2016.
+def default_trpo_config() -> TRPOConfig:
+    """TRPO settings of the experiments, the same for state and image observations: ``TRPOConfig()``, i.e.
+    Fisher-vector products on the whole batch, as rllab (which the paper used) has computed them since 2016.
     :data:`SUBSAMPLED_FISHER_CONFIG` is the labelled 10% control."""
     return TRPOConfig()
 
@@ -227,7 +227,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
                          f"got {method!r}")
     total_steps = default_total_steps() if total_steps is None else total_steps
     cfg = pretrain_config or default_config(method if method != "none" else "l2", obs_mode)
-    trpo_config = trpo_config or default_trpo_config(obs_mode)
+    trpo_config = trpo_config or default_trpo_config()
     data = None if method == "none" else load_demos(task, demos)
     source = Path(demos) if isinstance(demos, (str, Path)) else None
     settings = run_settings(method, task, data and data.meta, obs_mode, seed, num_envs, cfg, trpo_config, source)
@@ -283,7 +283,7 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
         which names its checkpoints and its runs' settings.
     pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
         ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.
-    trpo_config: default :func:`default_trpo_config` of ``obs_mode``.
+    trpo_config: default :func:`default_trpo_config`.
     checkpoints_root: where pre-trained checkpoints are looked up and saved (see :func:`pretrained_policy`).
     state_path, checkpoint_every: make the run resumable (see :func:`finetune_steps`).
     device: where TRPO's updates run (see :func:`finetune_steps`).
