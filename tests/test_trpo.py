@@ -11,7 +11,7 @@ from torch import nn
 from torch.distributions import Normal, kl_divergence
 
 from vdtutorial.bench import pendulum_policy
-from vdtutorial.policy import obs_to_tensor
+from vdtutorial.policy import make_policy, obs_to_tensor
 from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, _iteration_seeds, gae, make_vec_env
 from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search
 
@@ -266,6 +266,17 @@ def test_pruned_weights_stay_exactly_zero_and_frozen_parameters_fixed():
     assert torch.all(w[policy.mask == 0] == 0)
     assert not torch.equal(w[policy.mask == 1], weight_before[policy.mask == 1])  # the live weights moved
     assert torch.equal(policy.log_sigma2, frozen)
+
+
+def test_a_policy_that_samples_weight_noise_is_refused_at_the_first_update():
+    """A sparse-VD policy in training mode draws new weights on every call, so KL(old, new) != 0 before the step."""
+    box = spaces.Box(-1.0, 1.0, (1,), np.float32)
+    torch.manual_seed(0)
+    noisy = make_policy(box, 1, variational=True, kind="mlp").train()
+    with pytest.raises(ValueError, match="deterministic policy"):
+        TRPO(noisy, make_env(), TRPOConfig(steps_per_iter=40), seed=0).iterate()
+    row = TRPO(noisy.eval(), make_env(), TRPOConfig(steps_per_iter=40), seed=0).iterate()
+    assert np.isfinite(row["mean_kl"])
 
 
 def test_success_and_episode_accounting():

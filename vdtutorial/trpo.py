@@ -191,6 +191,17 @@ def _subset(obs: TensorObs, index: torch.Tensor) -> TensorObs:
     return {key: x[index] for key, x in obs.items()} if isinstance(obs, dict) else obs[index]
 
 
+def _check_deterministic(policy: nn.Module, obs: TensorObs) -> None:
+    """TRPO measures its trust region from the old policy: KL(old, new) must be 0 before the step, so
+    ``distribution(obs)`` must be a function of (obs, parameters). A sparse-VD policy in training mode draws new
+    weight noise on every call and breaks this without any error downstream; asked twice, it answers twice."""
+    with torch.no_grad():
+        first, second = policy.distribution(obs), policy.distribution(obs)
+    if not (torch.equal(first.mean, second.mean) and torch.equal(first.stddev, second.stddev)):
+        raise ValueError("TRPO needs a deterministic policy: two evaluations on the same observations differ "
+                         "(a sparse-VD policy in training mode samples weight noise: call prune_() or eval() first)")
+
+
 def _check_vec_env(env: gymnasium.vector.VectorEnv, steps_per_iter: int) -> None:
     mode = env.metadata.get("autoreset_mode")
     if mode != gymnasium.vector.AutoresetMode.SAME_STEP:
@@ -441,6 +452,7 @@ class TRPO:
         self.iteration_index = 0
         self.rows: list[dict] = []
         self.update_split: dict[str, float] = {}  # CPU seconds of the last update's parts (see update)
+        self.checked_deterministic = False  # by the first update (see _check_deterministic)
         _check_vec_env(self.env, self.config.steps_per_iter)
 
     # -- 1. collect, 2. advantages ----------------------------------------------------------------
@@ -467,7 +479,11 @@ class TRPO:
         """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the
         step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
         outcome (accepted fraction of the full step, or "rejected"); the CPU seconds of its parts: ``update_split``.
-        On ``device``: the policy and the batch move there for the step, and the policy back to the CPU after it."""
+        On ``device``: the policy and the batch move there for the step, and the policy back to the CPU after it.
+        The first update checks that the policy is deterministic (ValueError if not)."""
+        if not self.checked_deterministic:
+            _check_deterministic(self.policy, _subset(batch.obs, slice(0, 8)))
+            self.checked_deterministic = True
         with on_device(self.policy, self.device):
             return self._step(batch.to(self.device))
 
