@@ -191,7 +191,7 @@ def _subset(obs: TensorObs, index: torch.Tensor) -> TensorObs:
     return {key: x[index] for key, x in obs.items()} if isinstance(obs, dict) else obs[index]
 
 
-def _check_deterministic(policy: nn.Module, obs: TensorObs) -> None:
+def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
     """TRPO measures its trust region from the old policy: KL(old, new) must be 0 before the step, so
     ``distribution(obs)`` must be a function of (obs, parameters). A sparse-VD policy in training mode draws new
     weight noise on every call and breaks this without any error downstream; asked twice, it answers twice."""
@@ -200,6 +200,7 @@ def _check_deterministic(policy: nn.Module, obs: TensorObs) -> None:
     if not (torch.equal(first.mean, second.mean) and torch.equal(first.stddev, second.stddev)):
         raise ValueError("TRPO needs a deterministic policy: two evaluations on the same observations differ "
                          "(a sparse-VD policy in training mode samples weight noise: call prune_() or eval() first)")
+    return True
 
 
 def _check_vec_env(env: gymnasium.vector.VectorEnv, steps_per_iter: int) -> None:
@@ -432,9 +433,6 @@ class TRPO:
         ``"double_backward"`` for any policy; ``"auto"`` (default): the first when the policy supports it.
     device: where :meth:`update` runs ("cpu"; "cuda": a GPU, see :func:`vdtutorial.policy.torch_device`);
         rollouts, the baseline and checkpoints stay on the CPU.
-
-    With small policies, ``torch.set_num_threads(1)`` is much faster on a busy 2-core machine:
-    extra threads only contend for the cores.
     """
 
     def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
@@ -444,8 +442,7 @@ class TRPO:
         _check_fisher(fisher, policy)
         self.policy, self.fisher, self.device = policy, fisher, torch_device(device)
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
-        self.config = config or TRPOConfig()
-        self.seed = seed
+        self.config, self.seed = config or TRPOConfig(), seed
         self.baseline_features = baseline_features or default_baseline_features
         self.baseline = _make_baseline(self.config, self.env, self.baseline_features, seed)
         self.params = [p for p in policy.parameters() if p.requires_grad]
@@ -482,8 +479,7 @@ class TRPO:
         On ``device``: the policy and the batch move there for the step, and the policy back to the CPU after it.
         The first update checks that the policy is deterministic (ValueError if not)."""
         if not self.checked_deterministic:
-            _check_deterministic(self.policy, _subset(batch.obs, slice(0, 8)))
-            self.checked_deterministic = True
+            self.checked_deterministic = _check_deterministic(self.policy, _subset(batch.obs, slice(0, 8)))
         with on_device(self.policy, self.device):
             return self._step(batch.to(self.device))
 
