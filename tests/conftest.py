@@ -1,14 +1,23 @@
 """Shared test settings."""
-import vdtutorial  # noqa: F401  (first: it pins the CPU kernels before numpy loads, see vdtutorial.kernels)
-
-import json
-import platform
+import importlib.util
+import runpy
 from pathlib import Path
 
-import gymnasium
-import numpy
-import pytest
-import torch
+# First, before numpy loads: the AVX2 kernel pins (vdtutorial/runner/kernels.py), which the shipped-row regeneration
+# tests need. The file runs by its path, since importing the package would load numpy first; the installed
+# package's copy is the one found, so this works from a wheel as from a clone.
+_PACKAGE = Path(importlib.util.find_spec("vdtutorial").submodule_search_locations[0])
+runpy.run_path(str(_PACKAGE / "runner" / "kernels.py"))["pin_vector_kernels"]()
+
+import json  # noqa: E402
+import platform  # noqa: E402
+
+import gymnasium  # noqa: E402
+import numpy  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+import vdtutorial  # noqa: E402
 
 
 def numerics_here() -> dict:

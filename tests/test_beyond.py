@@ -17,7 +17,7 @@ from vdtutorial.experiments import runs as runs_module
 from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, checkpoint_path, default_config
 from vdtutorial.runner.resume import ResumeError, check_resumable, read_run_state
 from vdtutorial.runner.rows import read_rows, results_file
-from vdtutorial.settings import QUICK
+from vdtutorial.settings import is_quick
 from vdtutorial.trpo import TIMING_COLUMNS
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
@@ -61,7 +61,7 @@ def small_run(tmp_path_factory):
     """beyond() in quick mode with 60 labels per data set and 400 RL steps per run, seeds 0 and 1, a state saved
     after every TRPO iteration; RL starts from the paper's fixed sigma (the figures' fitted one costs a fit per run;
     test_l2_on_a_data_set_made_in_rounds_starts_from_the_vd_spread fits it once)."""
-    if not QUICK:
+    if not is_quick():
         pytest.skip("runs the whole experiment: quick mode only")
     out = tmp_path_factory.mktemp("beyond") / "whole"
     with pytest.MonkeyPatch.context() as patch:
@@ -200,9 +200,9 @@ def test_the_shipped_experiment_has_five_seeds_intervals_and_is_on_the_results_p
     interval and a verdict; what DAgger's queries bought; and the results page shows the record's tables."""
     from pathlib import Path
 
-    from vdtutorial.settings import DATA_DIR
+    from vdtutorial.settings import data_dir
 
-    record = json.loads((DATA_DIR / "results" / "beyond" / "beyond.json").read_text())
+    record = json.loads((data_dir() / "results" / "beyond" / "beyond.json").read_text())
     assert not record["quick"] and len(record["seeds"]) >= 5 and record["rl"]["steps"] == 100_000
     assert record["samples"] == 8000 and len(record["pre_rl"]) == len(variants())
     for c in record["comparisons"] + record["rl"]["claims"]:

@@ -24,7 +24,7 @@ import pytest
 
 from vdtutorial import html_book, offline_assets, viz
 from vdtutorial.__main__ import build_parser
-from vdtutorial.settings import SHIPPED_DIR
+from vdtutorial.settings import shipped_dir
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 
@@ -103,8 +103,8 @@ def test_controls_that_need_the_kernel_are_greyed_out_and_say_so():
 
 def test_chapters_titles_and_learning_goals_come_from_the_chapters_and_teaching_notes():
     chapters = html_book.find_chapters()
-    assert [c.source.name for c in chapters] == sorted(p.name for p in (SHIPPED_DIR / "notebooks").glob("*.ipynb"))
-    goals = html_book.learning_goals(SHIPPED_DIR / "notebooks" / "TEACHING.md")
+    assert [c.source.name for c in chapters] == sorted(p.name for p in (shipped_dir() / "notebooks").glob("*.ipynb"))
+    goals = html_book.learning_goals(shipped_dir() / "notebooks" / "TEACHING.md")
     assert set(goals) == {c.number for c in chapters}, "TEACHING.md's learning goals name every chapter once"
     assert all(len(goal.split()) >= 5 for goal in goals.values())
     four = html_book.find_chapters(["4"])[0]
@@ -238,7 +238,7 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
     index = book.index.read_text()
     for chapter in book.chapters:
         assert f'href="{chapter.page}"' in index and chapter.title in index
-        assert html.escape(html_book.learning_goals(SHIPPED_DIR / "notebooks" / "TEACHING.md")[chapter.number]) in index
+        assert html.escape(html_book.learning_goals(shipped_dir() / "notebooks" / "TEACHING.md")[chapter.number]) in index
     SCREENSHOTS.mkdir(exist_ok=True)
     with Chromium(executable) as browser:
         browser.show(book.index, "the index's titles typeset")

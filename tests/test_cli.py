@@ -13,7 +13,7 @@ import pytest
 
 from vdtutorial.__main__ import build_parser, main
 from vdtutorial.demos import Demos
-from vdtutorial.settings import DATA_DIR, QUICK
+from vdtutorial.settings import data_dir, is_quick
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 
@@ -50,7 +50,7 @@ def test_bad_arguments_are_refused():
         build_parser().parse_args(["experiment", "fig9"])
 
 
-@pytest.mark.skipif(not QUICK, reason="the full-size main job takes minutes; CI runs it in quick mode")
+@pytest.mark.skipif(not is_quick(), reason="the full-size main job takes minutes; CI runs it in quick mode")
 def test_reproduce_runs_the_whole_pipeline(tmp_path, capsys):
     main(["reproduce", "--quick", "--out", str(tmp_path)])
     printed = capsys.readouterr().out
@@ -60,7 +60,7 @@ def test_reproduce_runs_the_whole_pipeline(tmp_path, capsys):
     assert len(list((tmp_path / "runs").glob("*.csv"))) == 9  # 3 methods x 3 seeds
 
 
-@pytest.mark.skipif(not QUICK, reason="pre-trains VD and L2 policies: quick mode keeps it to seconds")
+@pytest.mark.skipif(not is_quick(), reason="pre-trains VD and L2 policies: quick mode keeps it to seconds")
 def test_experiment_fvp_subsample_reaches_the_runs_and_the_record(tmp_path, capsys):
     main(["experiment", "fig4", "--seeds", "0", "--steps", "200", "--fvp-subsample", "0.5", "--workers", "1",
           "--out", str(tmp_path)])
@@ -151,7 +151,7 @@ def test_missing_and_corrupt_files_give_one_line_with_the_real_regenerate_comman
 
 def test_truncated_checkpoint_gives_one_line(tmp_path, capsys):
     name = "reach_n8000_sigma0.5_vd_state_seed0.pt"
-    data = (DATA_DIR / "checkpoints" / name).read_bytes()
+    data = (data_dir() / "checkpoints" / name).read_bytes()
     (tmp_path / name).write_bytes(data[: len(data) // 2])
     err = _one_line_error(capsys, ["evaluate", "--checkpoints", str(tmp_path), "--episodes", "1"])
     assert "is corrupt or not a vdtutorial checkpoint" in err
@@ -159,7 +159,7 @@ def test_truncated_checkpoint_gives_one_line(tmp_path, capsys):
 
 
 def test_shipped_files_are_not_replaced_without_force(tmp_path, capsys):
-    shipped = DATA_DIR / "demos" / "reach_n8000_sigma0.5_seed0.npz"
+    shipped = data_dir() / "demos" / "reach_n8000_sigma0.5_seed0.npz"
     before = shipped.read_bytes()
     err = _one_line_error(capsys, ["demos", "--samples", "5", "--out", str(shipped)])
     assert "pass --force" in err and shipped.read_bytes() == before
@@ -216,11 +216,11 @@ def _digest(folder: Path) -> dict[str, str]:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-@pytest.mark.skipif(not QUICK, reason="runs every README example: quick mode keeps it to a minute")
+@pytest.mark.skipif(not is_quick(), reason="runs every README example: quick mode keeps it to a minute")
 def test_readme_examples_leave_data_untouched(tmp_path):
     examples = _readme_examples()
     assert {"demos", "pretrain", "evaluate", "experiment", "reproduce"} <= {e[0] for e in examples}
-    before = _digest(DATA_DIR)
+    before = _digest(data_dir())
     env = {**os.environ, "VDTUTORIAL_QUICK": "1", "VDTUTORIAL_RUNS": str(tmp_path / "runs"), "MPLBACKEND": "Agg"}
     for argv in examples:
         if argv[0] in ("digits", "bench", "notebooks"):  # notebooks writes outside runs/: tests/test_install_routes.py
@@ -228,6 +228,6 @@ def test_readme_examples_leave_data_untouched(tmp_path):
         argv = [SMALLER.get(prev, arg) for prev, arg in zip([None] + argv, argv)] + EXTRA.get(argv[0], [])
         result = subprocess.run([sys.executable, "-m", "vdtutorial", *argv], cwd=REPO, env=env, capture_output=True, text=True)
         assert result.returncode == 0, f"{argv}: {result.stderr[-2000:]}"
-    assert _digest(DATA_DIR) == before
+    assert _digest(data_dir()) == before
     written = {p.relative_to(tmp_path / "runs").parts[0] for p in (tmp_path / "runs").rglob("*") if p.is_file()}
     assert {"demos", "checkpoints"} <= written

@@ -100,18 +100,18 @@ def test_bad_arguments():
 
 def test_shipped_data_sets_load_and_match_a_fresh_generation():
     """Each shipped set is what its recorded command makes: its first samples are regenerated here."""
-    from vdtutorial.settings import DATA_DIR
+    from vdtutorial.settings import data_dir
 
     shipped = [("reach", n, s) for n, s in ((8000, 0.5), (4000, 0.5), (2000, 0.5), (8000, 0.25), (8000, 0.05))]
     shipped.append(("grasp", 8000, SHIPPED_NOISE["grasp"]))
     for task, n, sigma in shipped:
-        demos = Demos.load(demo_path(task, n, sigma, 0, root=DATA_DIR), task=task, samples=n, noise=sigma, seed=0)
+        demos = Demos.load(demo_path(task, n, sigma, 0, root=data_dir()), task=task, samples=n, noise=sigma, seed=0)
         assert len(demos) == n
     head = generate_demos("reach", 150, 0.5, seed=0, progress=False)
-    full = Demos.load(demo_path("reach", 8000, 0.5, 0, root=DATA_DIR))
+    full = Demos.load(demo_path("reach", 8000, 0.5, 0, root=data_dir()))
     np.testing.assert_array_equal(head.joints, full.joints[:150])
     np.testing.assert_array_equal(head.actions, full.actions[:150])
-    grasp = Demos.load(demo_path("grasp", 8000, SHIPPED_NOISE["grasp"], 0, root=DATA_DIR))
+    grasp = Demos.load(demo_path("grasp", 8000, SHIPPED_NOISE["grasp"], 0, root=data_dir()))
     grasp_head = generate_demos("grasp", 100, SHIPPED_NOISE["grasp"], seed=0, progress=False)
     np.testing.assert_array_equal(grasp_head.joints, grasp.joints[:100])
     np.testing.assert_array_equal(grasp_head.actions, grasp.actions[:100])
@@ -120,8 +120,8 @@ def test_shipped_data_sets_load_and_match_a_fresh_generation():
 def test_shipped_grasp_demonstrations_succeed_often():
     """Issue 9: at the shipped Sigma the noisy grasp expert succeeds in at least 30% of the episodes,
     so the data set holds final approaches that end on the cup."""
-    from vdtutorial.settings import DATA_DIR
+    from vdtutorial.settings import data_dir
 
-    meta = Demos.load(demo_path("grasp", 8000, SHIPPED_NOISE["grasp"], 0, root=DATA_DIR)).meta
+    meta = Demos.load(demo_path("grasp", 8000, SHIPPED_NOISE["grasp"], 0, root=data_dir())).meta
     assert meta["episodes"] > 1000
     assert meta["noisy_success_rate"] >= 0.3

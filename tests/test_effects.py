@@ -12,7 +12,7 @@ from vdtutorial.experiments import read_rows, results_file
 from vdtutorial.experiments.effects import (CLAIMS, claim_effects, claim_table, claims_overview, holm_rejections,
                                             seeds_needed,
                                             steps_to_reach_interval, verdict, welch_interval, welch_p_value)
-from vdtutorial.settings import DATA_DIR
+from vdtutorial.settings import data_dir
 from conftest import require_locked
 
 
@@ -114,8 +114,8 @@ SHIPPED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig
 @pytest.mark.parametrize("folder", SHIPPED)
 def test_results_page_claim_tables_are_generated_from_the_shipped_rows(folder):
     require_locked("scipy")
-    record = json.loads((DATA_DIR / "results" / folder / f"{folder.split('_')[0]}.json").read_text())
-    rows = read_rows(results_file(DATA_DIR / "results" / folder, record['experiment']))
+    record = json.loads((data_dir() / "results" / folder / f"{folder.split('_')[0]}.json").read_text())
+    rows = read_rows(results_file(data_dir() / "results" / folder, record['experiment']))
     window = int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
     effects = claim_effects(record["experiment"], rows, record["metric"], window)
     page = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
@@ -135,7 +135,7 @@ README_CLAIMS = {"Fig. 4, state": "fig4", "Fig. 4, images": "fig4_rgbd", "Fig. 5
 
 
 def test_readme_claims_table_is_generated_from_the_shipped_records():
-    records = {heading: json.loads(next((DATA_DIR / "results" / folder).glob("*.json")).read_text())
+    records = {heading: json.loads(next((data_dir() / "results" / folder).glob("*.json")).read_text())
                for heading, folder in README_CLAIMS.items()}
     table = claims_overview(records)
     assert table in (Path(__file__).resolve().parents[1] / "README.md").read_text()

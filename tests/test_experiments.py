@@ -319,10 +319,10 @@ def test_shipped_table1_rows_are_the_shipped_checkpoints(folder):
     ``sparsity_report`` measures on that checkpoint now."""
     from vdtutorial.pretrain import load_checkpoint
     from vdtutorial.runner.rows import stored_value
-    from vdtutorial.settings import DATA_DIR
+    from vdtutorial.settings import data_dir
     from vdtutorial.vd import sparsity_report
 
-    rows = read_rows(DATA_DIR / "results" / folder / "table1_per-set.csv")
+    rows = read_rows(data_dir() / "results" / folder / "table1_per-set.csv")
     assert {r["experiment"] for r in rows} == {row[0] for row in TABLE1}
     checked = 0
     for r in rows:
@@ -342,7 +342,7 @@ def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):
     """With no checkpoints_root, quick mode looks up and saves checkpoints under runs/quick, not data/."""
     from vdtutorial.experiments import runs
 
-    monkeypatch.setattr(runs, "RUNS_DIR", tmp_path)
+    monkeypatch.setenv("VDTUTORIAL_RUNS", str(tmp_path))
     monkeypatch.setattr(runs, "budget", lambda full, quick: quick)
     demos = generate_demos("reach", 40, 0.3, seed=1, progress=False)
     runs.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))

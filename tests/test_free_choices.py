@@ -11,7 +11,7 @@ from vdtutorial.experiments import read_rows
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.results import results_file
 from vdtutorial.experiments.runs import METHOD_LABELS
-from vdtutorial.settings import DATA_DIR, QUICK
+from vdtutorial.settings import data_dir, is_quick
 from conftest import require_locked
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
@@ -64,7 +64,7 @@ def test_unknown_rows_are_refused_by_name(tmp_path):
         fc.free_choices(names=("l2_tiny",), out=tmp_path)
 
 
-@pytest.mark.skipif(not QUICK, reason="runs the pipeline: quick mode only")
+@pytest.mark.skipif(not is_quick(), reason="runs the pipeline: quick mode only")
 def test_a_small_sweep_writes_its_table_and_resumes(tmp_path):
     out = tmp_path / "free_choices"
     record = fc.free_choices(names=("l2_small",), seeds=(0, 1), steps=400, out=out, workers=1, progress=False)
@@ -82,7 +82,7 @@ def test_a_small_sweep_writes_its_table_and_resumes(tmp_path):
     assert again["table"] == record["table"]
 
 
-SHIPPED = DATA_DIR / "results" / "free_choices"
+SHIPPED = data_dir() / "results" / "free_choices"
 
 
 def test_the_shipped_table_is_rederived_from_its_rows_and_is_on_the_results_page():

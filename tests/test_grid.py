@@ -24,7 +24,7 @@ from vdtutorial.runner import resume as resume_module
 from vdtutorial.experiments import runs as runs_module
 from vdtutorial.runner.resume import GZIP_MAGIC, read_run_state, settings_differences
 from vdtutorial.pretrain import PretrainConfig
-from vdtutorial.settings import QUICK
+from vdtutorial.settings import is_quick
 from vdtutorial.trpo import TIMING_COLUMNS, TRPOConfig
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
@@ -56,7 +56,7 @@ def _saved_iterations(runs_dir) -> dict[str, int]:
     return saved
 
 
-@pytest.mark.skipif(not QUICK, reason="runs the experiment command three times: quick mode only")
+@pytest.mark.skipif(not is_quick(), reason="runs the experiment command three times: quick mode only")
 def test_a_grid_killed_with_sigkill_resumes_to_the_rows_of_an_uninterrupted_grid(tmp_path):
     env = {**os.environ, "VDTUTORIAL_QUICK": "1"}
     whole, killed = tmp_path / "whole", tmp_path / "killed"
@@ -87,7 +87,7 @@ def test_a_grid_killed_with_sigkill_resumes_to_the_rows_of_an_uninterrupted_grid
     assert any(resumed[name] == n for name, n in at_kill.items() if 0 < n < ITERATIONS)
 
 
-@pytest.mark.skipif(not QUICK, reason="runs the experiment command: quick mode only")
+@pytest.mark.skipif(not is_quick(), reason="runs the experiment command: quick mode only")
 def test_ctrl_c_stops_a_grid_with_workers_with_one_line(tmp_path):
     """SIGINT reaches the command and its workers (a terminal's Ctrl-C goes to the whole process group): the
     command answers with its one line and exit code 130, the workers with nothing."""

@@ -153,9 +153,9 @@ def test_the_default_start_is_the_sigma_study_choice():
     import json
 
     from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, default_config
-    from vdtutorial.settings import DATA_DIR
+    from vdtutorial.settings import data_dir
 
-    study = json.loads((DATA_DIR / "results" / "sigma_study" / "sigma_study.json").read_text())
+    study = json.loads((data_dir() / "results" / "sigma_study" / "sigma_study.json").read_text())
     assert len(study["seeds"]) == 5 and study["steps"] == 100_000
     chosen = study["summary"]["rule"]["chosen"]
     assert {default_config(reg, obs).initial_sigma for reg in ("vd", "l2") for obs in ("state", "rgbd")} == {chosen}

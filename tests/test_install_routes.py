@@ -9,7 +9,7 @@ import pytest
 
 from vdtutorial import install_check
 from vdtutorial.chapters import EditedFilesError, shipped_files, write_notebooks
-from vdtutorial.settings import BOOK_RECORD, DATA_DIR, recorded_path
+from vdtutorial.settings import BOOK_RECORD, data_dir, recorded_path
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -56,14 +56,14 @@ def test_the_command_refuses_in_one_line(tmp_path, capsys):
 
 def test_chapters_run_from_a_written_folder_read_and_write_there(tmp_path):
     write_notebooks(tmp_path / "book")
-    where = subprocess.run([sys.executable, "-c", "from vdtutorial import settings as s; print(s.DATA_DIR); print(s.RUNS_DIR)"],
+    where = subprocess.run([sys.executable, "-c", "from vdtutorial import settings as s; print(s.data_dir()); print(s.runs_dir())"],
                            cwd=tmp_path / "book" / "notebooks", capture_output=True, text=True, check=True).stdout.split()
     assert [Path(p) for p in where] == [tmp_path / "book" / "data", tmp_path / "book" / "runs"]
 
 
 def test_recorded_paths_are_relative_to_the_folder_holding_data():
-    assert recorded_path(DATA_DIR / "demos" / "x.npz") == "data/demos/x.npz"
-    assert recorded_path(DATA_DIR.parent / "runs" / "state") == "runs/state"
+    assert recorded_path(data_dir() / "demos" / "x.npz") == "data/demos/x.npz"
+    assert recorded_path(data_dir().parent / "runs" / "state") == "runs/state"
     assert recorded_path("/elsewhere/scratch") == "/elsewhere/scratch"  # outside: a user's own folder, as given
 
 

@@ -10,7 +10,7 @@ import torch
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.policy import obs_to_tensor
 from vdtutorial.pretrain import load_checkpoint
-from vdtutorial.settings import DATA_DIR
+from vdtutorial.settings import data_dir
 
 
 def test_image_observation_is_uint8_rgb_plus_float_depth_and_2_3x_smaller():
@@ -28,7 +28,7 @@ def test_image_observation_is_uint8_rgb_plus_float_depth_and_2_3x_smaller():
 def test_shipped_image_checkpoint_sees_the_same_input_as_before():
     """Checkpoints made when the env gave one float32 RGBD array keep their meaning: the network's
     4-channel input built from the new (rgb, depth) pair equals the old array, bit for bit."""
-    policy = load_checkpoint(DATA_DIR / "checkpoints" / "reach_n8000_sigma0.5_vd_rgbd_seed0.pt")
+    policy = load_checkpoint(data_dir() / "checkpoints" / "reach_n8000_sigma0.5_vd_rgbd_seed0.pt")
     env = gym.make(ENV_IDS["reach"], obs_mode="rgbd")
     obs, _ = env.reset(seed=3)
     rgb, depth = env.unwrapped.scene.render_rgbd()

@@ -9,9 +9,9 @@ from matplotlib.collections import PolyCollection
 from vdtutorial.experiments import curves_from_rows, read_rows, results_file
 from vdtutorial.experiments.measures import MEASURES, measures_of
 from vdtutorial.experiments.plots import figure_title, plot_measures
-from vdtutorial.settings import DATA_DIR
+from vdtutorial.settings import data_dir
 
-RESULTS = DATA_DIR / "results"
+RESULTS = data_dir() / "results"
 FIG4_VARIANTS = ("fig4", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig4_state_fvp0.1")
 
 

@@ -69,9 +69,9 @@ def shipped():
     import json
 
     from vdtutorial.experiments import read_rows, results_file
-    from vdtutorial.settings import DATA_DIR
+    from vdtutorial.settings import data_dir
 
-    folder = DATA_DIR / "results" / "pretrain_stop"
+    folder = data_dir() / "results" / "pretrain_stop"
     return json.loads((folder / "pretrain_stop.json").read_text()), read_rows(results_file(folder, "pretrain_stop"))
 
 

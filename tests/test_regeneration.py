@@ -5,8 +5,8 @@ figure are re-run here and compared with the shipped rows. A change to the code 
 What determinism covers (docs/results.md, "Regenerable results, and what determinism covers"): the same package versions
 (torch, numpy, pybullet, gymnasium as recorded in NAME.json), one torch thread per run (the experiments
 set it; other thread counts change the order of floating-point sums), the AVX2 vector kernels (which
-``import vdtutorial`` pins, :mod:`vdtutorial.kernels`: conftest imports it before numpy; without the pins an
-AVX-512 CPU fails this test). Counts are compared exactly, floats to a relative 1e-6 (bit for bit on the
+conftest pins before numpy loads, :mod:`vdtutorial.runner.kernels`, as ``--exact-kernels`` does for a command;
+without the pins an AVX-512 CPU fails this test). Counts are compared exactly, floats to a relative 1e-6 (bit for bit on the
 machines measured; the tolerance leaves room for a last bit, far below any change of the code).
 
 The pins are not the whole story: on an Intel Xeon with AVX-512 (measured 2026-12-02, torch 2.13.0+cpu), with
@@ -35,13 +35,13 @@ from vdtutorial.demos import demo_path
 from vdtutorial.experiments import (expert_reference, finetune, merge_seeds, read_rows, rederive, results_file,
                                     write_csv)
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
-from vdtutorial.settings import DATA_DIR
+from vdtutorial.settings import data_dir
 from vdtutorial.trpo import TRPOConfig
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 
 ITERATIONS = 3
-RESULTS = DATA_DIR / "results"
+RESULTS = data_dir() / "results"
 #: One run per shipped figure and control: (folder, method, seed); the run's data set is the figure's first.
 #: The two image results are covered by their runs without pre-training: the image pipeline end to end (camera,
 #: RGBD encoding, convolutional policy, TRPO with the whole-batch Gauss-Newton Fisher and with the 10% one)
@@ -374,7 +374,7 @@ def test_a_shipped_beyond_run_regenerates(tolerance, tmp_path, monkeypatch):
 
     record = json.loads((RESULTS / "beyond" / "beyond.json").read_text())
     assert not record["quick"]
-    monkeypatch.setattr(settings, "QUICK", False)  # the shipped budgets; the shipped checkpoint is then read
+    monkeypatch.setenv(settings.QUICK_ENV, "0")  # the shipped budgets; the shipped checkpoint is then read
     assert (beyond.samples(), beyond.pre_rl_episodes()) == (record["samples"], record["pre_rl_episodes"])
     variant = beyond.Variant("hand-set", "vd", 0.5)
     shipped = [r for r in read_rows(results_file(RESULTS / "beyond", "beyond"))
@@ -401,7 +401,7 @@ def test_a_shipped_pretrain_stop_run_regenerates(tolerance, tmp_path, monkeypatc
     folder = RESULTS / "pretrain_stop"
     record = json.loads((folder / "pretrain_stop.json").read_text())
     assert not record["quick"]
-    monkeypatch.setattr(settings, "QUICK", False)
+    monkeypatch.setenv(settings.QUICK_ENV, "0")
     assert ps.pre_rl_episodes() == record["pre_rl_episodes"]
     shipped = [r for r in read_rows(results_file(folder, "pretrain_stop"))
                if (r["kind"], r["method"], r["seed"]) == (ps.STOPPED, "l2", 0)]

@@ -10,7 +10,7 @@ pytest.importorskip("nbgrader", reason="nbgrader is the classroom extra (Colab's
 from vdtutorial import classroom
 from vdtutorial.__main__ import main
 from vdtutorial.chapters import EditedFilesError, shipped_files
-from vdtutorial.settings import BOOK_RECORD, SHIPPED_DIR
+from vdtutorial.settings import BOOK_RECORD, shipped_dir
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 
@@ -34,7 +34,7 @@ def test_student_edition_with_its_solutions_apart(tmp_path, capsys):
         solved = path.read_text().count("### BEGIN SOLUTION")
         assert "BEGIN SOLUTION" not in text and text.count("raise NotImplementedError()") == solved, name
     data = [p for p in shipped_files() if p.parts[0] == "data"]
-    assert all((dest / p).read_bytes() == (SHIPPED_DIR / p).read_bytes() for p in data[:: max(1, len(data) // 20)])
+    assert all((dest / p).read_bytes() == (shipped_dir() / p).read_bytes() for p in data[:: max(1, len(data) // 20)])
     recorded = json.loads((dest / BOOK_RECORD).read_text())["files"]
     assert {f"solutions/{name}.ipynb" for name in teacher} <= set(recorded)
 

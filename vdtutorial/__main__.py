@@ -15,7 +15,8 @@ import sys
 import time
 from pathlib import Path
 
-from vdtutorial.settings import DATA_DIR, RUNS_DIR, is_quick
+from vdtutorial.runner.kernels import can_pin, kernel_settings, pin_vector_kernels, pinned
+from vdtutorial.settings import data_dir, is_quick, runs_dir
 
 #: Set this environment variable to see the full traceback of an expected error.
 TRACEBACK_VARIABLE = "VDTUTORIAL_TRACEBACK"
@@ -63,7 +64,7 @@ def output_path(out: str | None, default: Path, force: bool) -> Path:
     """``--out`` if given, else ``default`` (under runs/). Refuses to replace an existing file in data/
     unless ``force``: the notebooks and figures rely on the shipped files."""
     path = Path(out) if out else default
-    if path.exists() and _inside(path, DATA_DIR) and not force:
+    if path.exists() and _inside(path, data_dir()) and not force:
         raise CommandError(f"{path} is a shipped file in data/; pass --force to replace it, or --out another path")
     return path
 
@@ -85,7 +86,7 @@ def _cmd_demos(args) -> None:
     from vdtutorial.demos import SHIPPED_NOISE, demo_path, generate_demos
 
     noise = SHIPPED_NOISE[args.task] if args.noise is None else args.noise
-    out = output_path(args.out, demo_path(args.task, args.samples, noise, args.seed, root=RUNS_DIR), args.force)
+    out = output_path(args.out, demo_path(args.task, args.samples, noise, args.seed, root=runs_dir()), args.force)
     demos = generate_demos(args.task, args.samples, noise, args.seed, progress=_progress(args))
     demos.save(out)
     print(f"{len(demos)} samples from {demos.meta['episodes']} noisy expert episodes "
@@ -117,7 +118,7 @@ def _cmd_pretrain(args) -> None:
     if args.epochs:
         config = dataclasses.replace(config, epochs=args.epochs)
     config = dataclasses.replace(config, initial_sigma=args.sigma, patience=args.patience)
-    out = output_path(args.out, checkpoint_path(demos.meta, args.reg, args.obs, args.seed, root=RUNS_DIR,
+    out = output_path(args.out, checkpoint_path(demos.meta, args.reg, args.obs, args.seed, root=runs_dir(),
                                                 initial_sigma=config.initial_sigma, patience=config.patience), args.force)
     spread_net = None
     if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
@@ -154,7 +155,7 @@ def _cmd_evaluate(args) -> None:
 
     demos = Demos.load(args.demos)
     task = demos.meta["task"]
-    folder = Path(args.checkpoints) if args.checkpoints else DATA_DIR / "checkpoints"
+    folder = Path(args.checkpoints) if args.checkpoints else data_dir() / "checkpoints"
     controllers = {reg: PolicyController(load_checkpoint(folder / checkpoint_path(demos.meta, reg, args.obs, args.seed).name))
                    for reg in ("vd", "l2")}
     env = gym.make(ENV_IDS[task], obs_mode=args.obs)
@@ -183,6 +184,8 @@ def _cmd_bench(args) -> None:
 
     if args.what != "finetune" and (args.profile or args.device != "cpu"):
         raise CommandError(f"{'--profile' if args.profile else '--device'} is an option of bench finetune only")
+    which = "pinned, --exact-kernels" if pinned() else "this CPU's own"
+    print(f"CPU kernels: {kernel_settings()['torch_cpu_capability']} ({which})")
     if args.what == "trpo":
         bench.bench_trpo_pendulum(seeds=args.seeds, total_steps=args.steps)
     elif args.what == "finetune":
@@ -390,6 +393,30 @@ def _add_force(p) -> None:
     p.add_argument("--force", action="store_true", help="allow replacing an existing file in data/")
 
 
+def _add_exact_kernels(p) -> None:
+    p.add_argument("--exact-kernels", action="store_true",
+                   help="pin torch's and numpy's CPU kernels to AVX2 (the command starts again with them pinned), "
+                        "so that shipped results regenerate bit for bit; default: this CPU's own, faster kernels")
+
+
+def _exact_kernels(args, argv) -> None:
+    """``--exact-kernels``: start this command again with the AVX2 pins of :mod:`vdtutorial.runner.kernels` in its
+    environment. numpy is already loaded when the arguments are parsed, and its OpenBLAS chose its kernels then, so
+    setting the variables here would reach torch but not numpy: only a new process gets both."""
+    if not getattr(args, "exact_kernels", False) or pinned():
+        return
+    if not can_pin():
+        print("note: --exact-kernels: this CPU has no AVX2 kernels to pin, so it runs its own", file=sys.stderr)
+        return
+    if argv is not None:
+        raise CommandError("--exact-kernels restarts the command: run it as a program (python -m vdtutorial ...), "
+                           "or set the variables of vdtutorial.runner.kernels.PINNED before Python starts")
+    env = dict(os.environ)
+    pin_vector_kernels(env)
+    sys.stdout.flush()
+    os.execve(sys.executable, [sys.executable, "-m", "vdtutorial", *sys.argv[1:]], env)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="python -m vdtutorial", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -426,6 +453,7 @@ def _add_pipeline_commands(sub) -> None:
     p.set_defaults(func=_cmd_expert)
 
     p = sub.add_parser("pretrain", help="behavioural cloning with sparse VD or L2 (eqs. 1-4)")
+    _add_exact_kernels(p)
     p.add_argument("--reg", choices=("vd", "l2"), required=True, help="regulariser: sparse variational dropout or L2")
     p.add_argument("--demos", required=True, help="a demonstrations file (python -m vdtutorial demos ...)")
     p.add_argument("--seed", type=nonnegative_int, default=0,
@@ -452,7 +480,7 @@ def _add_pipeline_commands(sub) -> None:
     p.set_defaults(func=_cmd_pretrain)
 
     p = sub.add_parser("evaluate", help="successful trajectories per 200-step episode: pre-trained VD, L2, expert")
-    p.add_argument("--demos", default=str(DATA_DIR / "demos" / "reach_n8000_sigma0.5_seed0.npz"),
+    p.add_argument("--demos", default=str(data_dir() / "demos" / "reach_n8000_sigma0.5_seed0.npz"),
                    help="the demonstrations the policies were trained on (default: the shipped reach set)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state", help="which policies to load (default state)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="pre-training seed of the checkpoints (default 0)")
@@ -480,6 +508,7 @@ def _add_measurement_commands(sub) -> None:
                    help="finetune only: where TRPO's updates run (default cpu; cuda: a CUDA GPU); the rollouts stay on "
                         "the CPU. The update columns are then wall seconds with the GPU, the CPU ones what this "
                         "process spent, waiting for the GPU included")
+    _add_exact_kernels(p)
     p.set_defaults(func=_cmd_bench)
 
 
@@ -530,6 +559,7 @@ def _add_experiment_commands(sub) -> None:
                    help="table1 only: the N dividing the KL term, each data set's own (per-set, eq. 3 as written; "
                         "default) or the 8000-sample set's for all (fixed)")
     _add_execution_options(p)
+    _add_exact_kernels(p)
     p.set_defaults(func=_cmd_experiment, on_interrupt="the finished runs and the saved states of the others are "
                    "kept: rerun the same command (without --restart) to continue")
 
@@ -568,14 +598,16 @@ def _add_experiment_commands(sub) -> None:
     p.add_argument("--quick", action="store_true", help="accepted for clarity; reproduce always runs small")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
     p.add_argument("--out", default=None, help="output folder (default: runs/reproduce_quick)")
+    _add_exact_kernels(p)
     p.set_defaults(func=_cmd_reproduce)
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    if is_quick():
-        print("[quick mode: small budgets]", file=sys.stderr)
     try:
+        _exact_kernels(args, argv)  # first: it may start the command again
+        if is_quick():
+            print("[quick mode: small budgets]", file=sys.stderr)
         args.func(args)
     except KeyboardInterrupt:  # Ctrl-C: one line saying what survives, and the shell's code for SIGINT
         hint = getattr(args, "on_interrupt", None)

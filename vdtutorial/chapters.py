@@ -3,7 +3,7 @@
 A ``pip install`` of the wheel carries the notebooks and the shipped data (``vdtutorial/book``), so no
 clone is needed. This writes them into DEST as ``notebooks/`` and ``data/``, with a record file
 (``settings.BOOK_RECORD``). A chapter run from DEST finds that record above its working directory, so it
-reads ``DEST/data`` and writes ``DEST/runs`` (``settings.PROJECT_DIR``).
+reads ``DEST/data`` and writes ``DEST/runs`` (``settings.project_dir()``).
 
 The record holds the hash of every file written. Writing again (say, after upgrading the package)
 replaces the files the learner has not touched, and refuses, unless ``force``, when one of them was
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import vdtutorial
-from vdtutorial.settings import BOOK_RECORD, SHIPPED_DIR
+from vdtutorial.settings import BOOK_RECORD, shipped_dir
 
 
 class EditedFilesError(FileExistsError):
@@ -59,9 +59,11 @@ def _shipped_data(path: Path, data: Path) -> bool:
     return path.is_file() and not scratch and path.suffix not in (".lock", ".tmp")
 
 
-def shipped_files(source: Path = SHIPPED_DIR) -> list[Path]:
-    """What a learner's copy holds, relative to ``source``: the chapters and the teaching notes, and every
-    shipped data file (demonstrations, checkpoints, results) they load."""
+def shipped_files(source: Path | None = None) -> list[Path]:
+    """What a learner's copy holds, relative to ``source`` (default: :func:`~vdtutorial.settings.shipped_dir`):
+    the chapters and the teaching notes, and every shipped data file (demonstrations, checkpoints, results)
+    they load."""
+    source = Path(source) if source is not None else shipped_dir()
     chapters = sorted((source / "notebooks").glob("*.ipynb")) + sorted((source / "notebooks").glob("*.md"))
     data = sorted(p for p in (source / "data").rglob("*") if _shipped_data(p, source / "data"))
     if not chapters or not data:
@@ -88,14 +90,14 @@ def _student_edition(files: dict[str, Path], source: Path, scratch: Path) -> dic
     return files
 
 
-def write_notebooks(dest: str | Path, force: bool = False, source: Path = SHIPPED_DIR,
+def write_notebooks(dest: str | Path, force: bool = False, source: Path | None = None,
                     student: bool = False) -> WrittenBook:
     """Copy the chapters and their data from ``source`` into ``dest``; with ``student``, the student edition
     and its solutions apart (see the module docstring).
 
     Raises :class:`EditedFilesError`, before writing anything, if a file to be replaced differs both from
     what was last written there and from what would be written now, unless ``force``."""
-    dest = Path(dest)
+    dest, source = Path(dest), Path(source) if source is not None else shipped_dir()
     if dest.exists() and not dest.is_dir():
         raise NotADirectoryError(f"{dest} is a file, not a folder: name a folder for the chapters")
     record_path = dest / BOOK_RECORD

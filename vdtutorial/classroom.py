@@ -37,10 +37,8 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-from vdtutorial.settings import QUICK_ENV, SHIPPED_DIR
+from vdtutorial.settings import QUICK_ENV, shipped_dir
 
-#: The teacher's edition: the shipped notebooks (a clone's ``notebooks/``, or the copy an installed wheel carries).
-NOTEBOOKS_DIR = SHIPPED_DIR / "notebooks"
 #: The nbgrader assignment that holds every chapter.
 ASSIGNMENT = "vdtutorial"
 #: Seconds a single cell may run during autograding before nbgrader interrupts it. Quick-mode cells take
@@ -64,9 +62,16 @@ class ClassroomError(Exception):
     """A problem the user can fix (bad path, unknown chapter, a notebook of another edition)."""
 
 
-def chapters(source: Path = NOTEBOOKS_DIR) -> dict[str, Path]:
-    """The chapter notebooks of ``source`` by name (``"03_demonstrations"`` -> its path; a chapter in parts
-    is one notebook per part, ``"06a_trpo_pieces"``, ``"06b_trpo_assembled"``)."""
+def notebooks_dir() -> Path:
+    """The teacher's edition: the shipped notebooks (a clone's ``notebooks/``, or the copy an installed wheel
+    carries)."""
+    return shipped_dir() / "notebooks"
+
+
+def chapters(source: Path | None = None) -> dict[str, Path]:
+    """The chapter notebooks of ``source`` (default: :func:`notebooks_dir`) by name (``"03_demonstrations"``
+    -> its path; a chapter in parts is one notebook per part, ``"06a_trpo_pieces"``, ``"06b_trpo_assembled"``)."""
+    source = Path(source) if source is not None else notebooks_dir()
     if not source.is_dir():
         raise ClassroomError(f"no notebooks folder at {source}: pass --source with the teacher's notebooks")
     found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]*_*.ipynb"))}   # a chapter in parts: 06a_..., 06b_...
@@ -120,11 +125,12 @@ def _generate(course: Path, source: Path, names: list[str], timeout: int = CELL_
     return api
 
 
-def release(out, source: Path = NOTEBOOKS_DIR, force: bool = False) -> list[Path]:
+def release(out, source: Path | None = None, force: bool = False) -> list[Path]:
     """Write the student edition of every chapter into the folder ``out``; returns the notebook paths.
 
     nbgrader's generate_assignment does the work (solutions -> stubs, hidden tests and outputs removed).
     """
+    source = Path(source) if source is not None else notebooks_dir()
     out = Path(out)
     names = list(chapters(source))
     clash = [n for n in names if (out / f"{n}.ipynb").exists()]
@@ -150,13 +156,14 @@ class Submission:
     path: Path
 
 
-def collect(paths, source: Path = NOTEBOOKS_DIR) -> list[Submission]:
+def collect(paths, source: Path | None = None) -> list[Submission]:
     """Check the submitted files and say whose and which chapter each is.
 
     A path is a notebook ``STUDENT/NN_chapter.ipynb`` or a folder ``STUDENT/`` of such notebooks. Each must
     be a notebook, be named after a chapter, and carry exactly the exercises of that chapter (a notebook of
     another edition, or one whose exercise cells were deleted, is refused before anything runs).
     """
+    source = Path(source) if source is not None else notebooks_dir()
     found = chapters(source)
     files = []
     for raw in paths:
@@ -254,7 +261,7 @@ class Score:
     max_score: float
 
 
-def grade(paths, out="grades", source: Path = NOTEBOOKS_DIR, timeout: int = CELL_TIMEOUT,
+def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_TIMEOUT,
           quick: bool = True, limits: Limits = Limits()) -> list[Score]:
     """Autograde submissions with nbgrader; returns one :class:`Score` per exercise and student.
 
@@ -264,6 +271,7 @@ def grade(paths, out="grades", source: Path = NOTEBOOKS_DIR, timeout: int = CELL
     not stop the others. ``quick`` runs the kernels in quick mode (small budgets: the exercises do not depend
     on them); their results go to ``runs/`` in each kernel's throwaway folder.
     """
+    source = Path(source) if source is not None else notebooks_dir()
     out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
     with tempfile.TemporaryDirectory(prefix="vdtutorial_grade_") as scratch, _quiet():
@@ -379,7 +387,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     r = sub.add_parser("release", help="write the student edition of every chapter (nbgrader generate_assignment)")
     r.add_argument("out", help="folder for the student notebooks")
     r.add_argument("--force", action="store_true", help="overwrite notebooks already in OUT")
-    r.add_argument("--source", default=str(NOTEBOOKS_DIR), help="the teacher's notebooks (default: %(default)s)")
+    r.add_argument("--source", default=str(notebooks_dir()), help="the teacher's notebooks (default: %(default)s)")
     r.set_defaults(func=_run(_cmd_release))
     g = sub.add_parser("grade", help="autograde submitted notebooks (nbgrader autograde + gradebook), print a table",
                        description="Each SUBMISSION is STUDENT/NN_chapter.ipynb or a folder STUDENT/ of them. "
@@ -395,6 +403,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="memory cap (GB) of each submission's kernel (default: %(default)s)")
     g.add_argument("--cpu-minutes", type=float, default=Limits.cpu_minutes, metavar="MIN",
                    help="CPU-time cap of each submission's kernel; past it the kernel is killed (default: %(default)s)")
-    g.add_argument("--source", default=str(NOTEBOOKS_DIR), help="the teacher's notebooks (default: %(default)s)")
+    g.add_argument("--source", default=str(notebooks_dir()), help="the teacher's notebooks (default: %(default)s)")
     g.set_defaults(func=_run(_cmd_grade))
     return p

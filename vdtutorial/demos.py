@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 import vdtutorial
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.expert import IKExpert
-from vdtutorial.settings import DATA_DIR
+from vdtutorial.settings import data_dir
 
 FORMAT_VERSION = 1
 #: Sigma of each task's shipped data sets. Reaching: the paper's 0.5 (Figs. 4, 5; Fig. 6 adds 0.25 and
@@ -61,7 +61,7 @@ def demo_command(task: str, samples: int, noise: float, seed: int) -> str:
 
 def demo_path(task: str, samples: int, noise: float, seed: int = 0, root: Path | None = None) -> Path:
     """Conventional file name of a data set under ``data/demos``."""
-    return Path(root or DATA_DIR) / "demos" / f"{task}_n{samples}_sigma{noise:g}_seed{seed}.npz"
+    return Path(root or data_dir()) / "demos" / f"{task}_n{samples}_sigma{noise:g}_seed{seed}.npz"
 
 
 @dataclass

@@ -33,7 +33,7 @@ from pathlib import Path
 import nbformat
 
 from vdtutorial.offline_assets import MATHJAX_SETTINGS, copy_assets, offline_animation_icons
-from vdtutorial.settings import QUICK_ENV, SHIPPED_DIR
+from vdtutorial.settings import QUICK_ENV, shipped_dir
 
 #: The nbconvert template of a chapter page (JupyterLab's, with the book's navigation).
 TEMPLATE_DIR = Path(__file__).resolve().parent / "web" / "templates"
@@ -75,9 +75,10 @@ def _title(notebook) -> str:
     raise ValueError("a chapter has no '# title' heading")
 
 
-def find_chapters(numbers=None, source: Path = SHIPPED_DIR) -> list[Chapter]:
-    """The chapters under ``source/notebooks`` in their order, only those whose number is in ``numbers``
-    (e.g. ``["00", "04"]``) when given."""
+def find_chapters(numbers=None, source: Path | None = None) -> list[Chapter]:
+    """The chapters under ``source/notebooks`` (default: :func:`~vdtutorial.settings.shipped_dir`) in their
+    order, only those whose number is in ``numbers`` (e.g. ``["00", "04"]``) when given."""
+    source = Path(source) if source is not None else shipped_dir()
     paths = sorted((source / "notebooks").glob("[0-9][0-9]*_*.ipynb"))
     wanted = {f"{int(n):02d}" if str(n).isdigit() else str(n) for n in numbers} if numbers else None
     chapters = [Chapter(path, path.name.split("_", 1)[0], _title(nbformat.read(path, as_version=4)))
@@ -247,13 +248,14 @@ outputs; to change and run the code, open the notebooks in Jupyter (<code>python
 """
 
 
-def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, source: Path = SHIPPED_DIR,
+def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, source: Path | None = None,
                log=print) -> BuiltBook:
     """Execute the chapters (all, or those in ``numbers``) and write the book into ``out``: ``index.html``,
     one page per chapter and ``_static`` (MathJax, the widget manager). ``log`` gets one line per chapter."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out} is a file, not a folder: name a folder for the book")
+    source = Path(source) if source is not None else shipped_dir()
     chapters = find_chapters(numbers, source)
     goals = learning_goals(source / "notebooks" / "TEACHING.md")
     out.mkdir(parents=True, exist_ok=True)

@@ -41,7 +41,7 @@ from vdtutorial.demos import Demos, demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.initial_sigma import IMAGE_FIT_STATES, InitialSigma, apply_initial_sigma
 from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor, on_device, torch_device
-from vdtutorial.settings import DATA_DIR, budget, recorded_path
+from vdtutorial.settings import budget, data_dir, recorded_path
 from vdtutorial.vd import model_kl, sparsity_report
 
 REGULARISERS = ("vd", "l2")
@@ -340,7 +340,7 @@ def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, ro
     kl = "" if kl_samples is None else f"_kl{kl_samples}"
     stop = "" if patience is None else f"_stop{patience}"
     data = data_name or f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}"
-    return Path(root or DATA_DIR) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
+    return Path(root or data_dir()) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
 
 
 def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> Path:

@@ -1,9 +1,11 @@
-"""The one place where the package reads the quick switch.
+"""The quick switch and the folders, each read when a run asks for it.
 
 ``VDTUTORIAL_QUICK=1`` (set by CI) shrinks every budget -- samples, epochs, seeds, RL steps -- so that
 a run goes through the same code path end to end in seconds instead of hours. Library code never reads
-the environment variable itself: it calls :func:`budget` with the full-scale value and the quick one, when a
-run starts (never when a module is imported), so that :func:`use_quick` reaches every run made after it.
+the environment variable itself: it calls :func:`budget` with the full-scale value and the quick one when a
+run starts. Nothing here is decided at import: the mode, the data folder and the output folder are looked
+up on every call, so :func:`use_quick` (or a changed working directory or variable) reaches every run
+made after it, in the same kernel.
 
 Taught in chapter 00.
 """
@@ -14,35 +16,8 @@ from pathlib import Path
 
 #: The environment variable behind the switch (CI and ``classroom grade`` set it for the kernels they start).
 QUICK_ENV = "VDTUTORIAL_QUICK"
-#: The mode now: read it through :func:`is_quick` (a name imported from here keeps the value it had then).
-QUICK: bool = os.environ.get(QUICK_ENV, "0").strip().lower() in {"1", "true", "yes"}
-
-
-def use_quick(on: bool | None) -> bool:
-    """Switch quick mode from inside a notebook (its first code cell), so students need no environment
-    variable before starting Jupyter. ``None`` keeps what the environment says (nbmake and CI runs).
-
-    Every budget is looked up when a run starts, so the switch reaches every run made after it, whatever
-    was imported before. The variable is set too, so worker processes follow. Returns the mode.
-    """
-    global QUICK
-    if on is not None:
-        QUICK = bool(on)
-        os.environ[QUICK_ENV] = "1" if QUICK else "0"
-    return QUICK
-
-
-def is_quick() -> bool:
-    """Whether quick mode is on at this moment (after any :func:`use_quick`)."""
-    return QUICK
-
-
-def budget(full, quick):
-    """Return ``quick`` when quick mode is on, else ``full`` (the paper's setting). Call it when a run
-    starts, not at import, so that a later :func:`use_quick` is obeyed."""
-    return quick if QUICK else full
-
-
+#: The variables that move the data folder and the output folder elsewhere.
+DATA_ENV, RUNS_ENV = "VDTUTORIAL_DATA", "VDTUTORIAL_RUNS"
 #: The file that marks a folder written by ``python -m vdtutorial notebooks DEST`` (:mod:`vdtutorial.chapters`).
 BOOK_RECORD = "vdtutorial-book.json"
 _PACKAGE = Path(__file__).resolve().parent
@@ -50,40 +25,62 @@ _PACKAGE = Path(__file__).resolve().parent
 _INSTALLED_COPY = _PACKAGE / "book"
 
 
-def _shipped_dir() -> Path:
-    """Where the shipped chapters and data are: the source checkout this package was imported from (its
-    ``notebooks/`` and ``data/``), else the copy inside the installed package (a wheel carries them as
-    ``vdtutorial/book``)."""
+def is_quick() -> bool:
+    """Whether quick mode is on at this moment: the variable :data:`QUICK_ENV` as it is now."""
+    return os.environ.get(QUICK_ENV, "0").strip().lower() in {"1", "true", "yes"}
+
+
+def use_quick(on: bool | None) -> bool:
+    """Switch quick mode from inside a notebook, so students need no environment variable before starting
+    Jupyter. ``None`` keeps what the environment says (nbmake and CI runs). Returns the mode.
+
+    The switch is the variable itself, so worker processes started later follow it, and every budget asked
+    for after this call obeys it: re-run a chapter's cells and they take the new sizes.
+    """
+    if on is not None:
+        os.environ[QUICK_ENV] = "1" if on else "0"
+    return is_quick()
+
+
+def budget(full, quick):
+    """Return ``quick`` when quick mode is on, else ``full`` (the paper's setting). Call it when a run
+    starts, not at import, so that a later :func:`use_quick` is obeyed."""
+    return quick if is_quick() else full
+
+
+def shipped_dir() -> Path:
+    """Where the shipped chapters and data are (read only: ``notebooks DEST`` copies them out): the source
+    checkout this package was imported from (its ``notebooks/`` and ``data/``), else the copy inside the
+    installed package (a wheel carries them as ``vdtutorial/book``)."""
     checkout = _PACKAGE.parent
     if (checkout / "pyproject.toml").is_file() and (checkout / "data").is_dir():
         return checkout
     return _INSTALLED_COPY
 
 
-#: The folder holding the shipped ``notebooks/`` and ``data/`` (read only: ``notebooks DEST`` copies them out).
-SHIPPED_DIR = _shipped_dir()
-
-
-def _project_dir() -> Path:
+def project_dir() -> Path:
     """The folder that holds ``data/`` (and ``notebooks/``, ``runs/``): the folder written by ``python -m
     vdtutorial notebooks DEST`` that contains the working directory, if any, so that chapters run from such
-    a copy read and write there; else :data:`SHIPPED_DIR`."""
+    a copy read and write there; else :func:`shipped_dir`."""
     here = Path.cwd()
-    return next((folder for folder in (here, *here.parents) if (folder / BOOK_RECORD).is_file()), SHIPPED_DIR)
+    return next((folder for folder in (here, *here.parents) if (folder / BOOK_RECORD).is_file()), shipped_dir())
 
 
-PROJECT_DIR = _project_dir()
-#: Where shipped and generated artefacts live (demonstrations, checkpoints, result CSVs): ``data/`` in
-#: :data:`PROJECT_DIR`, or the folder named by ``VDTUTORIAL_DATA``.
-DATA_DIR = Path(os.environ.get("VDTUTORIAL_DATA", PROJECT_DIR / "data"))
+def data_dir() -> Path:
+    """Where shipped and generated artefacts live (demonstrations, checkpoints, result CSVs): ``data/`` in
+    :func:`project_dir`, or the folder named by ``VDTUTORIAL_DATA``."""
+    return Path(os.environ.get(DATA_ENV, project_dir() / "data"))
 
-#: Where commands write what they make unless told otherwise (``--out``): ``runs/`` beside ``data/``
-#: (or the folder named by ``VDTUTORIAL_RUNS``), so that the shipped artefacts in ``data/`` are never
-#: replaced by accident. When the package's own copy is all there is (an installed wheel used outside a
-#: folder written by ``notebooks DEST``), nothing is written into the installation: ``runs/`` in the working
-#: directory.
-RUNS_DIR = Path(os.environ.get("VDTUTORIAL_RUNS", (Path.cwd() if PROJECT_DIR == _INSTALLED_COPY else PROJECT_DIR)
-                               / "runs"))
+
+def runs_dir() -> Path:
+    """Where commands write what they make unless told otherwise (``--out``): ``runs/`` beside ``data/`` (or
+    the folder named by ``VDTUTORIAL_RUNS``), so that the shipped artefacts in ``data/`` are never replaced by
+    accident. When the package's own copy is all there is (an installed wheel used outside a folder written by
+    ``notebooks DEST``), nothing is written into the installation: ``runs/`` in the working directory."""
+    if RUNS_ENV in os.environ:
+        return Path(os.environ[RUNS_ENV])
+    project = project_dir()
+    return (Path.cwd() if project == _INSTALLED_COPY else project) / "runs"
 
 
 def recorded_path(path) -> str:
@@ -91,5 +88,5 @@ def recorded_path(path) -> str:
     to the folder that holds ``data/`` when it is inside it (``data/demos/...``, ``runs/...``), so that a
     shipped file never names the machine that made it and its commands run from any clone or copy. A
     path outside that folder (a user's scratch folder) is written as given."""
-    path, project = Path(path).resolve(), DATA_DIR.resolve().parent
+    path, project = Path(path).resolve(), data_dir().resolve().parent
     return path.relative_to(project).as_posix() if path.is_relative_to(project) else str(path)

@@ -28,7 +28,7 @@ from vdtutorial.experiments.reproduce import reproduce_quick
 from vdtutorial.experiments.results import (ExperimentResult, derive, experiment_command, format_summary, load_result,
                                            merge_seeds, rederive, run_experiment)
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, METHODS, METRIC, NUM_ENVS, RL_METHODS,
-                                         RUNS_DIR, SUBSAMPLED_FISHER_CONFIG, default_expert_episodes, default_seeds,
+                                         SUBSAMPLED_FISHER_CONFIG, default_expert_episodes, default_seeds,
                                          default_total_steps, default_trpo_config, expert_reference, finetune,
                                          finetune_policy, finetune_steps, load_demos,
                                          pretrained_policy)

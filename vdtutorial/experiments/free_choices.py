@@ -36,7 +36,7 @@ from vdtutorial.experiments.results import default_out, derive, experiment_comma
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METHOD_LABELS, METRIC, NUM_ENVS, default_seeds, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.runner import results_file, run_grid, write_csv
-from vdtutorial.settings import DATA_DIR, budget, is_quick
+from vdtutorial.settings import budget, data_dir, is_quick
 
 TASK, SAMPLES, NOISE = "reach", 8000, 0.5
 #: The training split of Fig. 4's data set holds 7101-7273 samples for seeds 0-2; the KL rows scale this N.
@@ -102,7 +102,7 @@ def _job(method: str, label: str, seed: int, steps: int, config: PretrainConfig,
          state_dir: Path, checkpoint_every: int | None) -> Job:
     spec = RunSpec(method, TASK, SAMPLES, NOISE, seed, "state", steps, label)
     folder = state_dir / row
-    return _RowJob(spec, folder / f"{spec.name}.pt", folder / f"{spec.name}.csv", DATA_DIR.resolve(),
+    return _RowJob(spec, folder / f"{spec.name}.pt", folder / f"{spec.name}.csv", data_dir().resolve(),
                    (out / "checkpoints" / row).resolve(), config, default_trpo_config(),
                    CHECKPOINT_EVERY if checkpoint_every is None else checkpoint_every, row=row)
 

@@ -39,7 +39,7 @@ from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_EN
 from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
-from vdtutorial.settings import DATA_DIR, budget, is_quick
+from vdtutorial.settings import budget, data_dir, is_quick
 
 TASK, SAMPLES, NOISE, OBS = "reach", 8000, 0.5, "rgbd"
 #: Epochs without a better held-out MSE before cloning stops, and the most epochs it may take.
@@ -149,7 +149,7 @@ def jobs(seeds, out: Path, state_dir: Path) -> list:
             for seed in seeds:
                 spec = RunSpec(reg, TASK, SAMPLES, NOISE, seed, OBS, rl_steps(), f"{METHOD_LABELS[reg]}, {kind}")
                 stem = state_dir / "rl" / f"{kind.replace(' ', '-')}_{spec.name}"
-                rl.append(_RLJob(spec, Path(f"{stem}.pt"), Path(f"{stem}.csv"), DATA_DIR.resolve(),
+                rl.append(_RLJob(spec, Path(f"{stem}.pt"), Path(f"{stem}.csv"), data_dir().resolve(),
                                  out.resolve(), config, default_trpo_config(), CHECKPOINT_EVERY,
                                  kind=kind))
     return pre + rl

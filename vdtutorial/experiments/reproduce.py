@@ -8,7 +8,8 @@ from vdtutorial.experiments.curves import Curve, vd_reaches_l2_final
 from vdtutorial.experiments.jobs import RunSpec
 from vdtutorial.runner.progress import live_by_default
 from vdtutorial.experiments.results import ExperimentResult, run_experiment
-from vdtutorial.experiments.runs import METHOD_LABELS, RL_METHODS, RUNS_DIR, pretrained_policy
+from vdtutorial.experiments.runs import METHOD_LABELS, RL_METHODS, pretrained_policy
+from vdtutorial.settings import runs_dir
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import budget
 from vdtutorial.vd import sparsity_report
@@ -28,7 +29,7 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
     defaults further. Like every grid it is resumable: run it again to continue an interrupted one.
     ``progress``: see :mod:`~vdtutorial.runner.progress` (each step and each finished run prints a
     line unless it is False)."""
-    out = Path(out) if out is not None else RUNS_DIR / "reproduce_quick"
+    out = Path(out) if out is not None else runs_dir() / "reproduce_quick"
     samples = budget(2000, 300) if samples is None else samples
     epochs = budget(60, 4) if epochs is None else epochs
     total_steps = budget(50_000, 1_000) if total_steps is None else total_steps

@@ -24,10 +24,10 @@ from vdtutorial.experiments.measures import measures_of
 from vdtutorial.experiments.plots import figure_title, plot_measures
 from vdtutorial.runner.grid import run_grid
 from vdtutorial.runner.rows import read_rows, results_file, write_csv
-from vdtutorial.kernels import kernel_settings
-from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, RUNS_DIR, default_trpo_config
+from vdtutorial.runner.kernels import kernel_settings
+from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig, default_config
-from vdtutorial.settings import DATA_DIR, budget, is_quick, recorded_path
+from vdtutorial.settings import budget, data_dir, is_quick, recorded_path, runs_dir
 from vdtutorial.trpo import TRPOConfig
 
 @dataclass
@@ -95,7 +95,7 @@ def recorded_argv() -> list[str]:
 def default_out(name: str) -> Path:
     """``runs/NAME`` beside ``data/`` (quick mode: ``runs/quick/NAME``). Shipped results in ``data/results``
     are only replaced by naming them with ``out``."""
-    return Path(budget(RUNS_DIR / name, RUNS_DIR / "quick" / name))
+    return Path(budget(runs_dir() / name, runs_dir() / "quick" / name))
 
 
 def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path | None = None, workers: int = 2,
@@ -129,7 +129,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     window = smooth_window() if window is None else window
     state_dir = Path(state_dir) if state_dir is not None else out / "runs"
     # absolute paths: a worker (a Ray task on another node, say) may start elsewhere
-    demos_root = Path(demos_root or DATA_DIR).resolve()
+    demos_root = Path(demos_root or data_dir()).resolve()
     checkpoints_root = Path(checkpoints_root if checkpoints_root is not None else out).resolve()
     trpo_config = trpo_config or default_trpo_config()
     task = specs[0].task
@@ -166,7 +166,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
         "summary": summary,
         "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__, "gymnasium": gym.__version__,
                      "numpy": np.__version__, "python": sys.version.split()[0]},
-        "kernels": kernel_settings(),  # the CPU vector kernels in use (vdtutorial.kernels)
+        "kernels": kernel_settings(),  # the CPU vector kernels in use (vdtutorial.runner.kernels)
     }
     (out / f"{name}.json").write_text(json.dumps(record, indent=1, default=str))
     return ExperimentResult(name, out, rows, curves, figure, summary, record)

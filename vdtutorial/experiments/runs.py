@@ -27,7 +27,7 @@ from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path,
                                  default_config, load_checkpoint, pretrain, pretrain_command, save_checkpoint,
                                  set_initial_sigma)
-from vdtutorial.settings import RUNS_DIR, budget, recorded_path
+from vdtutorial.settings import budget, recorded_path, runs_dir
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 
 RL_METHODS = ("vd", "l2", "none")
@@ -113,7 +113,7 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
         raise ValueError("a data set made in rounds (DART's, DAgger's: no Sigma in its meta) is named by its file: "
                          "give its path as source")
     data_name = Path(source).stem if made_in_rounds(meta) else None
-    root = Path(checkpoints_root) if checkpoints_root is not None else budget(RUNS_DIR, RUNS_DIR / "quick")
+    root = Path(checkpoints_root) if checkpoints_root is not None else budget(runs_dir(), runs_dir() / "quick")
     names = {"initial_sigma": cfg.initial_sigma, "kl_samples": cfg.kl_samples, "data_name": data_name,
              "patience": cfg.patience}
     path = checkpoint_path(meta, reg, obs_mode, seed, root=root, **names)

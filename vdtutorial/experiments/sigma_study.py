@@ -32,13 +32,13 @@ import vdtutorial
 from vdtutorial.demos import demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
-from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, RUNS_DIR, curves_from_rows, finetune, load_demos,
+from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, curves_from_rows, finetune, load_demos,
                                     mean_band, finetune_policy, read_rows, results_file, run_jobs,
                                     stored_rows, write_csv)
 from vdtutorial.experiments.plots import draw_band
 from vdtutorial.initial_sigma import InitialSigma
 from vdtutorial.pretrain import default_config
-from vdtutorial.settings import DATA_DIR
+from vdtutorial.settings import data_dir, runs_dir
 
 #: Candidates of the rule: option (a) at the paper's 0.3 and at the issue's probe value 0.05, (b), (c).
 OPTIONS = ("0.3", "0.05", "demos", "spread")
@@ -147,8 +147,8 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
     ``none_options``: the options under which "no pre-training" is run (default: all; an option with
     the same starting sigma as a run one shares its rows; the others get no "none" curve)."""
     none_options = options if none_options is None else none_options
-    out = Path(out) if out is not None else DATA_DIR / "results" / "sigma_study"
-    scratch = RUNS_DIR / "sigma_study"
+    out = Path(out) if out is not None else data_dir() / "results" / "sigma_study"
+    scratch = runs_dir() / "sigma_study"
     starts = {}  # "none" once per distinct starting sigma: it has no demonstrations to fit to
     jobs = []
     for seed in seeds:

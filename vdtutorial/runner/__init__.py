@@ -5,8 +5,8 @@ paper's runs become its jobs in :mod:`vdtutorial.experiments.jobs`.
 Modules, one idea each: :mod:`~vdtutorial.runner.grid` (a restartable grid of jobs),
 :mod:`~vdtutorial.runner.backends` (where jobs execute), :mod:`~vdtutorial.runner.resume` (a run's saved
 state), :mod:`~vdtutorial.runner.run_lock` (one process at a time per run),
-:mod:`~vdtutorial.runner.progress` (the grid's progress lines) and :mod:`~vdtutorial.runner.rows` (CSV
-files).
+:mod:`~vdtutorial.runner.progress` (the grid's progress lines), :mod:`~vdtutorial.runner.rows` (CSV
+files) and :mod:`~vdtutorial.runner.kernels` (the CPU kernels pinned for exact re-runs).
 
 Taught in chapter 07.
 """

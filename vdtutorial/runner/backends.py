@@ -31,7 +31,7 @@ import signal
 
 import torch
 
-from vdtutorial.kernels import NATIVE_ENV, PINNED
+from vdtutorial.runner.kernels import PINNED
 from vdtutorial.settings import QUICK_ENV, is_quick
 
 BACKENDS = ("local", "ray")
@@ -229,9 +229,9 @@ def _run_ray(fn, jobs, workers, address, listener) -> list:
     ray = _import_ray()
     started = not ray.is_initialized()
     if started:
-        # a Ray worker loads numpy before it runs a task, so the kernel pins must be in its environment from
-        # the start (vdtutorial.kernels), as must the quick switch
-        pins = {name: os.environ[name] for name in (*PINNED, NATIVE_ENV) if name in os.environ}
+        # a Ray worker loads numpy before it runs a task, so kernel pins (if set: vdtutorial.runner.kernels)
+        # must be in its environment from the start, as must the quick switch
+        pins = {name: os.environ[name] for name in PINNED if name in os.environ}
         env = {"env_vars": {QUICK_ENV: "1" if is_quick() else "0", **pins}}
         if address is None:  # a private local Ray, even if another one runs on this machine
             _start_local_ray(ray, workers, env)

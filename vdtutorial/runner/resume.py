@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vdtutorial.kernels import kernel_settings
+from vdtutorial.runner.kernels import kernel_settings
 
 
 class ResumeError(ValueError):
@@ -77,7 +77,7 @@ def _set_rng_state(state: dict) -> None:
 
 def numerics() -> dict[str, str]:
     """What, besides a run's settings, decides its last digits: the torch and numpy versions and the CPU
-    kernels in use (:func:`vdtutorial.kernels.kernel_settings`). Another value does not change what the
+    kernels in use (:func:`vdtutorial.runner.kernels.kernel_settings`). Another value does not change what the
     run is, so it is not a setting; it only voids the promise of rows equal to an uninterrupted run's."""
     return {"torch": str(torch.__version__), "numpy": str(np.__version__), **kernel_settings()}
 
