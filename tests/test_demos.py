@@ -5,7 +5,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from vdtutorial.demos import SHIPPED_NOISE, DemoFileError, Demos, demo_path, generate_demos
+from vdtutorial.demos import SHIPPED_NOISE, DemoFileError, Demos, collect, demo_path, generate_demos, success_rate
 from vdtutorial.envs import ENV_IDS
 
 from conftest import assert_expert_labels
@@ -38,6 +38,14 @@ def test_noise_spreads_the_visited_states():
     assert noisy.meta["noisy_success_rate"] < quiet.meta["noisy_success_rate"]
     spread = lambda d: np.abs(d.joints - d.joints[d.t == 0][0]).mean()  # noqa: E731
     assert spread(noisy) > spread(quiet)
+
+
+def test_the_episode_cut_off_by_a_full_data_set_is_not_counted_a_failure():
+    """27 samples of the noiseless expert (seed 3): 12 episodes, the last cut off after its first step, when the
+    data set is full. It neither succeeded nor failed, so the success rate is over the 11 that ended."""
+    demos, record = collect("reach", 27, 3, lambda state, a_exp, rng: a_exp)
+    assert (record["episodes"], record["finished"], record["successes"]) == (12, 11, 11)
+    assert demos.episode[-1] == 11 and success_rate(record) == 1.0
 
 
 def test_sizes_and_metadata(small):

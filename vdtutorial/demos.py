@@ -185,11 +185,16 @@ def generate_demos(task: str = "reach", samples: int = 8000, noise: float = 0.5,
                             progress, f"{task} demos (Sigma={noise:g})")
     demos.meta = {
         "format_version": FORMAT_VERSION, "task": task, "samples": int(samples), "noise": float(noise), "seed": int(seed),
-        "episodes": record["episodes"], "noisy_success_rate": record["successes"] / record["episodes"],
+        "episodes": record["episodes"], "noisy_success_rate": success_rate(record),
         "env_id": ENV_IDS[task], "image_size": record["image_size"], "vdtutorial": vdtutorial.__version__,
         "gymnasium": gym.__version__, "pybullet": pybullet.getAPIVersion(), "command": demo_command(task, samples, noise, seed),
     }
     return demos
+
+
+def success_rate(record: dict) -> float:
+    """The fraction of the finished episodes of a :func:`collect` record that succeeded (NaN if none finished)."""
+    return record["successes"] / record["finished"] if record["finished"] else float("nan")
 
 
 def collect(task: str, samples: int, seed: int, behaviour, progress: bool = False, desc: str = "rollouts"):
@@ -202,8 +207,10 @@ def collect(task: str, samples: int, seed: int, behaviour, progress: bool = Fals
     generator seeded by ``seed`` that also draws the cups.
 
     Returns the data set (``meta`` empty: the caller says how it was made) and a record of the rollout:
-    ``episodes``, ``successes``, ``expert_queries`` (labels asked of the expert, one per state) and
-    ``expert_seconds`` (wall time spent in the expert: building G per episode and eq. 10 per state).
+    ``episodes`` (in the data set), ``finished`` (those that ended: the last one is cut off when the data set is
+    full, and has neither succeeded nor failed), ``successes`` (among the finished), ``expert_queries`` (labels
+    asked of the expert, one per state) and ``expert_seconds`` (wall time spent in the expert: building G per
+    episode and eq. 10 per state). :func:`success_rate` divides the two counts.
     """
     if task not in ENV_IDS:
         raise ValueError(f"task must be one of {sorted(ENV_IDS)}, got {task!r}")
@@ -213,7 +220,7 @@ def collect(task: str, samples: int, seed: int, behaviour, progress: bool = Fals
     env = gym.make(ENV_IDS[task], obs_mode="state")
     expert = IKExpert(env)
     rows = {name: [] for name in ARRAYS}
-    episodes = successes = 0
+    episodes = finished = successes = 0
     expert_seconds = 0.0
     bar = tqdm(total=samples, desc=desc, disable=not progress, unit="sample")
     n = 0
@@ -239,12 +246,14 @@ def collect(task: str, samples: int, seed: int, behaviour, progress: bool = Fals
                 _, _, terminated, truncated, info = env.step(behaviour(state, a_exp, rng))
                 if terminated or truncated or n >= samples:
                     break
-            successes += bool(info["is_success"])
+            ended = terminated or truncated
+            finished += ended
+            successes += ended and bool(info["is_success"])
             episodes += 1
     finally:
         bar.close()
         env.close()
-    record = {"episodes": episodes, "successes": successes, "expert_queries": n, "expert_seconds": expert_seconds,
-              "image_size": env.unwrapped.scene.image_size}
+    record = {"episodes": episodes, "finished": finished, "successes": successes, "expert_queries": n,
+              "expert_seconds": expert_seconds, "image_size": env.unwrapped.scene.image_size}
     dtypes = {"joints": np.float32, "cup": np.float32, "actions": np.float32, "episode": np.int32, "t": np.int16}
     return Demos(**{k: np.asarray(v, dtype=dtypes[k]) for k, v in rows.items()}), record

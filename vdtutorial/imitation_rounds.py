@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from vdtutorial.demos import FORMAT_VERSION, Demos, collect
+from vdtutorial.demos import FORMAT_VERSION, Demos, collect, success_rate
 from vdtutorial.policy import GaussianPolicy
 from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, default_config, pretrain
 
@@ -85,6 +85,6 @@ def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed
         policy, history = pretrain(demos, cfg, seed=seed, progress=progress)
         records.append({"round": k, **record, "labels": size, "labels_total": len(demos),
                         "expert_queries": rollout["expert_queries"], "expert_seconds": rollout["expert_seconds"],
-                        "episodes": rollout["episodes"], "rollout_success_rate": rollout["successes"] / rollout["episodes"],
+                        "episodes": rollout["episodes"], "rollout_success_rate": success_rate(rollout),
                         "pretrain_seconds": time.perf_counter() - start, "val_mse": history[-1]["val_mse"]})
     return RoundsResult(demos, policy, parts, records)
