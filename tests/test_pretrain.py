@@ -55,6 +55,16 @@ def test_same_seed_same_policy(demos, trained):
         torch.testing.assert_close(p, q)
 
 
+def test_without_a_configuration_pretrain_uses_the_one_its_docstring_names():
+    doc = " ".join(pretrain.__doc__.split())
+    assert "(default: ``PretrainConfig()``, the paper's setting" in doc and "default: :func:`default_config`" not in doc
+    small = generate_demos("reach", 120, 0.3, seed=4, progress=False)
+    (plain, _), (named, _) = (pretrain(small, seed=0, progress=False),
+                              pretrain(small, PretrainConfig(), seed=0, progress=False))
+    for p, q in zip(plain.state_dict().values(), named.state_dict().values()):
+        assert torch.equal(p, q)
+
+
 def test_held_out_split_is_by_whole_episodes(demos):
     train, val = split_by_episode(demos, 0.2, seed=0)
     assert len(np.intersect1d(demos.episode[train], demos.episode[val])) == 0

@@ -201,8 +201,9 @@ class HeldOutStop:
 def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
              observations=None, spread_net=None,
              device: torch.device | str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
-    """Behavioural cloning of ``demos`` with the chosen regulariser (default: :func:`default_config` for
-    state inputs), then sigma set by ``config.initial_sigma`` (:func:`set_initial_sigma`). Returns the
+    """Behavioural cloning of ``demos`` with the chosen regulariser (default: ``PretrainConfig()``, the paper's
+    setting; the experiments pass :func:`default_config`), then sigma set by ``config.initial_sigma``
+    (:func:`set_initial_sigma`). Returns the
     policy (in eval mode, sigma trainable again; a VD policy is not yet pruned: call ``policy.prune_()``
     to start RL) and one log row per epoch.
     ``observations`` may pass inputs already made by :func:`demo_observations`; ``spread_net``: the VD mean
