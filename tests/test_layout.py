@@ -83,3 +83,34 @@ def test_a_module_docstring_is_short_and_names_the_chapter_that_teaches_it(path)
         text = "".join("".join(cell["source"]) for cell in json.loads(chapters[number].read_text())["cells"])
         assert any(re.search(re.escape(name) + r"\b", text) for name in names), \
             f"chapter {chapters[number].name} does not mention {names[0]}"
+
+
+#: A pointer to a docstring section: "module docstring" or a class of the same module, then the quoted words to look for.
+POINTER = re.compile(r'(module docstring|:class:`~?([\w.]+)`),\s+"([^"]+)"')
+
+
+def _pointers_and_targets(path: Path) -> list[tuple[int, str, str]]:
+    """Each "module docstring" mention and each quoted class section in ``path``: (line, words, the text pointed at)."""
+    tree, text = _tree(path), path.read_text()
+    docs = {"module docstring": ast.get_docstring(tree) or ""}
+    docs.update({node.name: ast.get_docstring(node) or "" for node in ast.walk(tree) if isinstance(node, ast.ClassDef)})
+    module_doc = tree.body[0].end_lineno if docs["module docstring"] else 0
+    found = []
+    for number, line in enumerate(text.splitlines(), 1):
+        if number <= module_doc:
+            continue
+        pointers = list(POINTER.finditer(line))
+        if "module docstring" in line and not any(m.group(1) == "module docstring" for m in pointers):
+            found.append((number, line.strip(), ""))  # a bare "see the module docstring": says nothing to look for
+        for match in pointers:
+            target = docs.get(match.group(2).rsplit(".", 1)[-1] if match.group(2) else "module docstring")
+            if target is not None:
+                found.append((number, match.group(3), " ".join(target.split())))
+    return found
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_a_pointer_to_a_docstring_names_words_that_are_there(path):
+    dangling = [f"line {n}: {words!r}" for n, words, target in _pointers_and_targets(path)
+                if " ".join(words.split()) not in target]
+    assert not dangling

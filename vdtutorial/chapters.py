@@ -93,7 +93,7 @@ def _student_edition(files: dict[str, Path], source: Path, scratch: Path) -> dic
 def write_notebooks(dest: str | Path, force: bool = False, source: Path | None = None,
                     student: bool = False) -> WrittenBook:
     """Copy the chapters and their data from ``source`` into ``dest``; with ``student``, the student edition
-    and its solutions apart (see the module docstring).
+    and its solutions apart (module docstring, "writes the self-learner's edition").
 
     Raises :class:`EditedFilesError`, before writing anything, if a file to be replaced differs both from
     what was last written there and from what would be written now, unless ``force``."""

@@ -44,7 +44,7 @@ def mixture(policy, beta: float):
 
 def dagger(task: str = "reach", reg: str = "vd", samples: int = 8000, rounds: int = 4, beta: float = BETA,
            seed: int = 0, config: PretrainConfig | None = None, progress: bool = False) -> RoundsResult:
-    """DAgger's rounds (module docstring) with beta_i = ``beta``^i, cloning with ``reg``; ``samples``
+    """DAgger's rounds (module docstring, "Choices made here") with beta_i = ``beta``^i, cloning with ``reg``; ``samples``
     expert labels in all, split evenly over the rounds."""
     if not 0 <= beta <= 1:
         raise ValueError(f"beta must be in [0, 1], got {beta!r}")

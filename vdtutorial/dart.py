@@ -36,7 +36,7 @@ JITTER = 1e-10
 def noise_estimate(errors: np.ndarray, alpha: float | None = None, horizon: int | None = None) -> np.ndarray:
     """DART's Gaussian noise from the learner's errors ``errors`` (one row pi_theta(x) - pi_exp(x) per
     visited state): their mean outer product Sigma_hat; with ``alpha`` (and the horizon T) the scaled
-    Sigma_alpha = alpha / (T tr(Sigma_hat)) Sigma_hat (module docstring).
+    Sigma_alpha = alpha / (T tr(Sigma_hat)) Sigma_hat (module docstring, "a scaled variant").
 
     **The variant implemented here** is the unscaled closed form Sigma_hat (:func:`noise_estimate`; pass
     ``alpha`` and ``horizon`` for Sigma_alpha). The expectation is taken over the *held-out* episodes of the
@@ -88,7 +88,7 @@ def sigma_per_joint(covariance: np.ndarray) -> np.ndarray:
 
 def dart(task: str = "reach", reg: str = "vd", samples: int = 8000, rounds: int = 4, start_sigma: float = 0.05,
          seed: int = 0, config: PretrainConfig | None = None, progress: bool = False) -> RoundsResult:
-    """DART's rounds (module docstring) from Sigma_0 = ``start_sigma``^2 I, cloning with ``reg``.
+    """DART's rounds (module docstring, "chooses the noise instead") from Sigma_0 = ``start_sigma``^2 I, cloning with ``reg``.
 
     Each round's record holds the covariance it collected with and its per-joint standard deviation; the
     last one also holds ``next_covariance`` (and ``next_sigma_per_joint``), the estimate from the final

@@ -165,7 +165,7 @@ class _FirstConvolutions:
     """mu's and sigma's first convolutions, which read the same image, traced as one
     (:func:`vdtutorial.policy.joint_conv2d`). Their input is data, so the backward pass needs only the
     weight gradients: one batched matrix product per network with the image's patches, unfolded once
-    per update for both (see the module docstring for why not one product for both)."""
+    per update for both (:class:`GaussNewtonFisher`, "Their two weight gradients stay two matrix products")."""
 
     def __init__(self, layers: list[nn.Module], image: torch.Tensor):
         self.layers, self.image = layers, image
@@ -227,7 +227,7 @@ class _NetTrace:
 
 class GaussNewtonFisher:
     """v -> F v for a :class:`GaussianPolicy` on a batch of observations, F the Hessian of the mean
-    KL(old || pi_theta) at the current parameters theta = theta_old (see the module docstring).
+    KL(old || pi_theta) at the current parameters theta = theta_old (module docstring, "F = J^T M J").
 
     policy: a policy for which :func:`supports` holds. obs: the batch (the states the mean KL averages
     over). old: the policy's own distribution on ``obs`` at the current parameters, as TRPO's pi_old;

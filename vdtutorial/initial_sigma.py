@@ -29,7 +29,7 @@ from vdtutorial.vd import svdo_layers
 KINDS = ("fixed", "demos", "spread")
 #: Image policies: the fits use this many training states (a seeded subset) ...
 IMAGE_FIT_STATES = 2048
-#: ... in minibatches of this size (module docstring, "How a fit works").
+#: ... in minibatches of this size (:class:`InitialSigma`, "How a fit works").
 IMAGE_FIT_BATCH = 256
 #: The paper's (and today's) initial sigma, the policy's ``init_std``: the default of option (a).
 DEFAULT_VALUE = 0.3
@@ -171,7 +171,7 @@ def gaussian_nll(mu: torch.Tensor, sigma: torch.Tensor, actions: torch.Tensor) -
 def _fit_sigma(policy, obs, loss_of_sigma, spec: InitialSigma, batch: int | None = None, seed: int = 0) -> list[float]:
     """Adam on the sigma network's parameters (eval mode) to minimise ``loss_of_sigma(sigma, idx)``, the
     loss of the states ``idx``: the whole batch every step (``batch`` None), or seeded minibatches of
-    ``batch`` states (images; module docstring)."""
+    ``batch`` states (images; :class:`InitialSigma`, "How a fit works")."""
     was_training = policy.training
     policy.eval()
     params = [p for p in policy.sigma.parameters() if p.requires_grad]

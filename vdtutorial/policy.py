@@ -44,7 +44,7 @@ IMAGE_KEYS = ("rgb", "depth", "joints")
 DEPTH_SCALE = 3.0
 #: Number of trailing entries of a "state" observation that are the cup position (x, y, z).
 CUP_DIMS = 3
-#: Factor applied to the initial weights of the final layer (see the module docstring).
+#: Factor applied to the initial weights of the final layer (:class:`GaussianPolicy`, "Initialisation").
 HEAD_INIT_SCALE = 0.1
 
 
@@ -176,7 +176,7 @@ def joint_conv2d(layers, x: torch.Tensor, weights: list[torch.Tensor], biases: l
 
 
 class TwoStreamNet(nn.Module):
-    """Fig. 2 network (see the module docstring for the three kinds and the normalisation).
+    """Fig. 2 network (module docstring, "Network kinds"; the normalisation of its inputs is below).
 
     ``streams[0]`` is the scene stream (image, cup position, or the whole vector for ``"mlp"``),
     ``streams[1]`` the joint stream (absent for ``"mlp"``); ``head`` is the final fully connected layer.

@@ -29,7 +29,7 @@ from torch import nn
 
 from vdtutorial.settings import budget
 
-#: Range that log alpha is clipped to (see the module docstring).
+#: Range that log alpha is clipped to (:class:`SVDOLayer`, "Clipping log alpha").
 LOG_ALPHA_MIN, LOG_ALPHA_MAX = -8.0, 8.0
 #: Pruning threshold on log alpha: alpha > e^3, i.e. binary dropout with p > 0.95 (paper, Section IV).
 THRESHOLD = 3.0
@@ -120,7 +120,7 @@ class SVDOLayer(nn.Module):
 
     @torch.no_grad()
     def prune_(self, threshold: float = THRESHOLD) -> "SVDOLayer":
-        """Freeze the mask log alpha <= threshold for RL fine-tuning (idempotent, see the module docstring).
+        """Freeze the mask log alpha <= threshold for RL fine-tuning (idempotent).
 
         Pruning and fine-tuning
             In eval mode a layer is deterministic and uses theta with the weights of log alpha > 3 set to zero.

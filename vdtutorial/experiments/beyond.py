@@ -385,7 +385,7 @@ def plot(rows: list[dict], made: dict[str, dict]) -> Figure:
 def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, progress: bool | None = None,
            backend: str = "local", address: str | None = None, restart: bool = False, state_dir=None,
            checkpoint_every: int = CHECKPOINT_EVERY, start_sigma: str | None = None) -> dict:
-    """The experiment (module docstring); returns its JSON record. The data sets are made here, one after
+    """The experiment (module docstring, "Two stages per data set and seed"); returns its JSON record. The data sets are made here, one after
     the other; the runs are a grid (:func:`~vdtutorial.runner.grid.run_grid`: ``workers``, ``backend``,
     ``address``, ``restart``, ``progress``): per variant and seed a :class:`PreRLJob` and an :class:`RLJob` of
     ``steps`` env steps (default :func:`rl_steps`; RL starts from ``start_sigma``, default the figures' start

@@ -56,7 +56,7 @@ def needs_pretraining(spec: RunSpec) -> bool:
 
 def run_seconds(spec: RunSpec, steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_s: float = 0.0,
                 total_steps: int = 300_000) -> float:
-    """Estimated duration of one run on one core (module docstring). An L2 run whose start sigma is fitted
+    """Estimated duration of one run on one core (module docstring, "A run lasts"). An L2 run whose start sigma is fitted
     to the VD network's spread (``RL_START_SIGMA == "spread"``) needs the VD checkpoint of its data set and
     seed too, and is costed as making it: it may start before, or beside, the VD run that would."""
     seconds = total_steps / steps_per_s

@@ -199,7 +199,7 @@ def plot(rows: list[dict], seeds) -> Figure:
 
 def pretrain_stop(seeds=None, out=None, workers: int = 2, progress: bool | None = None, backend: str = "local",
                   address: str | None = None, restart: bool = False, state_dir=None) -> dict:
-    """Run the comparison (module docstring) as one resumable grid; write ``pretrain_stop.csv.gz``,
+    """Run the comparison (module docstring, "Per method") as one resumable grid; write ``pretrain_stop.csv.gz``,
     ``pretrain_stop.png`` (:func:`plot`) and ``pretrain_stop.json`` into ``out`` (default ``runs/pretrain_stop``;
     shipped: ``data/results/pretrain_stop``)."""
     seeds = tuple(default_seeds() if seeds is None else seeds)

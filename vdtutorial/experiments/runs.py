@@ -33,7 +33,7 @@ from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 RL_METHODS = ("vd", "l2", "none")
 METHODS = RL_METHODS + ("expert",)
 METHOD_LABELS = {"vd": "VD", "l2": "L2", "none": "no pre-training", "expert": "IK expert"}
-#: Sub-environments of the vector env: 8 x 25 steps = one 200-step iteration (see the module docstring).
+#: Sub-environments of the vector env: 8 runs of at most 25 steps (HORIZON) fill one 200-step iteration.
 NUM_ENVS = EPISODE_STEPS // HORIZON
 #: Row column plotted for each task: successes per 200-step episode (reach), cumulative reward (grasp).
 METRIC = {"reach": "successes", "grasp": "mean_return"}

@@ -36,7 +36,7 @@ TABLE1 = (
 )
 
 
-#: The KL weightings of Table I: the ``PretrainConfig.kl_samples`` each one sets (module docstring).
+#: The KL weightings of Table I: the ``PretrainConfig.kl_samples`` each one sets (module docstring, "Why two weightings").
 #: "fixed" divides by the 8000-sample set's nominal training split, 8000 x (1 - 0.1 held out).
 KL_WEIGHTINGS = {"per-set": None, "fixed": round(8000 * (1 - PretrainConfig.val_fraction))}
 

@@ -37,7 +37,7 @@ class GridProgress:
     names: the name of each pending run (in the order of the jobs).
     steps: the env steps each pending run still has to do.
     done, total: runs already finished before this start (skipped), and all runs of the grid.
-    progress: None (default: live line where it makes sense, see the module docstring), True or False.
+    progress: None (default: live line where it makes sense: module docstring, "It is on by default only there"), True or False.
     """
 
     def __init__(self, name: str, names: list[str], steps: list[int], done: int, total: int,

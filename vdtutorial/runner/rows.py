@@ -28,7 +28,7 @@ def results_file(folder: str | Path, name: str) -> Path:
     return Path(folder) / f"{name}.csv.gz"
 
 
-#: Significant digits of a stored float (module docstring).
+#: Significant digits of a stored float (module docstring, "Floats are stored to").
 SIGNIFICANT_DIGITS = 8
 #: The columns that time a row (TRPO's seconds collecting and updating, and the run's seconds so far). They
 #: measure the machine's load, which moves them by far more than a part in a thousand from one run to the next,
