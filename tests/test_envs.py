@@ -108,8 +108,11 @@ def test_joint_limits_are_respected():
     env.close()
 
 
-def test_truncation_at_the_horizon():
-    env = gym.make(ENV_IDS["reach"], obs_mode="state")
+@pytest.mark.parametrize("task", sorted(ENV_IDS))
+def test_the_env_itself_truncates_at_the_horizon(task):
+    """The horizon is said once, in the env: no TimeLimit wrapper counts the steps again."""
+    env = gym.make(ENV_IDS[task], obs_mode="state")
+    assert env.spec.max_episode_steps is None
     env.reset(seed=0)
     for t in range(1, HORIZON + 1):
         _, _, terminated, truncated, _ = env.step(np.zeros(6))

@@ -148,3 +148,16 @@ def test_patience_needs_a_held_out_split():
         PretrainConfig(patience=5, val_fraction=0.0)
     with pytest.raises(ValueError, match="patience"):
         PretrainConfig(patience=0)
+
+
+def test_a_checkpoint_is_named_after_its_data_set_and_both_names_read_back():
+    from vdtutorial import demos as demos_module, pretrain as pretrain_module
+    from vdtutorial.demos import data_set_name, demo_path
+
+    meta = {"task": "reach", "samples": 4000, "noise": 0.25}
+    data_file, checkpoint = demo_path("reach", 4000, 0.25, 3), checkpoint_path(meta, "vd", "rgbd", 2)
+    assert data_file.name.startswith(data_set_name("reach", 4000, 0.25) + "_seed")
+    assert checkpoint.name.startswith(data_file.name.split("_seed")[0] + "_vd_rgbd")
+    read = demos_module._NAME.fullmatch(data_file.name), pretrain_module._NAME.fullmatch(checkpoint.name)
+    assert [(m["task"], int(m["samples"]), float(m["noise"])) for m in read] == [("reach", 4000, 0.25)] * 2
+    assert (read[0]["seed"], read[1]["seed"], read[1]["reg"], read[1]["obs"]) == ("3", "2", "vd", "rgbd")

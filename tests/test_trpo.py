@@ -381,3 +381,13 @@ def test_learns_pendulum():
     algo = TRPO(pendulum_policy(env), env, TRPOConfig(steps_per_iter=1600), seed=0)
     returns = [r["mean_return"] for r in algo.run(20 * 1600, progress=False)]
     assert np.mean(returns[-3:]) > np.mean(returns[:3]) + 200
+
+
+def test_mean_kl_is_the_gaussian_kl_summed_over_actions_and_averaged_over_states():
+    from vdtutorial.trust_region import mean_kl
+
+    gen = torch.Generator().manual_seed(0)
+    mu0, mu1 = torch.randn(5, 3, generator=gen), torch.randn(5, 3, generator=gen)
+    s0, s1 = torch.rand(5, 3, generator=gen) + 0.1, torch.rand(5, 3, generator=gen) + 0.1
+    by_hand = (torch.log(s1 / s0) + (s0 ** 2 + (mu0 - mu1) ** 2) / (2 * s1 ** 2) - 0.5).sum(-1).mean()
+    torch.testing.assert_close(mean_kl(Normal(mu0, s0), Normal(mu1, s1)), by_hand)

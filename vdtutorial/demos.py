@@ -59,9 +59,19 @@ def demo_command(task: str, samples: int, noise: float, seed: int) -> str:
     return f"python -m vdtutorial demos --task {task} --samples {samples} --noise {noise:g} --seed {seed}"
 
 
+def data_set_name(task: str, samples: int, noise: float) -> str:
+    """The data set's part of a file name, ``TASK_nSAMPLES_sigmaSIGMA``: a demonstrations file adds its seed
+    (:func:`demo_path`), a checkpoint cloned from it adds its own settings (``pretrain.checkpoint_path``)."""
+    return f"{task}_n{samples}_sigma{noise:g}"
+
+
+#: :func:`data_set_name` read back (groups ``task``, ``samples``, ``noise``): the start of both file-name patterns.
+DATA_SET_PATTERN = r"(?P<task>[a-z]+)_n(?P<samples>\d+)_sigma(?P<noise>[0-9.e-]+)"
+
+
 def demo_path(task: str, samples: int, noise: float, seed: int = 0, root: Path | None = None) -> Path:
     """Conventional file name of a data set under ``data/demos``."""
-    return Path(root or data_dir()) / "demos" / f"{task}_n{samples}_sigma{noise:g}_seed{seed}.npz"
+    return Path(root or data_dir()) / "demos" / f"{data_set_name(task, samples, noise)}_seed{seed}.npz"
 
 
 @dataclass
@@ -148,7 +158,7 @@ class Demos:
 
 
 #: The conventional file name of :func:`demo_path`, read back to fill in a regenerate hint.
-_NAME = re.compile(r"(?P<task>[a-z]+)_n(?P<samples>\d+)_sigma(?P<noise>[0-9.e-]+)_seed(?P<seed>\d+)\.npz")
+_NAME = re.compile(DATA_SET_PATTERN + r"_seed(?P<seed>\d+)\.npz")
 
 
 def _regenerate_hint(path: Path, meta: dict) -> str:

@@ -29,10 +29,9 @@ from torch import nn
 from torch.distributions import Normal
 
 from vdtutorial.policy import GaussianPolicy, TwoStreamNet, applied_weight, conv_geometry, joint_conv2d
-from vdtutorial.vd import SVDOLayer
+from vdtutorial.vd import WEIGHT_LAYERS, SVDOLayer
 
-#: Layers whose parameters the products cover, and the parameter-free modules they may be mixed with.
-WEIGHT_LAYERS = (nn.Linear, nn.Conv2d, SVDOLayer)
+#: The parameter-free modules the products let weight layers (vd.WEIGHT_LAYERS) be mixed with.
 ACTIVATIONS = (nn.ReLU, nn.Tanh, nn.Flatten)
 
 

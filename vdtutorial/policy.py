@@ -32,10 +32,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.distributions import Normal, kl_divergence
+from torch.distributions import Normal
 
 from vdtutorial.vd import (THRESHOLD, SVDOLayer, chain, compact_layers, concat_edges, make_conv2d, make_linear,
                            prune_model, rebuild_sequential)
+from vdtutorial.trust_region import mean_kl
 
 KINDS = ("rgbd", "state", "mlp")
 #: Keys of the environments' image observation (see :class:`vdtutorial.envs.base.JacoEnv`).
@@ -418,7 +419,7 @@ class GaussianPolicy(nn.Module):
             with torch.no_grad():
                 old = old.distribution(obs)
         old = Normal(old.loc.detach(), old.scale.detach())
-        return kl_divergence(old, self.distribution(obs)).sum(-1).mean()
+        return mean_kl(old, self.distribution(obs))
 
     @torch.no_grad()
     def sample(self, obs) -> torch.Tensor:

@@ -37,7 +37,7 @@ import torch
 from tqdm.auto import tqdm
 
 import vdtutorial
-from vdtutorial.demos import Demos, demo_path
+from vdtutorial.demos import DATA_SET_PATTERN, Demos, data_set_name, demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.initial_sigma import IMAGE_FIT_STATES, InitialSigma, apply_initial_sigma
 from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor, on_device, torch_device
@@ -340,7 +340,7 @@ def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, ro
     sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f"_initsigma-{initial_sigma}"
     kl = "" if kl_samples is None else f"_kl{kl_samples}"
     stop = "" if patience is None else f"_stop{patience}"
-    data = data_name or f"{m['task']}_n{m['samples']}_sigma{m['noise']:g}"
+    data = data_name or data_set_name(m["task"], m["samples"], m["noise"])
     return Path(root or data_dir()) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
 
 
@@ -356,8 +356,7 @@ def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> 
 
 
 #: The conventional file name of :func:`checkpoint_path`, read back to fill in a make-it hint.
-_NAME = re.compile(r"(?P<task>[a-z]+)_n(?P<samples>\d+)_sigma(?P<noise>[0-9.e-]+)_(?P<reg>vd|l2)_(?P<obs>state|rgbd)"
-                   r"_seed(?P<seed>\d+)\.pt")
+_NAME = re.compile(DATA_SET_PATTERN + r"_(?P<reg>vd|l2)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
 
 
 def _make_hint(path: Path) -> str:

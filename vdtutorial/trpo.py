@@ -37,7 +37,7 @@ import gymnasium
 import numpy as np
 import torch
 from torch import nn
-from torch.distributions import Normal, kl_divergence
+from torch.distributions import Normal
 from tqdm.auto import tqdm
 
 from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, MLPBaseline, Obs, default_baseline_features
@@ -45,7 +45,7 @@ from vdtutorial.fisher import GaussNewtonFisher
 from vdtutorial.fisher import supports as supports_gauss_newton
 from vdtutorial.policy import obs_to_tensor, on_device, torch_device
 from vdtutorial.runner.rows import TIMING_COLUMNS  # the columns of a log row that measure time (stored to 3 digits)
-from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search
+from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search, mean_kl
 
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
 #: The ways :class:`TRPO` can compute Fisher-vector products (its ``fisher`` argument).
@@ -372,7 +372,7 @@ def fisher_product(policy: nn.Module, params: list[nn.Parameter], obs: TensorObs
         gauss_newton = GaussNewtonFisher(policy, obs, old, params)
         return lambda v: gauss_newton(v) + damping * v
     dist = dist if dist is not None else policy.distribution(obs)
-    kl_grad = flat_grad(kl_divergence(old, dist).sum(-1).mean(), params, create_graph=True)
+    kl_grad = flat_grad(mean_kl(old, dist), params, create_graph=True)
     return lambda v: fisher_vector_product(kl_grad, params, v, damping)
 
 
@@ -497,7 +497,7 @@ class TRPO:
 
         def surrogate_and_kl() -> tuple[torch.Tensor, torch.Tensor]:
             dist = self.policy.distribution(obs)
-            return surrogate_of(dist), kl_divergence(old, dist).sum(-1).mean()
+            return surrogate_of(dist), mean_kl(old, dist)
 
         surrogate = surrogate_of(dist)
         whole_batch = batch.fvp_index is None

@@ -15,6 +15,7 @@ from typing import Callable
 
 import torch
 from torch import nn
+from torch.distributions import Distribution, kl_divergence
 
 
 def flat_grad(y: torch.Tensor, params: list[nn.Parameter], create_graph: bool = False,
@@ -24,6 +25,12 @@ def flat_grad(y: torch.Tensor, params: list[nn.Parameter], create_graph: bool = 
     grads = torch.autograd.grad(y, params, create_graph=create_graph, retain_graph=retain_graph,
                                 allow_unused=True)
     return torch.cat([(torch.zeros_like(p) if g is None else g).reshape(-1) for p, g in zip(params, grads)])
+
+
+def mean_kl(old: Distribution, new: Distribution) -> torch.Tensor:
+    """TRPO's constraint, the mean KL(pi_old || pi_new) over the batch's states (Schulman et al., 2015,
+    eq. 12): per state the KL of the diagonal Gaussian is the sum over its independent action dimensions."""
+    return kl_divergence(old, new).sum(-1).mean()
 
 
 def fisher_vector_product(kl_grad: torch.Tensor, params: list[nn.Parameter], v: torch.Tensor,

@@ -8,7 +8,7 @@ Taught in chapter 01.
 """
 import gymnasium
 
-from vdtutorial.envs.base import HORIZON
+from vdtutorial.envs.base import HORIZON  # noqa: F401  (the horizon H, for the experiments and chapters)
 
 ENV_IDS = {
     "reach": "vdtutorial/JacoReach-v0",
@@ -17,4 +17,4 @@ ENV_IDS = {
 
 for _task, _entry in (("reach", "vdtutorial.envs.reach:JacoReachEnv"), ("grasp", "vdtutorial.envs.grasp:JacoGraspEnv")):
     if ENV_IDS[_task] not in gymnasium.registry:
-        gymnasium.register(id=ENV_IDS[_task], entry_point=_entry, max_episode_steps=HORIZON)
+        gymnasium.register(id=ENV_IDS[_task], entry_point=_entry)  # the env truncates at HORIZON itself
