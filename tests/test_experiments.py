@@ -21,6 +21,7 @@ from vdtutorial.experiments import (KL_WEIGHTINGS, METHOD_LABELS, TABLE1, Curve,
                                     run_experiment, seeds_with_trend, sparsity_trends, steps_to_reach, table1,
                                     table_means, vd_reaches_l2_final)
 from vdtutorial.runner import backends
+from vdtutorial.settings import QUICK_ENV
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.trpo import TIMING_COLUMNS
 from vdtutorial.vd import svdo_layers
@@ -89,7 +90,8 @@ def test_same_seed_same_run_and_another_seed_another(tmp_path):
     assert _without_wall_time(first) != _without_wall_time(other)
 
 
-def test_stale_checkpoint_is_regenerated_with_one_plain_line(tmp_path, capsys):
+def test_stale_checkpoint_is_regenerated_with_one_plain_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv(QUICK_ENV, "1")  # quick mode looks under tmp_path only (full mode tries the shipped file first)
     demos = Demos.load(DEMOS)
     pretrained_policy("l2", demos, "state", 0, TINY, tmp_path)
     capsys.readouterr()
