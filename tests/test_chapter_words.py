@@ -68,7 +68,7 @@ def _table_floats(path: Path):
 def shipped_results() -> dict[float, str]:
     """Each measured value of each shipped result record and each measured number of each shipped table, with
     the file it comes from."""
-    from vdtutorial.chapters import shipped_files
+    from vdtutorial.course.chapters import shipped_files
 
     found = {}
     shipped = [ROOT / path for path in shipped_files(ROOT) if path.parts[:2] == ("data", "results")]

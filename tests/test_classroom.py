@@ -16,7 +16,7 @@ import pytest
 
 pytest.importorskip("nbgrader", reason="nbgrader is the classroom extra (Colab's CI leg goes without it)")
 
-from vdtutorial import classroom, sandbox
+from vdtutorial.course import classroom, sandbox
 from vdtutorial.__main__ import main
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only

@@ -98,7 +98,7 @@ def test_ci_runs_the_readme_test_command():
 def test_data_folder_stays_small():
     """The shipped artefacts (what the wheel carries and `notebooks DEST` copies out: an experiment's own runs/,
     states and checkpoints under data/results/ are not shipped) stay under 30 MiB."""
-    from vdtutorial.chapters import shipped_files
+    from vdtutorial.course.chapters import shipped_files
 
     size = sum((ROOT / p).stat().st_size for p in shipped_files(ROOT) if p.parts[0] == "data")
     assert size < 30 * 2**20

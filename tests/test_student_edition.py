@@ -7,9 +7,9 @@ import pytest
 
 pytest.importorskip("nbgrader", reason="nbgrader is the classroom extra (Colab's CI leg goes without it)")
 
-from vdtutorial import classroom
+from vdtutorial.course import classroom
 from vdtutorial.__main__ import main
-from vdtutorial.chapters import EditedFilesError, shipped_files
+from vdtutorial.course.chapters import EditedFilesError, shipped_files
 from vdtutorial.settings import BOOK_RECORD, shipped_dir
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
@@ -40,7 +40,7 @@ def test_student_edition_with_its_solutions_apart(tmp_path, capsys):
 
 
 def test_student_edition_keeps_the_learners_answers(tmp_path):
-    from vdtutorial.chapters import write_notebooks
+    from vdtutorial.course.chapters import write_notebooks
 
     book = write_notebooks(tmp_path, student=True)
     assert book.chapters == book.solutions == len(classroom.chapters())

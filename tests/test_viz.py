@@ -1,4 +1,4 @@
-"""Tests for vdtutorial.viz: the server-free meshcat page, pose mirroring, and the matplotlib helpers.
+"""Tests for vdtutorial.course.viz: the server-free meshcat page, pose mirroring, and the matplotlib helpers.
 
 The pose checks compute each visual's world pose a second way, through pybullet's own transform
 helpers (and, where possible, through the collision shapes or the AABB), and compare it with the
@@ -22,7 +22,7 @@ import pytest
 import umsgpack
 
 import vdtutorial
-from vdtutorial import viz
+from vdtutorial.course import viz
 
 JACO_URDF = Path(vdtutorial.__file__).resolve().parent / "assets" / "jaco6.urdf"  # the package under test
 TABLE_HALF_EXTENTS = (0.4, 0.6, 0.02)
@@ -319,7 +319,7 @@ def test_import_hides_meshcats_zmq_deprecation_warning():
     code = ("import warnings\n"
             "with warnings.catch_warnings(record=True) as caught:\n"
             "    warnings.simplefilter('always')\n"
-            "    import vdtutorial.viz\n"
+            "    import vdtutorial.course.viz\n"
             "assert not [w for w in caught if 'zmq' in str(w.message)], caught\n")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
 

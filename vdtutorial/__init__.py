@@ -10,4 +10,11 @@ Taught in chapter 00.
 """
 __version__ = "0.1.0"
 
-from vdtutorial import envs as _envs  # noqa: E402,F401  (registers the environment ids)
+try:
+    from vdtutorial import envs as _envs  # noqa: E402,F401  (registers the environment ids)
+except ModuleNotFoundError as missing:  # say how to get pybullet on this machine, not just its name
+    if missing.name != "pybullet":
+        raise
+    from vdtutorial.course.install_check import missing_pybullet
+
+    raise ModuleNotFoundError(f"pybullet is not installed: {missing_pybullet()}", name="pybullet") from None

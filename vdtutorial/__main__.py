@@ -325,8 +325,8 @@ def _cmd_experiment(args) -> None:
 
 
 def _cmd_notebooks(args) -> None:
-    """The chapters and the data they load, written into a folder of the learner's (see vdtutorial.chapters)."""
-    from vdtutorial.chapters import EditedFilesError, NoNbgraderError, write_notebooks
+    """The chapters and the data they load, written into a folder of the learner's (see vdtutorial.course.chapters)."""
+    from vdtutorial.course.chapters import EditedFilesError, NoNbgraderError, write_notebooks
 
     try:
         book = write_notebooks(args.dest, force=args.force, student=args.student)
@@ -341,8 +341,8 @@ def _cmd_notebooks(args) -> None:
 
 
 def _cmd_book(args) -> None:
-    """The chapters executed and exported as a static HTML book that reads offline (see vdtutorial.html_book)."""
-    from vdtutorial.html_book import build_book
+    """The chapters executed and exported as a static HTML book that reads offline (see vdtutorial.course.html_book)."""
+    from vdtutorial.course.html_book import build_book
 
     start = time.perf_counter()
     book = build_book(args.out, numbers=args.chapters, quick=not args.full)
@@ -425,7 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_pipeline_commands(sub)
     _add_measurement_commands(sub)
     _add_experiment_commands(sub)
-    from vdtutorial import classroom
+    from vdtutorial.course import classroom
 
     classroom.add_parser(sub)
     return parser

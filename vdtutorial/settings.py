@@ -18,7 +18,7 @@ from pathlib import Path
 QUICK_ENV = "VDTUTORIAL_QUICK"
 #: The variables that move the data folder and the output folder elsewhere.
 DATA_ENV, RUNS_ENV = "VDTUTORIAL_DATA", "VDTUTORIAL_RUNS"
-#: The file that marks a folder written by ``python -m vdtutorial notebooks DEST`` (:mod:`vdtutorial.chapters`).
+#: The file that marks a folder written by ``python -m vdtutorial notebooks DEST`` (:mod:`vdtutorial.course.chapters`).
 BOOK_RECORD = "vdtutorial-book.json"
 _PACKAGE = Path(__file__).resolve().parent
 #: The copy of the chapters and data inside an installed package (the wheel carries them there).

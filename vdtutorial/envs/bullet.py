@@ -20,10 +20,8 @@ import warnings
 def _import_quietly():
     if "pybullet" in sys.modules:
         return sys.modules["pybullet"]
-    if importlib.util.find_spec("pybullet") is None:  # say how to get it on this machine, not just its name
-        from vdtutorial.install_check import missing_pybullet
-
-        raise ModuleNotFoundError(f"pybullet is not installed: {missing_pybullet()}", name="pybullet")
+    if importlib.util.find_spec("pybullet") is None:  # vdtutorial/__init__.py adds how to get it on this machine
+        raise ModuleNotFoundError("pybullet is not installed", name="pybullet")
     sys.stderr.flush()
     try:
         saved = os.dup(2)
@@ -47,10 +45,8 @@ pybullet = _import_quietly()
 @functools.cache
 def warn_if_images_are_slow() -> None:
     """Warn once per process when this pybullet has no numpy support: camera images then come back as
-    Python sequences, which cost time on every image (a source build made in pip's isolated environment, see
-    :mod:`vdtutorial.install_check`, which prints the cost and the command that rebuilds it)."""
+    Python sequences, which cost time on every image (a source build made in pip's isolated environment).
+    Chapter 00's install check (:mod:`vdtutorial.course.install_check`) prints the command that rebuilds it."""
     if not pybullet.isNumpyEnabled():
-        from vdtutorial.install_check import NO_NUMPY_COST, NUMPY_BUILD
-
-        warnings.warn(f"pybullet was built without numpy support: {NO_NUMPY_COST} "
-                      f"Rebuild it with: {NUMPY_BUILD}", stacklevel=3)
+        warnings.warn("pybullet was built without numpy support: camera images come back slower (docs/install.md). "
+                      "Chapter 00's install check prints the command that rebuilds it.", stacklevel=3)

@@ -16,11 +16,11 @@ A student's notebook runs arbitrary code. Before the kernel starts, this launche
 Where namespaces are not allowed (macOS, Windows, containers that forbid them) only the limits apply;
 :func:`isolation_available` tells the caller so, and ``classroom grade`` says it plainly.
 
-The launcher is run as a script (``python -I sandbox.py ...``), never imported as ``vdtutorial.sandbox`` in
+The launcher is run as a script (``python -I sandbox.py ...``), never imported as ``vdtutorial.course.sandbox`` in
 the launched process: importing the package loads numpy, whose threads would forbid ``unshare(CLONE_NEWUSER)``
 (a process must be single-threaded to enter a new user namespace). It uses only the standard library.
 
-Not taught in a chapter: part of the teacher's grading (vdtutorial/classroom.py, notebooks/TEACHING.md).
+Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
 """
 from __future__ import annotations
 

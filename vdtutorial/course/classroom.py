@@ -12,7 +12,7 @@ nbgrader course directory and calls nbgrader's own steps,
   gradebook) then ``autograde`` per student: each submission runs on a fresh kernel with nbgrader's
   per-cell timeout, errors in a cell are recorded in that cell, and the points come from the gradebook.
 
-Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.sandbox`): a memory and a CPU-time
+Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): a memory and a CPU-time
 cap, a throwaway home that is also its working folder, and on Linux, where the system allows
 unprivileged user namespaces, no network and a read-only file system outside that folder. The kernels talk
 to nbgrader over Unix sockets (ZeroMQ's ``ipc`` transport), not TCP. Where namespaces are not allowed the
@@ -197,11 +197,11 @@ def collect(paths, source: Path | None = None) -> list[Submission]:
 
 def _bounded_kernels(scratch: Path, limits: Limits) -> dict[str, str]:
     """Make the ``python3`` kernel that nbgrader starts a bounded one: a kernelspec in ``scratch`` whose
-    command is the :mod:`vdtutorial.sandbox` launcher in front of ipykernel, each kernel in its own folder
+    command is the :mod:`vdtutorial.course.sandbox` launcher in front of ipykernel, each kernel in its own folder
     under ``scratch/homes``. Returns the environment that makes Jupyter find it first and keep its
     connection files and sockets in ``scratch/runtime`` (which the kernels may write, to make their sockets).
     Windows has no ``setrlimit``: there the kernels run unbounded (``classroom grade`` says so)."""
-    from vdtutorial import sandbox
+    from vdtutorial.course import sandbox
 
     if os.name != "posix":
         return {}
@@ -350,7 +350,7 @@ def _cmd_release(args) -> None:
 
 
 def _cmd_grade(args) -> None:
-    from vdtutorial.sandbox import isolation_available
+    from vdtutorial.course.sandbox import isolation_available
 
     if args.memory <= 0 or args.cpu_minutes <= 0:
         raise ClassroomError("--memory and --cpu-minutes must be positive")

@@ -12,7 +12,7 @@ disk; :func:`offline_animation_icons` swaps the third for inline SVG, which need
 * The widget manager, ``@jupyter-widgets/html-manager``, is published on npm only, so its standalone bundle
   is kept in ``vdtutorial/web/html-manager`` (``SOURCE.md`` there says where it came from).
 
-Not taught in a chapter: part of the rendered book (vdtutorial/html_book.py).
+Not taught in a chapter: part of the rendered book (vdtutorial/course/html_book.py).
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ import shutil
 from pathlib import Path
 
 #: The vendored widget manager (``embed.js`` draws every widget view of a page on load).
-HTML_MANAGER_DIR = Path(__file__).resolve().parent / "web" / "html-manager"
+HTML_MANAGER_DIR = Path(__file__).resolve().parent.parent / "web" / "html-manager"
 #: MathJax's combined configuration in jupyter-server-mathjax: TeX input, HTML-CSS output, the AMS packages;
 #: ``Safe`` keeps the TeX from adding links or styles.
 MATHJAX_CONFIG = "TeX-AMS-MML_HTMLorMML-full,Safe"

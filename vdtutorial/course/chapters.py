@@ -81,7 +81,7 @@ def _student_edition(files: dict[str, Path], source: Path, scratch: Path) -> dic
     if importlib.util.find_spec("nbgrader") is None:
         raise NoNbgraderError("the student edition is made by nbgrader, which is not installed: "
                               "pip install 'vdtutorial[classroom]'")
-    from vdtutorial.classroom import release
+    from vdtutorial.course.classroom import release
 
     files = dict(files)
     for released in release(scratch, source / "notebooks"):

@@ -8,7 +8,7 @@ chapter with previous/next links, and an index with the chapter table and each c
 The tool is nbconvert (executing with nbclient, exporting with its JupyterLab template), with our own
 index: it is the Jupyter project's own exporter, already installed with Jupyter, and every offline gap is
 a setting of its exporter (the MathJax and widget-manager URLs) or a small template block, so nothing
-needs the network at build time or when the book is read (:mod:`vdtutorial.offline_assets`). Sphinx with
+needs the network at build time or when the book is read (:mod:`vdtutorial.course.offline_assets`). Sphinx with
 myst-nb or Jupyter Book would add a site generator whose themes and widget support load the same scripts
 from CDNs, to be undone one by one.
 
@@ -32,11 +32,11 @@ from pathlib import Path
 
 import nbformat
 
-from vdtutorial.offline_assets import MATHJAX_SETTINGS, copy_assets, offline_animation_icons
+from vdtutorial.course.offline_assets import MATHJAX_SETTINGS, copy_assets, offline_animation_icons
 from vdtutorial.settings import QUICK_ENV, shipped_dir
 
 #: The nbconvert template of a chapter page (JupyterLab's, with the book's navigation).
-TEMPLATE_DIR = Path(__file__).resolve().parent / "web" / "templates"
+TEMPLATE_DIR = Path(__file__).resolve().parent.parent / "web" / "templates"
 #: The mime type under which a notebook stores its widgets' saved state, and a widget view in an output.
 WIDGET_STATE = "application/vnd.jupyter.widget-state+json"
 WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
