@@ -1,10 +1,10 @@
-"""DART's noise estimate and DAgger's aggregation (vdtutorial.dart, vdtutorial.dagger, vdtutorial.imitation_rounds)."""
+"""DART's noise estimate and DAgger's aggregation (vdtutorial.beyond.dart, vdtutorial.beyond.dagger, vdtutorial.beyond.imitation_rounds)."""
 import numpy as np
 import pytest
 
-from vdtutorial.dagger import dagger, mixture
-from vdtutorial.dart import noise_estimate, noisy_expert, sigma_per_joint
-from vdtutorial.imitation_rounds import round_sizes
+from vdtutorial.beyond.dagger import dagger, mixture
+from vdtutorial.beyond.dart import noise_estimate, noisy_expert, sigma_per_joint
+from vdtutorial.beyond.imitation_rounds import round_sizes
 from vdtutorial.pretrain import PretrainConfig
 
 from conftest import assert_expert_labels

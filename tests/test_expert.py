@@ -8,7 +8,7 @@ import pytest
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.envs.base import MAX_DELTA
 from vdtutorial.envs.reach import SUCCESS_TOLERANCE, reach_goal
-from vdtutorial.evaluation import expert_success_rate
+from vdtutorial.experiments.evaluation import expert_success_rate
 from vdtutorial.expert import CONTINUOUS, DISTINCT, IKExpert, nearest_equivalent, nearest_goal, step_towards
 
 

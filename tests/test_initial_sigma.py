@@ -1,4 +1,4 @@
-"""Sigma at the start of RL: the three options of vdtutorial.initial_sigma, alone and inside pre-training."""
+"""Sigma at the start of RL: the three options of vdtutorial.beyond.initial_sigma, alone and inside pre-training."""
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -6,7 +6,7 @@ import torch
 
 from vdtutorial.__main__ import build_parser
 from vdtutorial.demos import generate_demos
-from vdtutorial.initial_sigma import InitialSigma, apply_initial_sigma, gaussian_nll, vd_spread
+from vdtutorial.beyond.initial_sigma import InitialSigma, apply_initial_sigma, gaussian_nll, vd_spread
 from vdtutorial.policy import make_policy
 from vdtutorial.pretrain import PretrainConfig, checkpoint_path, pretrain, split_by_episode
 from vdtutorial.vd import svdo_layers
@@ -128,7 +128,7 @@ def test_pretraining_with_demos_sigma_raises_the_likelihood_of_the_demonstration
 def test_image_policies_fit_sigma_on_a_seeded_subset_in_minibatches(option, monkeypatch):
     """RGBD: the fit renders only a seeded subset of the training states (IMAGE_FIT_STATES) and steps
     through it in minibatches (IMAGE_FIT_BATCH); the same seed gives the same sigma network."""
-    import vdtutorial.initial_sigma as initial_sigma
+    import vdtutorial.beyond.initial_sigma as initial_sigma
     import vdtutorial.pretrain as pretrain_module
 
     monkeypatch.setattr(pretrain_module, "IMAGE_FIT_STATES", 24)

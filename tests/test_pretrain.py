@@ -6,7 +6,7 @@ import torch
 
 from vdtutorial.demos import generate_demos
 from vdtutorial.envs import ENV_IDS
-from vdtutorial.evaluation import PolicyController, successes_per_episode
+from vdtutorial.experiments.evaluation import PolicyController, successes_per_episode
 from vdtutorial.pretrain import (CheckpointError, HeldOutStop, PretrainConfig, checkpoint_path, demo_observations,
                                  evaluate_imitation, load_checkpoint, pretrain, save_checkpoint, split_by_episode)
 from vdtutorial.vd import LinearSVDO, sparsity_report

@@ -95,7 +95,7 @@ def _cmd_demos(args) -> None:
 
 
 def _cmd_expert(args) -> None:
-    from vdtutorial.evaluation import expert_success_rate
+    from vdtutorial.experiments.evaluation import expert_success_rate
 
     for task in args.task:
         rate, mean_len = expert_success_rate(task, args.episodes, seed=args.seed, progress=_progress(args))
@@ -149,7 +149,7 @@ def _cmd_evaluate(args) -> None:
 
     from vdtutorial.demos import Demos
     from vdtutorial.envs import ENV_IDS
-    from vdtutorial.evaluation import ExpertController, PolicyController, successes_per_episode
+    from vdtutorial.experiments.evaluation import ExpertController, PolicyController, successes_per_episode
     from vdtutorial.pretrain import checkpoint_path, load_checkpoint
     from vdtutorial.settings import budget
 

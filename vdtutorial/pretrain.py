@@ -39,7 +39,7 @@ from tqdm.auto import tqdm
 import vdtutorial
 from vdtutorial.demos import DATA_SET_PATTERN, Demos, data_set_name, demo_path
 from vdtutorial.envs import ENV_IDS
-from vdtutorial.initial_sigma import IMAGE_FIT_STATES, InitialSigma, apply_initial_sigma
+from vdtutorial.beyond.initial_sigma import IMAGE_FIT_STATES, InitialSigma, apply_initial_sigma
 from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor, on_device, torch_device
 from vdtutorial.settings import budget, data_dir, recorded_path
 from vdtutorial.vd import model_kl, sparsity_report
@@ -76,7 +76,7 @@ class PretrainConfig:
         largest set's N for every set) keeps the prior's weight per sample the same across data sets of
         different sizes, so that Table I's rows differ only by their data; the paper does not say which
         it used (see ``experiments.table1``).
-    initial_sigma: sigma at the start of RL, set after mu is cloned (:mod:`vdtutorial.initial_sigma`):
+    initial_sigma: sigma at the start of RL, set after mu is cloned (:mod:`vdtutorial.beyond.initial_sigma`):
         a number (option (a), that fixed sigma), "demos" (b) or "spread" (c). Default: the paper's fixed
         0.3. It does not change mu.
     patience: stop on the held-out loss. ``None`` (the default, the shipped checkpoints' setting): run all
@@ -218,7 +218,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     fraction of weights of ``mu`` with log alpha > 3.
 
     When mu is cloned, the sigma network is set by ``initial_sigma``, the option that decides what sigma RL
-    starts from (:mod:`vdtutorial.initial_sigma`): a fixed value (the paper's setting, the default 0.3), a
+    starts from (:mod:`vdtutorial.beyond.initial_sigma`): a fixed value (the paper's setting, the default 0.3), a
     maximum-likelihood fit to the demonstrations, or a fit to the VD network's predictive spread.
     """
     cfg = config or PretrainConfig()
@@ -280,7 +280,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
 
 def set_initial_sigma(policy: GaussianPolicy, demos: Demos, config: PretrainConfig, seed: int,
                       observations=None, spread_net=None) -> dict:
-    """Set the sigma that RL starts from by ``config.initial_sigma`` (:mod:`vdtutorial.initial_sigma`),
+    """Set the sigma that RL starts from by ``config.initial_sigma`` (:mod:`vdtutorial.beyond.initial_sigma`),
     fitting on the training split of pre-training with ``seed`` (options b and c). Also applies to a
     policy read back from a checkpoint made with another option: mu is the same whatever the option.
     Returns what was done (kind, and for a fit its losses and the resulting sigma)."""

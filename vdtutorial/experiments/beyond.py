@@ -3,13 +3,13 @@
 The paper's Section VI asks for "techniques for learning appropriate expert noise from the data" and calls
 DAgger "computationally quite expensive". This experiment measures both on reaching, in state mode, at an
 equal number of expert labels (``samples``, Fig. 4's 8000): the paper's hand-set Sigma 0.05, 0.25 and 0.5
-and a too-large ``TOO_LARGE``; DART (:mod:`vdtutorial.dart`) from a poor start (``DART_STARTS``); DAgger
-(:mod:`vdtutorial.dagger`), round 0 noise-free; each cloned with VD and with L2 (DART's and DAgger's rounds
+and a too-large ``TOO_LARGE``; DART (:mod:`vdtutorial.beyond.dart`) from a poor start (``DART_STARTS``); DAgger
+(:mod:`vdtutorial.beyond.dagger`), round 0 noise-free; each cloned with VD and with L2 (DART's and DAgger's rounds
 clone with the regulariser they are measured with). A data set is made once (data seed 0) and shared by the
 seeds; a seed replicates the cloning and the RL stage.
 
 Two stages per data set and seed, jobs of one resumable grid: before RL (:class:`PreRLJob`), the pruned
-mean action scored as TRPO counts an iteration (:func:`vdtutorial.evaluation.mean_action_successes`); the
+mean action scored as TRPO counts an iteration (:func:`vdtutorial.experiments.evaluation.mean_action_successes`); the
 RL stage (:class:`RLJob`), TRPO with the paper's settings from that clone, with the figures' start sigma and
 pruning (:func:`~vdtutorial.experiments.runs.finetune_steps`), for ``rl_steps`` env steps. Comparisons:
 before RL, differences of means over seeds with Welch intervals, Bonferroni-corrected (:func:`comparisons`);
@@ -33,10 +33,10 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
-from vdtutorial.dagger import BETA, dagger
-from vdtutorial.dart import dart
+from vdtutorial.beyond.dagger import BETA, dagger
+from vdtutorial.beyond.dart import dart
 from vdtutorial.demos import Demos, demo_path, generate_demos
-from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
+from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.curves import CONFIDENCE, mean_band, smooth_window
 from vdtutorial.experiments.effects import Claim, per_run, run_summaries, verdict, welch_interval
 from vdtutorial.experiments.measures import MEASURES, measures_of
@@ -44,7 +44,7 @@ from vdtutorial.experiments.plots import figure_title
 from vdtutorial.experiments.results import default_out, derive, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_trpo_config,
                                          finetune_steps, pretrained_policy, run_settings)
-from vdtutorial.imitation_rounds import cloning_config
+from vdtutorial.beyond.imitation_rounds import cloning_config
 from vdtutorial.pretrain import PretrainConfig, default_config
 from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
@@ -216,7 +216,7 @@ class RLJob(SavedInStateDir):
     (:func:`~vdtutorial.experiments.runs.finetune_policy`). The run is that of
     :func:`~vdtutorial.experiments.runs.finetune_steps`: its state saved every ``checkpoint_every`` iterations, a
     rerun continues it to the rows of an uninterrupted run, a larger ``steps`` extends it. ``start_sigma``: the
-    sigma RL starts from (an :class:`~vdtutorial.initial_sigma.InitialSigma` spelling; None: the figures')."""
+    sigma RL starts from (an :class:`~vdtutorial.beyond.initial_sigma.InitialSigma` spelling; None: the figures')."""
 
     variant: Variant
     seed: int

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vdtutorial.demos import demo_path
-from vdtutorial.evaluation import EPISODE_STEPS
+from vdtutorial.experiments.evaluation import EPISODE_STEPS
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHODS, METRIC, NUM_ENVS, default_expert_episodes,
                                          default_total_steps, expert_reference, expert_settings, finetune_steps,
                                          run_settings)

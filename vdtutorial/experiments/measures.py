@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from vdtutorial.envs.base import HORIZON
-from vdtutorial.evaluation import EPISODE_STEPS
+from vdtutorial.experiments.evaluation import EPISODE_STEPS
 
 
 @dataclass(frozen=True)

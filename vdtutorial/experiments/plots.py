@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from vdtutorial.evaluation import EPISODE_STEPS
+from vdtutorial.experiments.evaluation import EPISODE_STEPS
 from vdtutorial.experiments.curves import CONFIDENCE, Curve, smooth_window
 from vdtutorial.experiments.measures import MEASURES
 

@@ -5,7 +5,7 @@ seed 2 was still improving at the end. Here each image checkpoint (reaching, 800
 VD and L2; seeds 0-2) is made again with ``PretrainConfig.patience`` (:func:`stop_config`: the same 40 epochs of
 KL warm-up, then on until the held-out MSE has not improved for :data:`PATIENCE` epochs, at most :data:`CAP`),
 and both kinds of checkpoint are measured the same way: the mean action's successes before RL
-(:func:`~vdtutorial.evaluation.mean_action_successes`) and the first :func:`rl_steps` env steps of TRPO with the
+(:func:`~vdtutorial.experiments.evaluation.mean_action_successes`) and the first :func:`rl_steps` env steps of TRPO with the
 figures' settings (the fixed checkpoints' runs are then the first iterations of ``fig4_rgbd``'s). Per method,
 the difference stopped - fixed at the pre-RL level and over the early RL curve, 95% Welch intervals over seeds.
 If it is material (:func:`is_material`), ``fig4_rgbd`` is to be made again from the stopped checkpoints; if not,
@@ -27,7 +27,7 @@ from matplotlib.figure import Figure
 
 import vdtutorial
 from vdtutorial.demos import Demos, demo_path
-from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
+from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.curves import curves_from_rows
 from vdtutorial.experiments.effects import welch_interval
 from vdtutorial.experiments.jobs import Job, RunSpec

@@ -18,11 +18,11 @@ from gymnasium.wrappers import RecordEpisodeStatistics
 
 from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.envs import ENV_IDS, HORIZON
-from vdtutorial.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
+from vdtutorial.experiments.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
 from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
                                      save_run_state)
 from vdtutorial.runner.rows import write_csv
-from vdtutorial.initial_sigma import InitialSigma
+from vdtutorial.beyond.initial_sigma import InitialSigma
 from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path,
                                  default_config, load_checkpoint, pretrain, pretrain_command, save_checkpoint,

@@ -1,4 +1,4 @@
-"""The study of sigma at the start of RL (:mod:`vdtutorial.initial_sigma`): each option's score before
+"""The study of sigma at the start of RL (:mod:`vdtutorial.beyond.initial_sigma`): each option's score before
 and during RL, in state mode on reaching, and the choice of the default by the rule written down first
 in ``data/results/sigma_study/RULE.md``.
 
@@ -31,12 +31,12 @@ from matplotlib.figure import Figure
 import vdtutorial
 from vdtutorial.demos import demo_path
 from vdtutorial.envs import ENV_IDS
-from vdtutorial.evaluation import EPISODE_STEPS, mean_action_successes
+from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, curves_from_rows, finetune, load_demos,
                                     mean_band, finetune_policy, read_rows, results_file, run_jobs,
                                     stored_rows, write_csv)
 from vdtutorial.experiments.plots import draw_band
-from vdtutorial.initial_sigma import InitialSigma
+from vdtutorial.beyond.initial_sigma import InitialSigma
 from vdtutorial.pretrain import default_config
 from vdtutorial.settings import data_dir, runs_dir
 

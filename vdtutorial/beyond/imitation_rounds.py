@@ -3,8 +3,8 @@
 Both methods improve on one-shot behavioural cloning the same way: collect expert-labelled states with
 some behaviour, add them to everything collected so far, clone the expert again on the whole set, and let
 the new policy decide how the next round behaves. They differ only in that behaviour: DART
-(:mod:`vdtutorial.dart`) runs the expert with noise fitted to the last policy's errors, DAgger
-(:mod:`vdtutorial.dagger`) runs a mixture of the expert and the last policy. This module holds the loop,
+(:mod:`vdtutorial.beyond.dart`) runs the expert with noise fitted to the last policy's errors, DAgger
+(:mod:`vdtutorial.beyond.dagger`) runs a mixture of the expert and the last policy. This module holds the loop,
 with the behaviour left to the caller, so the two methods are measured with exactly the same rollout,
 labelling (:func:`vdtutorial.demos.collect`), aggregation and pre-training (:func:`vdtutorial.pretrain.pretrain`).
 

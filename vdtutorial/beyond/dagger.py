@@ -16,7 +16,7 @@ weights). beta_i = beta^i with beta = 0.5 (Ross et al.'s decaying schedule beta_
 round 0): round 0 has beta_0 = 1, i.e. behavioural cloning on noise-free expert demonstrations, and later
 rounds hand more and more of the steps to the learner. The data of every round keeps its expert labels
 (eq. 8: the label is pi_exp(s), whoever acted), and each round clones afresh on all the data so far
-(:mod:`vdtutorial.imitation_rounds`).
+(:mod:`vdtutorial.beyond.imitation_rounds`).
 
 **Cost.** Every visited state is one expert query; the loop also records the wall time spent in the expert
 (building G per episode, eq. 10 per state) and in the re-training of every round: the paper calls DAgger
@@ -26,7 +26,7 @@ Taught in chapter 09.
 """
 from __future__ import annotations
 
-from vdtutorial.imitation_rounds import RoundsResult, run_rounds
+from vdtutorial.beyond.imitation_rounds import RoundsResult, run_rounds
 from vdtutorial.pretrain import PretrainConfig
 
 #: beta of the schedule beta_i = BETA^i.

@@ -24,7 +24,7 @@ import torch
 
 from vdtutorial.demos import Demos
 from vdtutorial.envs.scene import N_JOINTS
-from vdtutorial.imitation_rounds import RoundsResult, cloning_config, run_rounds
+from vdtutorial.beyond.imitation_rounds import RoundsResult, cloning_config, run_rounds
 from vdtutorial.policy import GaussianPolicy
 from vdtutorial.pretrain import PretrainConfig, split_by_episode
 
@@ -94,7 +94,7 @@ def dart(task: str = "reach", reg: str = "vd", samples: int = 8000, rounds: int 
     last one also holds ``next_covariance`` (and ``next_sigma_per_joint``), the estimate from the final
     policy: the noise DART would use next, the learned Sigma.
 
-    **Rounds** (DART's Algorithm 1, with :mod:`vdtutorial.imitation_rounds`): round 0 collects with a start
+    **Rounds** (DART's Algorithm 1, with :mod:`vdtutorial.beyond.imitation_rounds`): round 0 collects with a start
     Sigma_0 = sigma_0^2 I (a poorly chosen hand-set value), then each round clones the expert on everything
     collected so far and sets the next round's covariance to Sigma_hat of that policy. The number of labels
     is fixed per round (the experiment's 8000 split over the rounds), so DART spends exactly the labels of a

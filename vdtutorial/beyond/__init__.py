@@ -1,0 +1,11 @@
+"""Beyond the paper's recipe: the choices it leaves open and the imitation methods it cites.
+
+Modules, one idea each: :mod:`~vdtutorial.beyond.initial_sigma` (the exploration noise a pre-trained
+policy starts RL with, a value the paper does not give), :mod:`~vdtutorial.beyond.imitation_rounds`
+(cloning in rounds of new demonstrations), :mod:`~vdtutorial.beyond.dart` (noise injected into the
+expert, Laskey et al. 2017) and :mod:`~vdtutorial.beyond.dagger` (the expert relabels the learner's own
+states, Ross et al. 2011). They build on the core and nothing in the core needs them, except the
+pre-training's choice of initial sigma, which is still read from here.
+
+Taught in chapters 07 and 09.
+"""
