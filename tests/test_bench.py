@@ -1,7 +1,7 @@
 """The fine-tuning benchmark: real TRPO iterations on the shipped pruned VD policy, timed."""
 import pytest
 
-from vdtutorial.bench import bench_finetune
+from vdtutorial.cli.bench import bench_finetune
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 

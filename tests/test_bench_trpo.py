@@ -5,8 +5,8 @@ import inspect
 import numpy as np
 import pytest
 
-from vdtutorial.bench import (PENDULUM_CRITIC_CONFIG, PENDULUM_VARIANTS, ZOO_PENDULUM_CONFIG, ZOO_PENDULUM_NUM_ENVS,
-                              ZOO_PENDULUM_SB3, _late_mean_return, bench_trpo_pendulum, sb3_trpo_kwargs)
+from vdtutorial.experiments.pendulum import (PENDULUM_CRITIC_CONFIG, PENDULUM_VARIANTS, ZOO_PENDULUM_CONFIG, ZOO_PENDULUM_NUM_ENVS,
+                                             ZOO_PENDULUM_SB3, _late_mean_return, bench_trpo_pendulum, sb3_trpo_kwargs)
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 

@@ -10,7 +10,7 @@ from gymnasium import spaces
 from torch import nn
 from torch.distributions import Normal, kl_divergence
 
-from vdtutorial.bench import pendulum_policy
+from vdtutorial.experiments.pendulum import pendulum_policy
 from vdtutorial.policy import make_policy, obs_to_tensor
 from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, _iteration_seeds, gae, make_vec_env
 from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search

@@ -461,7 +461,7 @@ def make_policy(observation_space, action_dim: int, variational: bool = False, k
     normalise: map a vector observation from the space's bounds to [-1, 1] (:class:`TwoStreamNet`); False feeds
     it as it is. The bounds suit the Jaco tasks, where they are the joints' and the cup's ranges; a bound that is
     a loose clip shrinks what the policy sees (Pendulum-v1's angular velocity: +-8 rad/s, see
-    :func:`vdtutorial.bench.pendulum_policy`).
+    :func:`vdtutorial.experiments.pendulum.pendulum_policy`).
     """
     is_dict = isinstance(observation_space, gym.spaces.Dict)
     if kind == "auto":

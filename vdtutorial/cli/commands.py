@@ -1,0 +1,308 @@
+"""What each command of ``python -m vdtutorial`` does once its arguments are parsed: one ``cmd_NAME(args)`` per
+command. Each imports what it needs when it runs, so ``--help`` and a usage error stay fast.
+
+Not taught in a chapter: the command line's plumbing (chapter 00 shows the commands, vdtutorial/cli/).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+from vdtutorial.cli.arguments import CommandError, device_of, output_path, progress_of
+from vdtutorial.runner.kernels import kernel_settings, pinned
+from vdtutorial.settings import data_dir, runs_dir
+
+def cmd_demos(args) -> None:
+    from vdtutorial.demos import SHIPPED_NOISE, demo_path, generate_demos
+
+    noise = SHIPPED_NOISE[args.task] if args.noise is None else args.noise
+    out = output_path(args.out, demo_path(args.task, args.samples, noise, args.seed, root=runs_dir()), args.force)
+    demos = generate_demos(args.task, args.samples, noise, args.seed, progress=progress_of(args))
+    demos.save(out)
+    print(f"{len(demos)} samples from {demos.meta['episodes']} noisy expert episodes "
+          f"(noisy success rate {demos.meta['noisy_success_rate']:.2f})")
+    print(f"wrote {out}")
+
+
+def cmd_expert(args) -> None:
+    from vdtutorial.experiments.evaluation import expert_success_rate
+
+    for task in args.task:
+        rate, mean_len = expert_success_rate(task, args.episodes, seed=args.seed, progress=progress_of(args))
+        print(f"expert {task}: success rate {rate:.3f} over {args.episodes} episodes "
+              f"(mean episode length {mean_len:.2f} steps)")
+
+
+def cmd_pretrain(args) -> None:
+    import torch
+
+    from vdtutorial.demos import Demos
+    from vdtutorial.pretrain import (checkpoint_path, default_config, load_checkpoint, pretrain, pretrain_command,
+                                     save_checkpoint)
+    from vdtutorial.vd import sparsity_report
+
+    device = device_of(args)  # before any work
+    torch.set_num_threads(1)
+    demos = Demos.load(args.demos)
+    config = default_config(args.reg, args.obs)
+    if args.epochs:
+        config = dataclasses.replace(config, epochs=args.epochs)
+    config = dataclasses.replace(config, initial_sigma=args.sigma, patience=args.patience)
+    out = output_path(args.out, checkpoint_path(demos.meta, args.reg, args.obs, args.seed, root=runs_dir(),
+                                                initial_sigma=config.initial_sigma, patience=config.patience), args.force)
+    spread_net = None
+    if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
+        spread_net = load_checkpoint(checkpoint_path(demos.meta, "vd", args.obs, args.seed), variational=True).mu
+    policy, history = pretrain(demos, config, seed=args.seed, progress=progress_of(args), spread_net=spread_net,
+                               device=device)
+    command = (pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
+               + (f" --epochs {args.epochs}" if args.epochs else "")
+               + (f" --patience {args.patience}" if args.patience else "")
+               + (f" --device {args.device}" if args.device != "cpu" else ""))
+    save_checkpoint(policy, out, {"command": command})
+    kept = history[-1]
+    if args.patience:
+        info = policy.pretrain_info
+        kept = history[info["best_epoch"] - 1]
+        print(f"stopped on the held-out MSE after {info['epochs_run']} of at most {config.epochs} epochs; "
+              f"mu is epoch {info['best_epoch']}'s")
+    print(f"held-out imitation MSE {kept['val_mse']:.4f}")
+    if args.reg == "vd":
+        print(sparsity_report(policy.mu))
+    print(f"wrote {out}")
+
+
+def cmd_evaluate(args) -> None:
+    """The covariate-shift check before any RL (Section III-A): pre-trained policies vs the expert."""
+    import gymnasium as gym
+    import numpy as np
+
+    from vdtutorial.demos import Demos
+    from vdtutorial.envs import ENV_IDS
+    from vdtutorial.experiments.evaluation import ExpertController, PolicyController, successes_per_episode
+    from vdtutorial.pretrain import checkpoint_path, load_checkpoint
+    from vdtutorial.settings import budget
+
+    demos = Demos.load(args.demos)
+    task = demos.meta["task"]
+    folder = Path(args.checkpoints) if args.checkpoints else data_dir() / "checkpoints"
+    controllers = {reg: PolicyController(load_checkpoint(folder / checkpoint_path(demos.meta, reg, args.obs, args.seed).name))
+                   for reg in ("vd", "l2")}
+    env = gym.make(ENV_IDS[task], obs_mode=args.obs)
+    episodes = args.episodes or budget(5, 2)
+    controllers["expert"] = ExpertController(env)
+    for name, controller in controllers.items():
+        runs = [successes_per_episode(env, controller, seed=100 + k) for k in range(episodes)]
+        wins = np.array([r["successes"] for r in runs])
+        reward = np.array([r["reward"] for r in runs])
+        print(f"{name:7s} successes per 200-step episode {wins.mean():5.1f} +- {wins.std():4.1f}   "
+              f"reward per episode {reward.mean():8.1f}   ({episodes} episodes, mean action)")
+    env.close()
+
+
+def cmd_digits(args) -> None:
+    from vdtutorial.vd import digits_validation
+
+    result = digits_validation(seed=args.seed)
+    print(f"dense MLP accuracy {result.dense_accuracy:.4f}; sparse VD MLP accuracy {result.vd_accuracy:.4f} "
+          f"with {result.fraction_pruned:.1%} of weights pruned ({result.seconds:.1f} s)")
+    print(result.report)
+
+
+def cmd_bench(args) -> None:
+    from vdtutorial.cli import bench
+    from vdtutorial.experiments.pendulum import bench_trpo_pendulum
+
+    if args.what != "finetune" and (args.profile or args.device != "cpu"):
+        raise CommandError(f"{'--profile' if args.profile else '--device'} is an option of bench finetune only")
+    which = "pinned, --exact-kernels" if pinned() else "this CPU's own"
+    print(f"CPU kernels: {kernel_settings()['torch_cpu_capability']} ({which})")
+    if args.what == "trpo":
+        bench_trpo_pendulum(seeds=args.seeds, total_steps=args.steps)
+    elif args.what == "finetune":
+        bench.bench_finetune(profile=args.profile, device=device_of(args))
+    else:
+        {"env": bench.bench_env, "policy": bench.bench_policy}[args.what]()
+
+
+def cmd_reproduce(args) -> None:
+    """The package's main job: the whole pipeline at small scale (see experiments.reproduce_quick)."""
+    from vdtutorial.experiments import reproduce_quick
+
+    _print_summary(reproduce_quick(out=args.out, workers=args.workers))
+
+
+def _print_summary(result) -> None:
+    """Final level of every curve, the fig4-style "VD reaches L2" line if any, and where files went."""
+    from vdtutorial.experiments import format_summary
+
+    print(format_summary(result))
+
+
+#: Experiments without TRPO runs, and why the figures' resume options do not apply to them.
+PRE_RL_ONLY = {"table1": "pre-trains only (no TRPO runs to resume)"}
+
+
+#: The experiments beyond the figures, which run in state mode with the paper's TRPO settings on the CPU.
+STATE_ONLY = ("beyond", "free_choices")
+#: Experiments of our own settings that take only the grid's options (seeds, workers, out, backend, restart).
+GRID_ONLY = {"pretrain_stop": "image pre-training stopped on the held-out loss against the fixed 40 epochs"}
+
+
+def _state_only(args, backend: str) -> None:
+    """The beyond experiment (chapter 09) or our free choices (chapter 07): the figures' options but the
+    observation, the TRPO configuration and the device, which are fixed."""
+    from vdtutorial.experiments import ResumeError
+
+    name = args.name
+    if args.obs != "state":
+        raise CommandError(f"{name} runs in state mode only (--obs state)")
+    if args.fvp_subsample is not None:
+        raise CommandError(f"{name} fine-tunes with the paper's TRPO settings: --fvp-subsample is an option of the figures")
+    if args.device != "cpu":
+        raise CommandError(f"{name} runs on the CPU: --device is an option of the figures")
+    options = dict(seeds=args.seeds, steps=args.steps, out=args.out, workers=args.workers, backend=backend,
+                   address=args.address, restart=args.restart, state_dir=args.state_dir)
+    if args.checkpoint_every is not None:
+        options["checkpoint_every"] = args.checkpoint_every
+    try:
+        if name == "beyond":
+            from vdtutorial.experiments.beyond import beyond, format_summary
+
+            print(format_summary(beyond(**options)))
+        else:
+            from vdtutorial.experiments.free_choices import CHOICE_NAMES, format_table, free_choices
+
+            unknown = sorted(set(args.choices or ()) - set(CHOICE_NAMES))
+            if unknown:
+                raise CommandError(f"--choices: unknown {', '.join(unknown)}; the rows are {', '.join(CHOICE_NAMES)}")
+            print(format_table(free_choices(names=tuple(args.choices or CHOICE_NAMES), **options)))
+    except ResumeError as exc:
+        raise CommandError(str(exc)) from exc
+
+
+def _grid_only(args, backend: str) -> None:
+    """An experiment of :data:`GRID_ONLY`: it fixes its observation, budget and TRPO settings itself."""
+    from vdtutorial.experiments import ResumeError
+    from vdtutorial.experiments.pretrain_stop import format_comparison, pretrain_stop
+
+    fixed = [flag for flag, value in (("--steps", args.steps), ("--obs", None if args.obs == "state" else args.obs),
+                                      ("--fvp-subsample", args.fvp_subsample), ("--checkpoint-every", args.checkpoint_every),
+                                      ("--device", None if args.device == "cpu" else args.device)) if value is not None]
+    if fixed:
+        raise CommandError(f"{args.name} sets {', '.join(fixed)} itself (it compares {GRID_ONLY[args.name]})")
+    try:
+        record = pretrain_stop(seeds=args.seeds, out=args.out, workers=args.workers, backend=backend,
+                               address=args.address, restart=args.restart, state_dir=args.state_dir)
+    except ResumeError as exc:
+        raise CommandError(str(exc)) from exc
+    print(format_comparison(record))
+
+
+def cmd_experiment(args) -> None:
+    import warnings
+
+    from vdtutorial import experiments
+
+    if args.address is not None and args.backend == "local":
+        raise CommandError("--address names a Ray cluster: use it with --backend ray")
+    backend = args.backend or ("ray" if args.address is not None else "local")
+    resumable = {"checkpoint_every": args.checkpoint_every} if args.checkpoint_every is not None else {}
+    if args.kl_weighting != "per-set" and args.name != "table1":
+        raise CommandError("--kl-weighting is an option of table1 (the figures use the pre-training default)")
+    if args.choices is not None and args.name != "free_choices":
+        raise CommandError("--choices is an option of free_choices")
+    if args.methods is not None:
+        from vdtutorial.experiments.figures import FIGURES, figure_methods
+
+        if args.name not in FIGURES:
+            raise CommandError("--methods is an option of the figures")
+        try:
+            figure_methods(args.name, args.methods)
+        except ValueError as exc:
+            raise CommandError(str(exc)) from exc
+    if args.name in PRE_RL_ONLY:
+        ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
+                                            ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),
+                                            ("--restart", args.restart or None),
+                                            ("--device", None if args.device == "cpu" else args.device))
+                   if value is not None]
+        if ignored:
+            raise CommandError(f"{args.name} {PRE_RL_ONLY[args.name]}: {', '.join(ignored)} "
+                               f"{'are options' if len(ignored) > 1 else 'is an option'} of the figures")
+        experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting,
+                           out=args.out, workers=args.workers, backend=backend, address=args.address)
+        return
+    if args.name in STATE_ONLY:
+        _state_only(args, backend)
+        return
+    if args.name in GRID_ONLY:
+        _grid_only(args, backend)
+        return
+    device_of(args)  # refused before any run starts
+    trpo_config = None
+    if args.fvp_subsample is not None:
+        trpo_config = dataclasses.replace(experiments.default_trpo_config(), fvp_subsample=args.fvp_subsample)
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        try:
+            result = getattr(experiments, args.name)(
+                seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs, out=args.out, workers=args.workers,
+                trpo_config=trpo_config, backend=backend, address=args.address, state_dir=args.state_dir,
+                restart=args.restart, device=args.device, methods=args.methods, **resumable)
+        except experiments.ResumeError as exc:
+            raise CommandError(str(exc)) from exc
+    _print_summary(result)
+
+
+def cmd_notebooks(args) -> None:
+    """The chapters and the data they load, written into a folder of the learner's (see vdtutorial.course.chapters)."""
+    from vdtutorial.course.chapters import EditedFilesError, NoNbgraderError, write_notebooks
+
+    try:
+        book = write_notebooks(args.dest, force=args.force, student=args.student)
+    except (EditedFilesError, NoNbgraderError) as exc:
+        raise CommandError(str(exc)) from exc
+    edition = "the student edition of " if args.student else ""
+    print(f"wrote {edition}{book.chapters} chapters and {book.data_files} data files into {book.dest}; start with "
+          f"jupyter lab {book.dest / 'notebooks' / '00_start_here.ipynb'}")
+    if book.solutions:
+        print(f"the {book.solutions} chapters with every exercise solved are in {book.dest / 'solutions'}: "
+              "open them when you have tried")
+
+
+def cmd_book(args) -> None:
+    """The chapters executed and exported as a static HTML book that reads offline (see vdtutorial.course.html_book)."""
+    from vdtutorial.course.html_book import build_book
+
+    start = time.perf_counter()
+    book = build_book(args.out, numbers=args.chapters, quick=not args.full)
+    print(f"wrote {len(book.chapters)} chapters in {time.perf_counter() - start:.0f} s; open {book.index}")
+
+
+def cmd_claims(args) -> None:
+    """The paper's claims as effect sizes with 95% intervals, from an experiment's rows (see experiments.effects)."""
+    from vdtutorial.experiments import write_claims
+
+    for folder in args.folders:
+        if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
+            raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
+        print(f"{folder}:\n{write_claims(folder)}\n")
+
+
+def cmd_rederive(args) -> None:
+    """An experiment's figure and JSON summary re-written from its rows (see experiments.results.rederive)."""
+    from vdtutorial.experiments import format_summary, merge_seeds, rederive
+
+    for folder in args.folders + args.add + args.add_other_cpu:
+        if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
+            raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
+    if (args.add or args.add_other_cpu) and len(args.folders) != 1:
+        raise CommandError("--add merges into one experiment folder: name one")
+    for other in args.add:
+        merge_seeds(args.folders[0], other)
+    for other in args.add_other_cpu:
+        merge_seeds(args.folders[0], other, other_cpu=True)
+    for folder in args.folders:
+        print(format_summary(rederive(folder)))
