@@ -10,6 +10,7 @@ from scipy import integrate, stats
 from torch import nn
 
 from vdtutorial import vd
+from vdtutorial.experiments.digits import digits_validation
 
 
 def true_neg_kl_up_to_constant(log_alpha: float) -> float:
@@ -243,7 +244,7 @@ def test_sparsity_report_needs_the_wiring():
 
 
 def test_digits_validation_quick():
-    result = vd.digits_validation(seed=0, epochs=30)
+    result = digits_validation(seed=0, epochs=30)
     assert result.dense_accuracy > 0.95
     assert result.vd_accuracy > 0.85
     assert result.fraction_pruned > 0.5

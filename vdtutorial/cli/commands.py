@@ -102,7 +102,7 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_digits(args) -> None:
-    from vdtutorial.vd import digits_validation
+    from vdtutorial.experiments.digits import digits_validation
 
     result = digits_validation(seed=args.seed)
     print(f"dense MLP accuracy {result.dense_accuracy:.4f}; sparse VD MLP accuracy {result.vd_accuracy:.4f} "

@@ -9,7 +9,9 @@ the expert's reference), :mod:`~vdtutorial.experiments.jobs` (runs as jobs of th
 (the figure), :mod:`~vdtutorial.experiments.results` (an experiment's files),
 :mod:`~vdtutorial.experiments.figures` (Figs. 4-7), :mod:`~vdtutorial.experiments.estimate` (a grid's
 cost), :mod:`~vdtutorial.experiments.sparsity_table` (Table I), :mod:`~vdtutorial.experiments.sigma_study`
-(sigma at the start of RL) and :mod:`~vdtutorial.experiments.reproduce` (the whole pipeline, small).
+(sigma at the start of RL), :mod:`~vdtutorial.experiments.reproduce` (the whole pipeline, small),
+:mod:`~vdtutorial.experiments.evaluation` (a controller's successes), :mod:`~vdtutorial.experiments.digits`
+(sparse VD on handwritten digits) and :mod:`~vdtutorial.experiments.pendulum` (TRPO against sb3-contrib).
 Their public names are importable from here.
 
 What a run, a point of a curve, a seed and a band are, and where the files go: ``docs/experiments.md``.
