@@ -1,16 +1,15 @@
-"""Tests of vdtutorial.fisher: the Gauss-Newton Fisher-vector product against the Fisher matrix built
+"""Tests of vdtutorial.fast.fisher: the Gauss-Newton Fisher-vector product against the Fisher matrix built
 by hand from Jacobians and against the double backward, on small state and image policies, pruned."""
-import gymnasium
 import numpy as np
 import pytest
 import torch
 from gymnasium import spaces
 from torch.distributions import Normal, kl_divergence
 
-from vdtutorial.fisher import GaussNewtonFisher, supports
+from vdtutorial.fast.fisher import GaussNewtonFisher, gauss_newton_fvp, supports
 from vdtutorial.policy import make_policy, obs_to_tensor
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
-from vdtutorial.trust_region import fisher_vector_product, flat_grad
+from vdtutorial.trust_region import double_backward_fvp, fisher_vector_product, flat_grad
 from vdtutorial.vd import svdo_layers
 
 STATE_SPACE = spaces.Box(-1.0, 1.0, (9,), np.float32)
@@ -130,7 +129,7 @@ def test_trpo_with_the_product_keeps_pruned_weights_zero_and_frozen_parameters_f
                                        scene_hidden=(16, 16)))
     layers = svdo_layers(policy)
     before = [(layer.weight.detach().clone(), layer.log_sigma2.detach().clone()) for layer in layers]
-    algo = TRPO(policy, env, TRPOConfig(steps_per_iter=64), seed=0, fisher="gauss_newton")
+    algo = TRPO(policy, env, TRPOConfig(steps_per_iter=64), seed=0, fvp=gauss_newton_fvp)
     rows = [algo.iterate() for _ in range(3)]
     env.close()
     assert any(r["line_search"] != "rejected" for r in rows)
@@ -150,12 +149,9 @@ def test_supports_only_deterministic_gaussian_policies():
             return Normal(obs, torch.ones_like(obs))
 
     assert not supports(Other())
-    env = make_vec_env(lambda: gymnasium.make("Pendulum-v1"), 1)
-    with pytest.raises(ValueError, match="gauss_newton"):
-        TRPO(Other(), env, fisher="gauss_newton")
-    with pytest.raises(ValueError, match="fisher must be"):
-        TRPO(Other(), env, fisher="hessian")
-    env.close()
+    obs = torch.zeros(4, 2)
+    with pytest.raises(TypeError, match="GaussNewtonFisher needs a GaussianPolicy"):  # TRPO(fvp=gauss_newton_fvp) says so
+        gauss_newton_fvp(Other(), [], obs, Other().distribution(obs), 0.1)
 
 
 @pytest.mark.parametrize("fvp_subsample", [1.0, 0.25])
@@ -165,11 +161,11 @@ def test_trpo_takes_the_same_step_with_either_product(fvp_subsample):
     (condition number ~160 here) amplify that: perturbing g by 1e-7 moves the double backward's own
     direction by ~4e-4, and either direction lies ~5e-3 from the float64 CG solution."""
     steps = {}
-    for fisher in ("gauss_newton", "double_backward"):
+    for fisher, fvp in (("gauss_newton", gauss_newton_fvp), ("double_backward", double_backward_fvp)):
         torch.manual_seed(0)
         env = make_vec_env("Pendulum-v1", 2)
         policy = make_policy(env.single_observation_space, 1, kind="mlp", scene_hidden=(16, 16))
-        algo = TRPO(policy, env, TRPOConfig(steps_per_iter=64, fvp_subsample=fvp_subsample), seed=0, fisher=fisher)
+        algo = TRPO(policy, env, TRPOConfig(steps_per_iter=64, fvp_subsample=fvp_subsample), seed=0, fvp=fvp)
         theta_old = torch.cat([p.detach().reshape(-1) for p in algo.params]).clone()
         stats = algo.update(algo.collect())
         assert stats["line_search"] != "rejected"
@@ -190,9 +186,9 @@ def test_state_fine_tuning_rows_are_the_same_with_either_product():
 
     meta = Demos.load(demo_path("reach", 8000, 0.5, 0)).meta
     rows = {}
-    for fisher in ("double_backward", "gauss_newton"):
+    for fisher, fvp in (("double_backward", double_backward_fvp), ("gauss_newton", gauss_newton_fvp)):
         env = make_vec_env(ENV_IDS["reach"], NUM_ENVS, obs_mode="state")
-        algo = TRPO(load_checkpoint(checkpoint_path(meta, "vd", "state", 0)).prune_(), env, seed=0, fisher=fisher)
+        algo = TRPO(load_checkpoint(checkpoint_path(meta, "vd", "state", 0)).prune_(), env, seed=0, fvp=fvp)
         rows[fisher] = [algo.iterate() for _ in range(3)]
         env.close()
     for a, b in zip(rows["double_backward"], rows["gauss_newton"]):
@@ -204,7 +200,7 @@ def test_state_fine_tuning_rows_are_the_same_with_either_product():
 
 @pytest.mark.parametrize("stride, padding, dilation", [((4, 4), (0, 0), (1, 1)), ((2, 3), (1, 2), (2, 1))])
 def test_unfold_copies_the_same_patches_as_torch(stride, padding, dilation):
-    from vdtutorial.fisher import _unfold
+    from vdtutorial.fast.fisher import _unfold
 
     x = torch.randn(3, 4, 17, 19)
     expected = torch.nn.functional.unfold(x, (3, 4), dilation, padding, stride)

@@ -10,8 +10,8 @@ One iteration (:meth:`TRPO.iterate`), as pseudocode::
                  trajectory off; then normalised to mean 0, std 1                (advantages_and_returns)
     3. gradient  g = grad of the surrogate L(theta) = mean[ pi_theta(a|s) / pi_old(a|s) * A ]
     4. direction s ~= F^-1 g by conjugate gradient on Fisher-vector products F v (F: the Hessian of the
-                 mean KL(pi_old || pi_theta), plus damping), in Gauss-Newton form for the paper's
-                 Gaussian policy (:mod:`vdtutorial.fisher`), by double backward for any other
+                 mean KL(pi_old || pi_theta), plus damping), by double backward
+                 (:func:`~vdtutorial.trust_region.double_backward_fvp`; ``TRPO(fvp=...)`` takes another)
     5. step      beta = sqrt(2 delta / s^T F s): the full step beta * s has a quadratic-model KL of delta
     6. search    halve the step until its mean KL is <= delta and the surrogate improved, else keep
                  theta_old (the numerics of steps 3-6: :mod:`vdtutorial.trust_region`)
@@ -41,15 +41,12 @@ from torch.distributions import Normal
 from tqdm.auto import tqdm
 
 from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, MLPBaseline, Obs, default_baseline_features
-from vdtutorial.fisher import GaussNewtonFisher
-from vdtutorial.fisher import supports as supports_gauss_newton
 from vdtutorial.policy import obs_to_tensor, on_device, torch_device
-from vdtutorial.runner.rows import TIMING_COLUMNS  # the columns of a log row that measure time (stored to 3 digits)
-from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search, mean_kl
+from vdtutorial.trust_region import FisherProduct, conjugate_gradient, double_backward_fvp, flat_grad, line_search, mean_kl
 
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
-#: The ways :class:`TRPO` can compute Fisher-vector products (its ``fisher`` argument).
-FISHER_PRODUCTS = ("auto", "gauss_newton", "double_backward")
+#: The columns of a log row that measure time rather than learning (:meth:`TRPO.iterate`).
+TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -351,39 +348,6 @@ class Batch:
                        advantages=self.advantages.to(device), fvp_index=index)
 
 
-# ----------------------------------------------------------------------------------------------
-# 4. Fisher-vector products
-# ----------------------------------------------------------------------------------------------
-def fisher_product(policy: nn.Module, params: list[nn.Parameter], obs: TensorObs, old: Normal, damping: float,
-                   fisher: str = "auto", dist: Normal | None = None,
-                   index: torch.Tensor | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
-    """v -> (F + damping * I) v, F the Hessian of the mean KL(old || pi_theta) over ``obs`` at the policy's
-    current parameters (step 4). ``old`` is the policy's distribution on ``obs`` now; ``dist``, when given,
-    is the same with its autograd graph (the double backward reuses it). ``index``: the mean KL over these
-    samples of ``obs`` only (``TRPOConfig.fvp_subsample``; ``dist`` is then not used).
-
-    Both forms are exact and agree to float rounding. The Gauss-Newton form
-    (:class:`vdtutorial.fisher.GaussNewtonFisher`) is several times cheaper for the image policy but needs
-    to know the policy's networks; the double backward (:func:`vdtutorial.trust_region.fisher_vector_product`,
-    the teaching version of chapter 06) needs only the policy protocol. ``fisher`` chooses, as in :class:`TRPO`."""
-    if index is not None:
-        obs, old, dist = _subset(obs, index), Normal(old.mean[index], old.stddev[index]), None
-    if fisher == "gauss_newton" or (fisher == "auto" and supports_gauss_newton(policy)):
-        gauss_newton = GaussNewtonFisher(policy, obs, old, params)
-        return lambda v: gauss_newton(v) + damping * v
-    dist = dist if dist is not None else policy.distribution(obs)
-    kl_grad = flat_grad(mean_kl(old, dist), params, create_graph=True)
-    return lambda v: fisher_vector_product(kl_grad, params, v, damping)
-
-
-def _check_fisher(fisher: str, policy: nn.Module) -> None:
-    if fisher not in FISHER_PRODUCTS:
-        raise ValueError(f"fisher must be one of {FISHER_PRODUCTS}, got {fisher!r}")
-    if fisher == "gauss_newton" and not supports_gauss_newton(policy):
-        raise ValueError("fisher='gauss_newton' needs a GaussianPolicy of Linear/Conv2d/ReLU/Tanh/Flatten "
-                         "layers (sparse-VD layers pruned or in eval mode); use 'auto' or 'double_backward'")
-
-
 def _make_baseline(config: TRPOConfig, env: gymnasium.vector.VectorEnv, features: Callable[[Obs], np.ndarray],
                    seed: int) -> LinearFeatureBaseline | MLPBaseline:
     """The baseline ``config.baseline`` names; a network's input width comes from a sample of the (batched)
@@ -427,10 +391,8 @@ class TRPO:
     baseline_features: maps a batch of observations (array or dict of arrays, batch first) to a
         float array (batch, k) of low-dimensional features for the baseline (linear or network);
         by default :func:`vdtutorial.baselines.default_baseline_features`.
-    fisher: how the Fisher-vector products of step 4 are computed (:func:`fisher_product`); both ways
-        are exact, so this changes the cost, not the algorithm. ``"gauss_newton"`` only for a
-        :class:`vdtutorial.policy.GaussianPolicy` (:func:`vdtutorial.fisher.supports`);
-        ``"double_backward"`` for any policy; ``"auto"`` (default): the first when the policy supports it.
+    fvp: step 4's Fisher-vector product (default :func:`vdtutorial.trust_region.double_backward_fvp`, any policy);
+        an exact one changes the cost only (experiments: :func:`vdtutorial.fast.fisher.gauss_newton_fvp`).
     device: where :meth:`update` runs ("cpu"; "cuda": a GPU, see :func:`vdtutorial.policy.torch_device`);
         rollouts, the baseline and checkpoints stay on the CPU.
     """
@@ -438,9 +400,8 @@ class TRPO:
     def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
                  config: TRPOConfig | None = None, seed: int = 0,
                  baseline_features: Callable[[Obs], np.ndarray] | None = None,
-                 fisher: str = "auto", device: torch.device | str = "cpu"):
-        _check_fisher(fisher, policy)
-        self.policy, self.fisher, self.device = policy, fisher, torch_device(device)
+                 fvp: FisherProduct = double_backward_fvp, device: torch.device | str = "cpu"):
+        self.policy, self.fvp, self.device = policy, fvp, torch_device(device)
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
         self.config, self.seed = config or TRPOConfig(), seed
         self.baseline_features = baseline_features or default_baseline_features
@@ -500,11 +461,14 @@ class TRPO:
             return surrogate_of(dist), mean_kl(old, dist)
 
         surrogate = surrogate_of(dist)
-        whole_batch = batch.fvp_index is None
-        g = flat_grad(surrogate, self.params, retain_graph=whole_batch)  # the double backward reuses the graph
+        index = batch.fvp_index
+        g = flat_grad(surrogate, self.params, retain_graph=index is None)  # the double backward may reuse the graph
         timer.lap("gradient")
-        Fvp = fisher_product(self.policy, self.params, obs if whole_batch else batch.obs, old, cfg.cg_damping,
-                             self.fisher, dist, batch.fvp_index)
+        if index is None:  # F over the whole batch, at the forward pass just made
+            Fvp = self.fvp(self.policy, self.params, obs, old, cfg.cg_damping, dist)
+        else:  # F over the subsample (TRPOConfig.fvp_subsample)
+            Fvp = self.fvp(self.policy, self.params, _subset(batch.obs, index),
+                           Normal(old.mean[index], old.stddev[index]), cfg.cg_damping)
         timer.lap("fisher_setup")
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
         sFs = (direction @ Fvp(direction)).item()

@@ -4,8 +4,9 @@ search that enforces the KL bound (steps 3-6 of :mod:`vdtutorial.trpo`).
 
 Chapter 06 builds each piece on its own and checks it against a brute-force computation (sections 1, 2
 and 5) before :class:`vdtutorial.trpo.TRPO` puts them together; they live apart from the algorithm so that
-each can be read, taught and tested without a rollout. :mod:`vdtutorial.fisher` computes the same
-Fisher-vector product in a cheaper form for the paper's Gaussian policy.
+each can be read, taught and tested without a rollout. :func:`double_backward_fvp` is TRPO's default
+Fisher-vector product; :mod:`vdtutorial.fast.fisher` computes the same product in a cheaper form for the
+paper's Gaussian policy.
 
 Taught in chapters 06a and 06b.
 """
@@ -16,6 +17,10 @@ from typing import Callable
 import torch
 from torch import nn
 from torch.distributions import Distribution, kl_divergence
+
+#: A Fisher-vector product as TRPO takes it: ``fvp(policy, params, obs, old, damping, dist=None)`` returns
+#: ``v -> (F + damping * I) v`` (:func:`double_backward_fvp`).
+FisherProduct = Callable[..., Callable[[torch.Tensor], torch.Tensor]]
 
 
 def flat_grad(y: torch.Tensor, params: list[nn.Parameter], create_graph: bool = False,
@@ -41,10 +46,23 @@ def fisher_vector_product(kl_grad: torch.Tensor, params: list[nn.Parameter], v: 
     Fisher information matrix of the policy. ``kl_grad`` is the gradient of the mean KL, computed
     once with ``create_graph=True``; differentiating ``kl_grad . v`` once more gives F v (keeping
     the graph of ``kl_grad``, which conjugate gradient differentiates again for the next v). This
-    needs nothing but the policy protocol; for the paper's Gaussian policy :mod:`vdtutorial.fisher`
+    needs nothing but the policy protocol; for the paper's Gaussian policy :mod:`vdtutorial.fast.fisher`
     computes the same product several times faster.
     """
     return flat_grad(kl_grad @ v, params, retain_graph=True) + damping * v
+
+
+def double_backward_fvp(policy: nn.Module, params: list[nn.Parameter], obs, old: Distribution, damping: float,
+                        dist: Distribution | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
+    """TRPO's Fisher-vector product for any policy, the one chapter 06a builds: v -> (F + damping * I) v, F the
+    Hessian of the mean KL(old || pi_theta) over ``obs`` at the current parameters (:func:`fisher_vector_product`).
+
+    ``old`` is the policy's distribution on ``obs`` now, detached; ``dist`` the same with its autograd graph, when
+    the caller has it (TRPO's forward pass at theta_old), else one more forward pass makes it. Every Fisher-vector
+    product TRPO accepts (``TRPO(fvp=...)``) has this signature, e.g. :func:`vdtutorial.fast.fisher.gauss_newton_fvp`."""
+    dist = dist if dist is not None else policy.distribution(obs)
+    kl_grad = flat_grad(mean_kl(old, dist), params, create_graph=True)
+    return lambda v: fisher_vector_product(kl_grad, params, v, damping)
 
 
 def conjugate_gradient(Avp: Callable[[torch.Tensor], torch.Tensor], b: torch.Tensor, iters: int = 10,

@@ -219,7 +219,7 @@ def prune_model(module: nn.Module, threshold: float = THRESHOLD) -> nn.Module:
 # Network wiring: which layer's output units feed which layer's input columns.
 # --------------------------------------------------------------------------------------------------
 #: The layers that hold weights (plain or sparse VD): the units of the network's wiring, and what the Fisher
-#: products of :mod:`vdtutorial.fisher` differentiate.
+#: products of :mod:`vdtutorial.fast.fisher` differentiate.
 WEIGHT_LAYERS = (nn.Linear, nn.Conv2d, SVDOLayer)
 #: Modules allowed between two weight layers: they act on each unit separately, so a unit whose value
 #: is a constant c stays a constant (act(c)) and a unit nobody reads stays unread.

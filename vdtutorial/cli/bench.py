@@ -19,9 +19,11 @@ import torch
 
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.expert import IKExpert
+from vdtutorial.fast.fisher import gauss_newton_fvp
 from vdtutorial.policy import make_policy
 from vdtutorial.settings import budget
 from vdtutorial.trpo import TRPO
+from vdtutorial.trust_region import double_backward_fvp
 
 #: (task, obs_mode, image_size) rows of the env benchmark.
 ENV_CASES = (
@@ -181,12 +183,14 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
     return rows
 
 
-#: (label, TRPO fisher argument, fvp_subsample) of the fine-tuning benchmark's rows, per observation mode.
+#: (label, Fisher-vector product, fvp_subsample) of the fine-tuning benchmark's rows, per observation mode.
 FINETUNE_CASES = (
-    ("double backward", "double_backward", 1.0),  # the generic product, chapter 06's teaching version
-    ("Gauss-Newton", "gauss_newton", 1.0),        # the same matrix, vdtutorial.fisher's cheaper form
+    ("double backward", "double_backward", 1.0),  # TRPO's default, chapter 06's teaching version
+    ("Gauss-Newton", "gauss_newton", 1.0),        # the same matrix, vdtutorial.fast.fisher's cheaper form (experiments)
     ("Gauss-Newton", "gauss_newton", 0.1),        # the 10% subsample, a control
 )
+#: The products the cases name, as ``TRPO(fvp=...)`` takes them.
+FISHER_PRODUCTS = {"double_backward": double_backward_fvp, "gauss_newton": gauss_newton_fvp}
 
 
 def bench_finetune(iterations: int | None = None, profile: bool = False,
@@ -235,7 +239,8 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
         for label, fisher, fvp_subsample in FINETUNE_CASES:
             torch.manual_seed(0)
             policy = finetune_policy("vd", env, demos, obs_mode, 0, config, checkpoints_root=ckpt.parent.parent)
-            algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fisher=fisher, device=device)
+            algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fvp=FISHER_PRODUCTS[fisher],
+                        device=device)
             runs.append((algo, []))
         for i in range(iterations + 1):
             for algo, timed in runs:  # every case collects from the shared env, reset with its own seeds

@@ -2,7 +2,7 @@ r"""The exact Fisher-vector product of the Gaussian policy, computed in Gauss-Ne
 
 TRPO's conjugate gradient needs F v about a dozen times per update, where F is the Hessian of the mean
 KL(pi_old || pi_theta) at theta = theta_old (:mod:`vdtutorial.trpo`, step 4). The generic way
-(:func:`vdtutorial.trust_region.fisher_vector_product`, the one chapter 06 teaches) differentiates the KL
+(:func:`vdtutorial.trust_region.double_backward_fvp`, TRPO's default and the one chapter 06 teaches) differentiates the KL
 twice with autograd. For the paper's policy pi(a | s) = N(mu(s), diag(sigma(s)^2)) the same matrix has
 a closed form (chapter 06 derives it): with J the Jacobian of the network outputs (mu, sigma) with
 respect to theta, on N states,
@@ -292,3 +292,12 @@ class GaussNewtonFisher:
         if self.first is not None:
             self.first.backward([g_mu, g_sigma], grads)
         return torch.cat([grads[p].reshape(-1) if p in grads else v.new_zeros(p.numel()) for p in self.params])
+
+
+def gauss_newton_fvp(policy: GaussianPolicy, params: list[nn.Parameter], obs, old: Normal, damping: float,
+                     dist: Normal | None = None):
+    """v -> (F + damping * I) v in Gauss-Newton form (:class:`GaussNewtonFisher`), with the signature of
+    :func:`vdtutorial.trust_region.double_backward_fvp`: pass it as ``TRPO(fvp=gauss_newton_fvp)``. ``dist`` is
+    not needed (the products run over their own forward pass). A TypeError if :func:`supports` fails."""
+    product = GaussNewtonFisher(policy, obs, old, params)
+    return lambda v: product(v) + damping * v
