@@ -37,7 +37,7 @@ def test_shipped_image_checkpoint_sees_the_same_input_as_before():
     legacy[0, :3] = rgb.transpose(2, 0, 1) / np.float32(255.0)
     legacy[0, 3] = np.minimum(depth, 3.0) / np.float32(3.0)
     batch = obs_to_tensor({k: v[None] for k, v in obs.items()})
-    image, _ = policy.mu._stream_inputs(batch)
+    image, _ = policy.mu.stream_inputs(batch)
     assert torch.equal(image, torch.from_numpy(legacy) - 0.5)
     assert np.isfinite(policy.act(obs, deterministic=True)).all()
 

@@ -167,7 +167,7 @@ def test_an_unnormalised_policy_reads_the_observation_as_it_is_and_rebuilds_so()
     policy = make_policy(pendulum_space(), 1, normalise=False)
     assert torch.equal(policy.mu.input_scale, torch.ones(3)) and torch.equal(policy.mu.input_centre, torch.zeros(3))
     obs = torch.tensor([[0.6, -0.8, 7.5]])
-    assert torch.equal(policy.prepare(obs).mu[0], obs)
+    assert torch.equal(policy.mu.stream_inputs(obs)[0], obs)
     rebuilt = type(policy).from_config(policy.config)
     assert torch.equal(rebuilt.mu.input_scale, torch.ones(3))
 
@@ -211,43 +211,11 @@ def test_compacting_an_image_network():
     assert sum(p.numel() for p in small.parameters()) < sum(m.weight.numel() for m in vd.weight_layers(net))
 
 
-@pytest.mark.parametrize("kind", list(SPACES))
-def test_prepared_inputs_give_the_networks_own_outputs_bit_for_bit(kind):
-    """prepare() normalises once for both networks and the rgbd networks' first convolutions run as one:
-    the distribution is exactly that of mu and sigma each run on the raw observations (also pruned, for a
-    half-pruned first layer, and for one observation, as in a rollout step)."""
-    torch.manual_seed(0)
-    space = SPACES[kind]()
-    policy = make_policy(space, action_dim=4, variational=True).eval()
-    for layer in vd.svdo_layers(policy):
-        with torch.no_grad():
-            layer.log_sigma2.copy_(torch.where(torch.rand_like(layer.weight) < 0.5, 5.0, -10.0) + torch.log(layer.weight ** 2))
-    policy.prune_()
-    for n in (1, 7):
-        obs = batch(space, n, seed=n)
-        prepared = policy.prepare(obs)
-        assert prepared.sigma is prepared.mu and policy.prepare(prepared) is prepared
-        assert (policy.joint_first_layers(prepared) is not None) == (kind == "rgbd")
-        dist = policy.distribution(prepared)
-        assert torch.equal(dist.mean, policy.mu(obs))
-        assert torch.equal(dist.stddev, policy.min_std + F.softplus(policy.sigma(obs)))
-
-
-def test_networks_with_different_input_bounds_do_not_share_inputs():
-    policy = make_policy(state_space(), action_dim=2)
-    with torch.no_grad():
-        policy.sigma.input_scale.mul_(2)
-    obs = batch(state_space(), 3)
-    prepared = policy.prepare(obs)
-    assert prepared.sigma is not prepared.mu
-    assert torch.equal(policy.distribution(prepared).stddev, policy.min_std + F.softplus(policy.sigma(obs)))
-
-
 def test_image_inputs_are_the_documented_normalisation():
     net = make_policy(rgbd_space(), action_dim=2).mu
     obs = batch(rgbd_space(), 3)
     for depth_type in (torch.float32, torch.float16):  # pre-training stores depth as float16
         depth = obs["depth"].to(depth_type)
-        image, _ = net._stream_inputs({**obs, "depth": depth})
+        image, _ = net.stream_inputs({**obs, "depth": depth})
         expected = torch.cat([obs["rgb"].to(torch.float32) / 255.0, depth.reshape(3, 1, IMAGE, IMAGE) / 3.0], dim=1)
         assert image.dtype == torch.float32 and torch.equal(image, expected - 0.5)

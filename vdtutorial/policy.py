@@ -22,10 +22,8 @@ Taught in chapter 05.
 from __future__ import annotations
 
 import copy
-import itertools
 import math
 from contextlib import contextmanager
-from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
@@ -34,7 +32,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from vdtutorial.vd import (THRESHOLD, SVDOLayer, chain, compact_layers, concat_edges, make_conv2d, make_linear,
+from vdtutorial.vd import (THRESHOLD, chain, compact_layers, concat_edges, make_conv2d, make_linear,
                            prune_model, rebuild_sequential)
 from vdtutorial.trust_region import mean_kl
 
@@ -129,53 +127,6 @@ def _bounds_affine(low, high, dims: int) -> tuple[torch.Tensor, torch.Tensor]:
     return centre, half_width
 
 
-def applied_weight(layer: nn.Module) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """The weight a deterministic forward pass of ``layer`` applies, and the 0/1 mask it was multiplied
-    by (None: a plain layer, no mask); for a sparse-VD layer that is pruned or in eval mode."""
-    if isinstance(layer, SVDOLayer):
-        mask = layer.keep_mask().to(layer.weight.dtype)
-        return layer.weight * mask, mask
-    return layer.weight, None
-
-
-def conv_geometry(layer: nn.Module) -> tuple[tuple, tuple, tuple, int]:
-    """stride, padding, dilation, groups of a plain or sparse-VD convolution."""
-    if isinstance(layer, nn.Conv2d):
-        return layer.stride, layer.padding, layer.dilation, layer.groups
-    return layer.stride, layer.padding, (1, 1), 1
-
-
-def joinable_convolutions(layers) -> bool:
-    """True when the convolutions ``layers`` can run on one input as a single convolution
-    (:func:`joint_conv2d`): same kernel size and geometry, zero padding given as numbers, no groups, and
-    deterministic (a sparse-VD layer pruned or in eval mode)."""
-    for layer in layers:
-        if isinstance(layer, SVDOLayer):
-            if layer.weight.dim() != 4 or (layer.training and not layer.pruned):
-                return False
-        elif not isinstance(layer, nn.Conv2d) or layer.padding_mode != "zeros" or isinstance(layer.padding, str):
-            return False
-    first = layers[0]
-    return all(conv_geometry(layer) == conv_geometry(first) and layer.weight.shape[1:] == first.weight.shape[1:]
-               for layer in layers) and conv_geometry(first)[3] == 1
-
-
-def joint_conv2d(layers, x: torch.Tensor, weights: list[torch.Tensor], biases: list[torch.Tensor | None]) -> list[torch.Tensor]:
-    """The convolutions ``layers`` (:func:`joinable_convolutions`) of the same input ``x`` with the given
-    weights and biases, computed as one convolution with all their filters stacked, then split per layer.
-
-    Why: mu's and sigma's first convolutions read the same image. Each output channel is still the dot
-    product of one filter with the same patches, so the outputs are those of separate convolutions (here
-    bit for bit), but the image, the largest tensor of the network, is read once instead of twice: 40 ms
-    -> 24 ms for both 8-channel convolutions on a batch of 200 128 x 128 images, one thread."""
-    stride, padding, dilation, _ = conv_geometry(layers[0])
-    if any(b is None for b in biases):
-        biases = [torch.zeros(w.shape[0], dtype=w.dtype, device=w.device) if b is None else b
-                  for w, b in zip(weights, biases)]
-    y = F.conv2d(x, torch.cat(weights), torch.cat(biases), stride, padding, dilation)
-    return list(y.split([w.shape[0] for w in weights], dim=1))
-
-
 class TwoStreamNet(nn.Module):
     """Fig. 2 network (module docstring, "Network kinds"; the normalisation of its inputs is below).
 
@@ -194,8 +145,8 @@ class TwoStreamNet(nn.Module):
         far plane), both in [0, 1], are stacked into one 4-channel image and shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and continuous
         across the +-pi wrap of continuous joints. Other vector inputs (the cup position, a generic Box) are
         mapped from the observation space's bounds to [-1, 1]; dimensions with infinite or zero-width bounds
-        pass through unchanged. ``GaussianPolicy.prepare`` normalises a batch once for both networks, for
-        code that evaluates the policy on one batch many times (TRPO's update).
+        pass through unchanged. :mod:`vdtutorial.fast.policy` normalises a batch once for both networks, for
+        code that evaluates the policy on one batch many times (TRPO's update in the experiments).
 
     Sizes (CPU budget: 2 shared cores)
         The paper does not give its layer sizes. The defaults are 8/16/16 channels with kernels 8/4/3 and
@@ -246,7 +197,8 @@ class TwoStreamNet(nn.Module):
         self.register_buffer("input_centre", centre)
         self.register_buffer("input_scale", half_width)
 
-    def _stream_inputs(self, obs) -> list[torch.Tensor]:
+    def stream_inputs(self, obs) -> list[torch.Tensor]:
+        """Each stream's normalised input for a batch of observations (tensors)."""
         if self.kind == "rgbd":
             # Written into one preallocated image, in place: the same divisions and subtraction as
             # cat([rgb / 255, depth / DEPTH_SCALE]) - 0.5 without the three temporary images (2x faster).
@@ -261,29 +213,8 @@ class TwoStreamNet(nn.Module):
             return [cup, _angle_features(obs[..., :-CUP_DIMS])]
         return [(obs - self.input_centre) / self.input_scale]
 
-    def same_inputs_as(self, other: "TwoStreamNet") -> bool:
-        """True when ``other`` turns every observation into the same stream inputs as this network (same
-        kind and normalisation), so that both can read one prepared copy (:meth:`GaussianPolicy.prepare`)."""
-        if self.kind != other.kind:
-            return False
-        mine, theirs = dict(self.named_buffers(recurse=False)), dict(other.named_buffers(recurse=False))
-        return mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
-
     def forward(self, obs) -> torch.Tensor:
-        return self.forward_inputs(self._stream_inputs(obs))
-
-    def forward_inputs(self, inputs: list[torch.Tensor], first_scene_output: torch.Tensor | None = None) -> torch.Tensor:
-        """The network on stream inputs already made by ``_stream_inputs``; ``first_scene_output``, when
-        given, is the scene stream's first layer already applied to ``inputs[0]`` (see :func:`joint_conv2d`)."""
-        scene, *others = self.streams
-        if first_scene_output is None:
-            features = [scene(inputs[0])]
-        else:
-            x = first_scene_output
-            for module in itertools.islice(scene, 1, None):
-                x = module(x)
-            features = [x]
-        features += [stream(x) for stream, x in zip(others, inputs[1:])]
+        features = [stream(x) for stream, x in zip(self.streams, self.stream_inputs(obs))]
         return self.head(torch.cat(features, dim=-1))
 
     def weight_edges(self):
@@ -311,15 +242,6 @@ def _jsonable(value):
     if isinstance(value, (tuple, list, np.ndarray)):
         return [_jsonable(v) for v in value]
     return value.item() if isinstance(value, np.generic) else value
-
-
-@dataclass(frozen=True)
-class PreparedObs:
-    """A batch of observations turned into the stream inputs of ``mu`` and of ``sigma`` (the same list
-    when the two networks normalise alike), by :meth:`GaussianPolicy.prepare`."""
-
-    mu: list[torch.Tensor]
-    sigma: list[torch.Tensor]
 
 
 class GaussianPolicy(nn.Module):
@@ -366,43 +288,11 @@ class GaussianPolicy(nn.Module):
     def from_config(cls, config: dict) -> "GaussianPolicy":
         return cls(**config)
 
-    def prepare(self, obs) -> "PreparedObs":
-        """The networks' inputs for a batch of observations, normalised once for both networks: pass the
-        result to :meth:`distribution` (and the other methods) in place of ``obs`` to reuse it. TRPO's
-        update evaluates the policy on the same batch a dozen times; for the image policy the
-        normalisation alone was a fifth of its time. A :class:`PreparedObs` passes through unchanged."""
-        if isinstance(obs, PreparedObs):
-            return obs
-        obs = obs_to_tensor(obs)
-        mu_inputs = self.mu._stream_inputs(obs)
-        sigma_inputs = mu_inputs if self.mu.same_inputs_as(self.sigma) else self.sigma._stream_inputs(obs)
-        return PreparedObs(mu_inputs, sigma_inputs)
-
-    def outputs(self, obs) -> tuple[torch.Tensor, torch.Tensor]:
-        """mu and the sigma network's output before the softplus, for a batch of observations (or its
-        :meth:`prepare` d inputs). When both networks read one image through joinable first convolutions,
-        those run as one (:func:`joint_conv2d`)."""
-        inputs = self.prepare(obs)
-        firsts = self.joint_first_layers(inputs)
-        if firsts is None:
-            return self.mu.forward_inputs(inputs.mu), self.sigma.forward_inputs(inputs.sigma)
-        weights, biases = [applied_weight(layer)[0] for layer in firsts], [layer.bias for layer in firsts]
-        mu_first, sigma_first = joint_conv2d(firsts, inputs.mu[0], weights, biases)
-        return self.mu.forward_inputs(inputs.mu, mu_first), self.sigma.forward_inputs(inputs.sigma, sigma_first)
-
-    def joint_first_layers(self, inputs: "PreparedObs") -> list[nn.Module] | None:
-        """[mu's, sigma's] first convolution when they read the same prepared image and can run as one
-        (:func:`joint_conv2d`); None otherwise (the networks then run apart)."""
-        if self.mu.kind != "rgbd" or inputs.mu[0] is not inputs.sigma[0]:
-            return None
-        firsts = [self.mu.streams[0][0], self.sigma.streams[0][0]]
-        return firsts if joinable_convolutions(firsts) else None
-
     def distribution(self, obs) -> Normal:
-        """Action distribution for a batch of observations (tensor (B, d) or dict of batched tensors, or
-        their :meth:`prepare` d inputs)."""
-        mu, sigma_output = self.outputs(obs)
-        return Normal(mu, self.min_std + F.softplus(sigma_output))
+        """pi(. | s) for a batch of observations (tensor (B, d) or dict of batched tensors): N(mu(s), sigma(s)^2)
+        with sigma = ``min_std`` + softplus of the sigma network's output."""
+        obs = obs_to_tensor(obs)
+        return Normal(self.mu(obs), self.min_std + F.softplus(self.sigma(obs)))
 
     def log_prob(self, obs, actions: torch.Tensor) -> torch.Tensor:
         """log pi(a | s) per observation, summed over action dimensions (independent Gaussians)."""

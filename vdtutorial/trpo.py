@@ -446,7 +446,7 @@ class TRPO:
 
     def _step(self, batch: Batch) -> dict:
         cfg, timer = self.config, _CPUTimer()
-        obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs  # inputs made once
+        obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs  # a fast policy's, made once
         # One forward with graph at theta_old gives pi_old (detached), the surrogate and g.
         dist = self.policy.distribution(obs)
         old = Normal(dist.mean.detach().clone(), dist.stddev.detach().clone())

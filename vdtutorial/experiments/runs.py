@@ -21,6 +21,7 @@ from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.envs import ENV_IDS, HORIZON
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
 from vdtutorial.fast.fisher import gauss_newton_fvp
+from vdtutorial.fast.policy import fast_policy
 from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
                                      save_run_state)
 from vdtutorial.runner.rows import write_csv
@@ -244,7 +245,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     try:
         policy = finetune_policy(method, env, data, obs_mode, seed, cfg, checkpoints_root=checkpoints_root,
                                  progress=progress, resumed=saved is not None, source=source)
-        algo = TRPO(policy, env, trpo_config, seed=seed, fvp=gauss_newton_fvp, device=device)
+        algo = TRPO(fast_policy(policy), env, trpo_config, seed=seed, fvp=gauss_newton_fvp, device=device)
         if saved is not None:
             algo.restore(saved)
             restore_random_states(saved)

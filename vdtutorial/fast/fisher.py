@@ -28,7 +28,9 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from vdtutorial.policy import GaussianPolicy, TwoStreamNet, applied_weight, conv_geometry, joint_conv2d
+from vdtutorial.fast.policy import (FastGaussianPolicy, applied_weight, conv_geometry, fused_conv2d, fused_first_layers,
+                                    prepare_inputs)
+from vdtutorial.policy import GaussianPolicy, TwoStreamNet
 from vdtutorial.vd import WEIGHT_LAYERS, SVDOLayer
 
 #: The parameter-free modules the products let weight layers (vd.WEIGHT_LAYERS) be mixed with.
@@ -48,7 +50,7 @@ def supports(policy: nn.Module) -> bool:
     random, and TRPO's policy must be deterministic). :func:`supports` says whether a policy qualifies;
     TRPO falls back to the double backward for any other policy.
     """
-    if type(policy) is not GaussianPolicy:  # a subclass may change distribution()
+    if type(policy) not in (GaussianPolicy, FastGaussianPolicy):  # another subclass may change distribution()
         return False
     for net in (policy.mu, policy.sigma):
         for module in [m for stream in net.streams for m in stream] + list(net.head):
@@ -162,14 +164,14 @@ def _unfold(x: torch.Tensor, kernel: tuple[int, int], stride, padding, dilation)
 
 class _FirstConvolutions:
     """mu's and sigma's first convolutions, which read the same image, traced as one
-    (:func:`vdtutorial.policy.joint_conv2d`). Their input is data, so the backward pass needs only the
+    (:func:`vdtutorial.fast.policy.fused_conv2d`). Their input is data, so the backward pass needs only the
     weight gradients: one batched matrix product per network with the image's patches, unfolded once
     per update for both (:class:`GaussNewtonFisher`, "Their two weight gradients stay two matrix products")."""
 
     def __init__(self, layers: list[nn.Module], image: torch.Tensor):
         self.layers, self.image = layers, image
         self.weights, self.masks = zip(*(applied_weight(layer) for layer in layers))
-        self.outputs = joint_conv2d(layers, image, self.weights, [layer.bias for layer in layers])
+        self.outputs = fused_conv2d(layers, image, self.weights, [layer.bias for layer in layers])
         self.patches = _unfold(image, self.weights[0].shape[2:], *conv_geometry(layers[0])[:3])
 
     def tangent(self, tangents: dict[nn.Parameter, torch.Tensor]) -> list[torch.Tensor]:
@@ -179,7 +181,7 @@ class _FirstConvolutions:
             dw = tangents.get(layer.weight)
             dws.append(torch.zeros_like(weight) if dw is None else dw if mask is None else dw * mask)
         dbs = [None if layer.bias is None else tangents.get(layer.bias) for layer in self.layers]
-        return joint_conv2d(self.layers, self.image, dws, dbs)
+        return fused_conv2d(self.layers, self.image, dws, dbs)
 
     def backward(self, gs: list[torch.Tensor], grads: dict[nn.Parameter, torch.Tensor]) -> None:
         """Add the gradients of sum_i <gs[i], output i> with respect to the layers' weights and biases."""
@@ -197,7 +199,7 @@ class _NetTrace:
     passes."""
 
     def __init__(self, net: TwoStreamNet, inputs: list[torch.Tensor], first_output: torch.Tensor | None = None):
-        """``inputs``: the network's stream inputs (:meth:`vdtutorial.policy.GaussianPolicy.prepare`);
+        """``inputs``: the network's stream inputs (:func:`vdtutorial.fast.policy.prepare_inputs`);
         ``first_output``: the scene stream's first layer already applied (by :class:`_FirstConvolutions`),
         or None to trace the scene stream whole."""
         scene, *others = net.streams
@@ -248,9 +250,9 @@ class GaussNewtonFisher:
     largest layer, is ~4x cheaper as one batched matrix product with the image patches, unfolded once
     per update, than with ``convolution_backward``.
 
-    mu's and sigma's first convolutions read the same image (:meth:`vdtutorial.policy.GaussianPolicy.prepare`
+    mu's and sigma's first convolutions read the same image (:func:`vdtutorial.fast.policy.prepare_inputs`
     normalises it once for both): the forward and tangent passes run them as one convolution with both
-    filter banks (:func:`vdtutorial.policy.joint_conv2d`, bit for bit the same outputs), and the patches are
+    filter banks (:func:`vdtutorial.fast.policy.fused_conv2d`, bit for bit the same outputs), and the patches are
     unfolded once for both. Their two weight gradients stay two matrix products: one product with both
     filter banks would read the patches once (27 ms instead of 44 ms on a batch of 200), but it sums in
     another order, and conjugate gradient magnifies that last-bit difference to 1e-5 relative in F s within
@@ -263,8 +265,8 @@ class GaussNewtonFisher:
                             "with its sparse-VD layers pruned or in eval mode; use trust_region.fisher_vector_product")
         self.params = params
         with torch.no_grad():
-            inputs = policy.prepare(obs)
-            firsts = policy.joint_first_layers(inputs)
+            inputs = prepare_inputs(policy, obs)
+            firsts = fused_first_layers(policy, inputs)
             self.first = None if firsts is None else _FirstConvolutions(firsts, inputs.mu[0])
             first_outputs = [None, None] if self.first is None else self.first.outputs
             self.mu = _NetTrace(policy.mu, inputs.mu, first_outputs[0])
