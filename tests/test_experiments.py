@@ -322,7 +322,7 @@ def test_shipped_table1_rows_are_the_shipped_checkpoints(folder):
     from vdtutorial.pretrain import load_checkpoint
     from vdtutorial.runner.rows import stored_value
     from vdtutorial.settings import data_dir
-    from vdtutorial.vd import sparsity_report
+    from vdtutorial.analysis.sparsity import sparsity_report
 
     rows = read_rows(data_dir() / "results" / folder / "table1_per-set.csv")
     assert {r["experiment"] for r in rows} == {row[0] for row in TABLE1}

@@ -10,6 +10,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from vdtutorial import vd
+from vdtutorial.analysis.compact import compact
+from vdtutorial.analysis.sparsity import sparsity_report, weight_layers
 from vdtutorial.policy import GaussianPolicy, TwoStreamNet, make_policy, obs_to_tensor
 
 IMAGE = 48  # smallest convenient size for the default convolutions: 48 -> 11 -> 4 -> 1 pixels
@@ -103,11 +105,11 @@ def test_kl_is_zero_for_itself_and_positive_otherwise():
 def test_variational_flag_swaps_every_layer(kind):
     plain = make_policy(SPACES[kind](), 2, variational=False)
     variational = make_policy(SPACES[kind](), 2, variational=True)
-    plain_types = {type(m) for m in vd.weight_layers(plain)}
+    plain_types = {type(m) for m in weight_layers(plain)}
     assert plain_types <= {nn.Linear, nn.Conv2d} and vd.svdo_layers(plain) == []
-    assert {type(m) for m in vd.weight_layers(variational)} <= {vd.LinearSVDO, vd.Conv2dSVDO}
+    assert {type(m) for m in weight_layers(variational)} <= {vd.LinearSVDO, vd.Conv2dSVDO}
     per_net = {"rgbd": 3 + 3 + 3 + 1, "state": 3 + 3 + 1, "mlp": 3 + 1}[kind]  # conv + FC streams + head
-    assert len(vd.weight_layers(plain)) == len(vd.weight_layers(variational)) == 2 * per_net
+    assert len(weight_layers(plain)) == len(weight_layers(variational)) == 2 * per_net
 
 
 @pytest.mark.parametrize("kind", list(SPACES))
@@ -185,15 +187,15 @@ def test_compacting_a_trained_and_pruned_policy_keeps_its_outputs():
         loss.backward()
         optimiser.step()
     policy.prune_()
-    report = vd.sparsity_report(policy.mu)
+    report = sparsity_report(policy.mu)
     assert report.weight_fraction > 0.5 and report.neuron_fraction > 0.1
-    small = policy.mu.compact()
+    small = compact(policy.mu)
     assert small is not policy.mu and vd.svdo_layers(small) == []
     assert sum(p.numel() for p in small.parameters()) < sum(p.numel() for p in policy.mu.parameters()) / 2
     test_obs = batch(space, 64, seed=1)
     with torch.no_grad():
         assert torch.allclose(small(test_obs), policy.mu.eval()(test_obs), atol=1e-5)
-    whole = vd.sparsity_report(policy)  # both networks; sigma's report shows its untrained layers
+    whole = sparsity_report(policy)  # both networks; sigma's report shows its untrained layers
     assert [l.name.split(".")[0] for l in whole.layers] == ["mu"] * 7 + ["sigma"] * 7
 
 
@@ -205,10 +207,10 @@ def test_compacting_an_image_network():
         for layer in vd.svdo_layers(net):
             layer.log_sigma2.copy_(torch.where(torch.rand_like(layer.weight) < 0.7, 10.0, -10.0))
     obs = batch(rgbd_space(), 8)
-    small = vd.compact(net)
+    small = compact(net)
     with torch.no_grad():
         assert torch.allclose(small(obs), net(obs), atol=1e-5)
-    assert sum(p.numel() for p in small.parameters()) < sum(m.weight.numel() for m in vd.weight_layers(net))
+    assert sum(p.numel() for p in small.parameters()) < sum(m.weight.numel() for m in weight_layers(net))
 
 
 def test_image_inputs_are_the_documented_normalisation():

@@ -9,7 +9,8 @@ from vdtutorial.envs import ENV_IDS
 from vdtutorial.experiments.evaluation import PolicyController, successes_per_episode
 from vdtutorial.pretrain import (CheckpointError, HeldOutStop, PretrainConfig, checkpoint_path, demo_observations,
                                  evaluate_imitation, load_checkpoint, pretrain, save_checkpoint, split_by_episode)
-from vdtutorial.vd import LinearSVDO, sparsity_report
+from vdtutorial.analysis.sparsity import sparsity_report
+from vdtutorial.vd import LinearSVDO
 
 
 @pytest.fixture(scope="module")

@@ -10,6 +10,8 @@ from scipy import integrate, stats
 from torch import nn
 
 from vdtutorial import vd
+from vdtutorial.analysis.compact import compact
+from vdtutorial.analysis.sparsity import sparsity_report, weight_layers
 from vdtutorial.experiments.digits import digits_validation
 
 
@@ -200,15 +202,15 @@ def test_compact_conv_stack_gives_identical_outputs_with_fewer_parameters():
     _set_pruned(fc1, (slice(None), slice(3 * 16, 4 * 16)))  # c3 channel 3 dead-out through Flatten
     _set_pruned(fc1, (5,))                 # fc1 unit 5 dead-in: folded into fc2's bias
     model.eval()
-    small = vd.compact(model)
-    assert all(type(m) in (nn.Conv2d, nn.Linear) for m in vd.weight_layers(small))
-    assert [m.weight.shape[0] for m in vd.weight_layers(small)] == [5, 4, 3, 6, 3]
+    small = compact(model)
+    assert all(type(m) in (nn.Conv2d, nn.Linear) for m in weight_layers(small))
+    assert [m.weight.shape[0] for m in weight_layers(small)] == [5, 4, 3, 6, 3]
     assert sum(p.numel() for p in small.parameters()) < sum(
-        m.weight.numel() + m.bias.numel() for m in vd.weight_layers(model))
+        m.weight.numel() + m.bias.numel() for m in weight_layers(model))
     x = torch.randn(8, 3, 12, 12)
     with torch.no_grad():
         assert torch.allclose(small(x), model(x), atol=1e-5)
-    report = vd.sparsity_report(model)
+    report = sparsity_report(model)
     assert [l.dead for l in report.layers] == [2, 1, 1, 1, 0]  # c1's unfoldable channel 1 counts as pruned
 
 
@@ -221,7 +223,7 @@ def test_sparsity_report_on_hand_built_network():
     _set_pruned(l1, (1, 2))               # one more pruned weight: 5 of 12
     _set_pruned(l2, (slice(None), 2))     # unit 2: both outgoing weights pruned -> dead-out
     _set_pruned(l2, (1, 0))               # unit 0 keeps one outgoing weight: 3 of 6 pruned
-    report = vd.sparsity_report(nn.Sequential(l1, nn.ReLU(), l2))
+    report = sparsity_report(nn.Sequential(l1, nn.ReLU(), l2))
     first, last = report.layers
     assert (first.weights, first.pruned_weights, first.hidden_units) == (12, 5, 3)
     assert (first.dead_in, first.dead_out, first.dead) == (1, 1, 2)
@@ -240,7 +242,7 @@ def test_sparsity_report_needs_the_wiring():
             self.layer = vd.LinearSVDO(2, 2)
 
     with pytest.raises(TypeError, match="weight_edges"):
-        vd.sparsity_report(Unknown())
+        sparsity_report(Unknown())
 
 
 def test_digits_validation_quick():
@@ -249,3 +251,20 @@ def test_digits_validation_quick():
     assert result.vd_accuracy > 0.85
     assert result.fraction_pruned > 0.5
     assert result.fraction_pruned == result.report.weight_fraction
+
+
+def test_pruned_fraction_is_the_reports_weight_fraction_exactly():
+    """Pre-training logs vd.pruned_fraction each epoch (the core cannot import the analysis); the shipped
+    checkpoints' histories were written with sparsity_report(mu).weight_fraction: the same float."""
+    from vdtutorial.demos import Demos, demo_path
+    from vdtutorial.pretrain import checkpoint_path, load_checkpoint
+
+    torch.manual_seed(0)
+    net = nn.Sequential(vd.LinearSVDO(6, 5), nn.ReLU(), vd.LinearSVDO(5, 3))
+    with torch.no_grad():
+        for layer in vd.svdo_layers(net):
+            layer.log_sigma2.copy_(torch.where(torch.rand_like(layer.weight) < 0.4, 5.0, -10.0) + torch.log(layer.weight ** 2))
+    mu = load_checkpoint(checkpoint_path(Demos.load(demo_path("reach", 8000, 0.5, 0)).meta, "vd", "state", 0)).mu
+    for module in (net, mu):
+        assert vd.pruned_fraction(module) == sparsity_report(module).weight_fraction
+    assert 0 < vd.pruned_fraction(net) < 1

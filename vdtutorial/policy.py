@@ -13,15 +13,14 @@ Network kinds (``TwoStreamNet``), chosen from the observation space by :func:`ma
 Every layer is a plain or a sparse variational dropout layer according to one flag, ``variational``.
 
 Sparsity
-    ``vd.sparsity_report(policy.mu).neuron_fraction`` is the number to compare with the paper's Table I
-    (pre-training sparsifies ``mu`` only); ``policy.mu.compact()`` gives the pruned network as a small
-    plain one.
+    ``analysis.sparsity.sparsity_report(policy.mu).neuron_fraction`` is the number to compare with the
+    paper's Table I (pre-training sparsifies ``mu`` only); ``analysis.compact.compact(policy.mu)`` gives the
+    pruned network as a small plain one.
 
 Taught in chapter 05.
 """
 from __future__ import annotations
 
-import copy
 import math
 from contextlib import contextmanager
 
@@ -32,8 +31,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from vdtutorial.vd import (THRESHOLD, chain, compact_layers, concat_edges, make_conv2d, make_linear,
-                           prune_model, rebuild_sequential)
+from vdtutorial.vd import THRESHOLD, WEIGHT_LAYERS, make_conv2d, make_linear, prune_model
 from vdtutorial.trust_region import mean_kl
 
 KINDS = ("rgbd", "state", "mlp")
@@ -188,7 +186,8 @@ class TwoStreamNet(nn.Module):
             self._register_bounds(obs_low, obs_high, slice(None), obs_shape[0])
             streams = [_mlp(obs_shape[0], scene_hidden, variational)]
         self.streams = nn.ModuleList(nn.Sequential(*layers) for layers in streams)
-        features = sum(chain(stream)[1][0].weight.shape[0] for stream in self.streams)
+        last_layers = [[m for m in stream if isinstance(m, WEIGHT_LAYERS)][-1] for stream in self.streams]
+        features = sum(layer.weight.shape[0] for layer in last_layers)
         self.head = nn.Sequential(make_linear(features, out_dim, variational))
 
     def _register_bounds(self, low, high, part: slice, dims: int) -> None:
@@ -216,23 +215,6 @@ class TwoStreamNet(nn.Module):
     def forward(self, obs) -> torch.Tensor:
         features = [stream(x) for stream, x in zip(self.streams, self.stream_inputs(obs))]
         return self.head(torch.cat(features, dim=-1))
-
-    def weight_edges(self):
-        """Wiring of the weight layers for :func:`vdtutorial.vd.sparsity_report` and compaction."""
-        edges, tails = [], []
-        for stream in self.streams:
-            stream_edges, tail = chain(stream)
-            edges += stream_edges
-            tails.append(tail)
-        return edges + concat_edges(tails, self.head[0])
-
-    def compact(self) -> "TwoStreamNet":
-        """Copy with pruned neurons removed and plain layers only; same eval-mode outputs."""
-        replacements = compact_layers(self, self.weight_edges())
-        new = copy.deepcopy(self)
-        new.streams = nn.ModuleList(rebuild_sequential(stream, replacements) for stream in self.streams)
-        new.head = rebuild_sequential(self.head, replacements)
-        return new
 
 
 def _jsonable(value):
@@ -333,11 +315,6 @@ class GaussianPolicy(nn.Module):
         """Freeze the pruning masks of every sparse-VD layer (start of the RL phase, Section IV)."""
         prune_model(self, threshold)
         return self
-
-    def weight_edges(self):
-        """Wiring of both networks, so that ``sparsity_report(policy)`` works (use ``policy.mu`` for the
-        network that pre-training sparsifies)."""
-        return self.mu.weight_edges() + self.sigma.weight_edges()
 
 
 def make_policy(observation_space, action_dim: int, variational: bool = False, kind: str = "auto",

@@ -42,7 +42,7 @@ from vdtutorial.envs import ENV_IDS
 from vdtutorial.beyond.initial_sigma import IMAGE_FIT_STATES, InitialSigma, apply_initial_sigma
 from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor, on_device, torch_device
 from vdtutorial.settings import budget, data_dir, recorded_path
-from vdtutorial.vd import model_kl, sparsity_report
+from vdtutorial.vd import model_kl, pruned_fraction
 
 REGULARISERS = ("vd", "l2")
 #: The paper's fixed initial sigma, 0.3 (option (a)): the default of ``PretrainConfig.initial_sigma`` and the sigma
@@ -262,7 +262,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
             row = {"epoch": epoch + 1, "train_loss": float(np.mean(losses)),
                    **evaluate_imitation(policy, obs, actions, val_idx)}
             if cfg.reg == "vd":
-                row["weights_pruned"] = sparsity_report(policy.mu).weight_fraction
+                row["weights_pruned"] = pruned_fraction(policy.mu)
             history.append(row)
             bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
             if stop is not None and stop.should_stop(epoch + 1, row["val_mse"], policy.mu):

@@ -141,7 +141,8 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
     from vdtutorial.demos import Demos, demo_path
     from vdtutorial.pretrain import PretrainConfig, checkpoint_path, demo_observations, load_checkpoint, observation_space, pretrain
     from vdtutorial.policy import obs_to_tensor
-    from vdtutorial.vd import compact, sparsity_report
+    from vdtutorial.analysis.compact import compact
+    from vdtutorial.analysis.sparsity import sparsity_report
 
     torch.set_num_threads(1)
     samples = samples or budget(8000, 400)

@@ -40,7 +40,7 @@ def cmd_pretrain(args) -> None:
     from vdtutorial.demos import Demos
     from vdtutorial.pretrain import (checkpoint_path, default_config, load_checkpoint, pretrain, pretrain_command,
                                      save_checkpoint)
-    from vdtutorial.vd import sparsity_report
+    from vdtutorial.analysis.sparsity import sparsity_report
 
     device = device_of(args)  # before any work
     torch.set_num_threads(1)

@@ -16,7 +16,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from vdtutorial.settings import budget
-from vdtutorial.vd import SparsityReport, make_linear, model_kl, sparsity_report
+from vdtutorial.analysis.sparsity import sparsity_report, SparsityReport
+from vdtutorial.vd import make_linear, model_kl
 
 
 @dataclass

@@ -12,7 +12,7 @@ from vdtutorial.experiments.runs import METHOD_LABELS, RL_METHODS, pretrained_po
 from vdtutorial.settings import runs_dir
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import budget
-from vdtutorial.vd import sparsity_report
+from vdtutorial.analysis.sparsity import sparsity_report
 
 def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise: float = 0.5,
                     epochs: int | None = None, total_steps: int | None = None, workers: int = 2,

@@ -23,7 +23,7 @@ from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.runner.rows import stored_rows, write_csv
 from vdtutorial.experiments.runs import pretrained_policy
 from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, default_config
-from vdtutorial.vd import sparsity_report
+from vdtutorial.analysis.sparsity import sparsity_report
 
 #: Table I: (row, task, demonstrations, Sigma, the paper's neuron sparsification ratio).
 TABLE1 = (
