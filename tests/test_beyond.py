@@ -10,11 +10,12 @@ import torch
 
 from vdtutorial.demos import Demos
 from vdtutorial.experiments import beyond as beyond_module
+from vdtutorial.experiments import runs as runs_module
 from vdtutorial.experiments.beyond import comparisons, variants
+from vdtutorial.experiments.checkpoints import checkpoint_path, default_config
 from vdtutorial.experiments.curves import CONFIDENCE
 from vdtutorial.experiments.runs import pretrained_policy
-from vdtutorial.experiments import runs as runs_module
-from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, checkpoint_path, default_config
+from vdtutorial.pretrain import PAPER_INITIAL_SIGMA
 from vdtutorial.runner.resume import ResumeError, check_resumable, read_run_state
 from vdtutorial.runner.rows import read_rows, results_file
 from vdtutorial.settings import is_quick

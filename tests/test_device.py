@@ -13,8 +13,9 @@ from vdtutorial.__main__ import main
 from vdtutorial.demos import Demos, demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.experiments import NUM_ENVS
+from vdtutorial.experiments.checkpoints import checkpoint_path, load_checkpoint
 from vdtutorial.policy import on_device, torch_device
-from vdtutorial.pretrain import PretrainConfig, checkpoint_path, load_checkpoint, pretrain
+from vdtutorial.pretrain import PretrainConfig, pretrain
 from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, make_vec_env
 
 HAS_CUDA = torch.cuda.is_available()

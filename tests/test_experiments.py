@@ -20,9 +20,10 @@ from vdtutorial.experiments import (KL_WEIGHTINGS, METHOD_LABELS, TABLE1, Curve,
                                     results_file,
                                     run_experiment, seeds_with_trend, sparsity_trends, steps_to_reach, table1,
                                     table_means, vd_reaches_l2_final)
+from vdtutorial.experiments.checkpoints import checkpoint_path
+from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import backends
 from vdtutorial.settings import QUICK_ENV
-from vdtutorial.pretrain import PretrainConfig, checkpoint_path
 from vdtutorial.trpo import TIMING_COLUMNS
 from vdtutorial.vd import svdo_layers
 
@@ -319,7 +320,7 @@ def test_shipped_table1_rows_are_the_shipped_checkpoints(folder):
     """Every shipped per-set Table I row whose checkpoint is shipped too (all state rows; the image table's
     8000-sample, Sigma = 0.5 row, whose other image checkpoints are too big to ship) is what
     ``sparsity_report`` measures on that checkpoint now."""
-    from vdtutorial.pretrain import load_checkpoint
+    from vdtutorial.experiments.checkpoints import load_checkpoint
     from vdtutorial.runner.rows import stored_value
     from vdtutorial.settings import data_dir
     from vdtutorial.analysis.sparsity import sparsity_report

@@ -182,7 +182,7 @@ def test_state_fine_tuning_rows_are_the_same_with_either_product():
     from vdtutorial.demos import Demos, demo_path
     from vdtutorial.envs import ENV_IDS
     from vdtutorial.experiments import NUM_ENVS
-    from vdtutorial.pretrain import checkpoint_path, load_checkpoint
+    from vdtutorial.experiments.checkpoints import checkpoint_path, load_checkpoint
 
     meta = Demos.load(demo_path("reach", 8000, 0.5, 0)).meta
     rows = {}

@@ -5,10 +5,12 @@ import pytest
 import torch
 
 from vdtutorial.__main__ import build_parser
+from vdtutorial.beyond.initial_sigma import (InitialSigma, apply_initial_sigma, gaussian_nll, pretrain_with_sigma,
+                                             vd_spread)
 from vdtutorial.demos import generate_demos
-from vdtutorial.beyond.initial_sigma import InitialSigma, apply_initial_sigma, gaussian_nll, vd_spread
+from vdtutorial.experiments.checkpoints import checkpoint_path
 from vdtutorial.policy import make_policy
-from vdtutorial.pretrain import PretrainConfig, checkpoint_path, pretrain, split_by_episode
+from vdtutorial.pretrain import PretrainConfig, pretrain, split_by_episode
 from vdtutorial.vd import svdo_layers
 
 BOX = gym.spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
@@ -110,7 +112,7 @@ def test_pretraining_with_demos_sigma_raises_the_likelihood_of_the_demonstration
     "spread" for an L2 policy asks for the VD network."""
     torch.set_num_threads(1)
     fixed, _ = pretrain(demos, PretrainConfig(reg="vd", epochs=5), seed=0, progress=False)
-    fitted, _ = pretrain(demos, PretrainConfig(reg="vd", epochs=5, initial_sigma="demos"), seed=0, progress=False)
+    fitted, _ = pretrain_with_sigma(demos, PretrainConfig(reg="vd", epochs=5, initial_sigma="demos"), seed=0, progress=False)
     for p, q in zip(fixed.mu.parameters(), fitted.mu.parameters()):
         assert torch.equal(p, q)
     train, _ = split_by_episode(demos, 0.1, 0)
@@ -121,7 +123,9 @@ def test_pretraining_with_demos_sigma_raises_the_likelihood_of_the_demonstration
     assert fitted.pretrain_info["initial_sigma"]["kind"] == "demos"
     assert fitted.pretrain_info["config"]["initial_sigma"] == "demos"
     with pytest.raises(ValueError, match="spread_net"):
-        pretrain(demos, PretrainConfig(reg="l2", epochs=1, initial_sigma="spread"), seed=0, progress=False)
+        pretrain_with_sigma(demos, PretrainConfig(reg="l2", epochs=1, initial_sigma="spread"), seed=0, progress=False)
+    with pytest.raises(ValueError, match="pretrain_with_sigma"):  # the core's cloning fixes sigma only, and says where fits are
+        pretrain(demos, PretrainConfig(reg="vd", epochs=1, initial_sigma="demos"), seed=0, progress=False)
 
 
 @pytest.mark.parametrize("option", ["demos", "spread"])
@@ -129,19 +133,18 @@ def test_image_policies_fit_sigma_on_a_seeded_subset_in_minibatches(option, monk
     """RGBD: the fit renders only a seeded subset of the training states (IMAGE_FIT_STATES) and steps
     through it in minibatches (IMAGE_FIT_BATCH); the same seed gives the same sigma network."""
     import vdtutorial.beyond.initial_sigma as initial_sigma
-    import vdtutorial.pretrain as pretrain_module
 
-    monkeypatch.setattr(pretrain_module, "IMAGE_FIT_STATES", 24)
+    monkeypatch.setattr(initial_sigma, "IMAGE_FIT_STATES", 24)
     monkeypatch.setattr(initial_sigma, "IMAGE_FIT_BATCH", 8)
     small = generate_demos("reach", 60, 0.3, seed=3, progress=False)
     torch.set_num_threads(1)
     spec = dict(reg="vd", obs_mode="rgbd", image_size=64, epochs=1, batch_size=20, initial_sigma=option)
-    policy, _ = pretrain(small, PretrainConfig(**spec), seed=0, progress=False)
+    policy, _ = pretrain_with_sigma(small, PretrainConfig(**spec), seed=0, progress=False)
     record = policy.pretrain_info["initial_sigma"]
     assert record["states"] == 24 and record["batch"] == 8 and record["kind"] == option
     assert record["loss_last"] < record["loss_first"]
     assert abs(record["sigma_mean"] - 0.3) > 0.02  # moved away from the fixed start
-    again, _ = pretrain(small, PretrainConfig(**spec), seed=0, progress=False)
+    again, _ = pretrain_with_sigma(small, PretrainConfig(**spec), seed=0, progress=False)
     for p, q in zip(policy.sigma.parameters(), again.sigma.parameters()):
         assert torch.equal(p, q)
 
@@ -152,7 +155,8 @@ def test_the_default_start_is_the_sigma_study_choice():
     shipped checkpoints hold (the experiments apply their start on top)."""
     import json
 
-    from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, default_config
+    from vdtutorial.experiments.checkpoints import default_config
+    from vdtutorial.pretrain import PAPER_INITIAL_SIGMA
     from vdtutorial.settings import data_dir
 
     study = json.loads((data_dir() / "results" / "sigma_study" / "sigma_study.json").read_text())

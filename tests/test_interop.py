@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from vdtutorial.envs import ENV_IDS
+from vdtutorial.experiments.checkpoints import load_checkpoint
 from vdtutorial.policy import obs_to_tensor
-from vdtutorial.pretrain import load_checkpoint
 from vdtutorial.settings import data_dir
 
 

@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 import torch
 
+from vdtutorial.analysis.sparsity import sparsity_report
 from vdtutorial.demos import generate_demos
 from vdtutorial.envs import ENV_IDS
+from vdtutorial.experiments.checkpoints import CheckpointError, checkpoint_path, load_checkpoint, save_checkpoint
 from vdtutorial.experiments.evaluation import PolicyController, successes_per_episode
-from vdtutorial.pretrain import (CheckpointError, HeldOutStop, PretrainConfig, checkpoint_path, demo_observations,
-                                 evaluate_imitation, load_checkpoint, pretrain, save_checkpoint, split_by_episode)
-from vdtutorial.analysis.sparsity import sparsity_report
+from vdtutorial.pretrain import (HeldOutStop, PretrainConfig, demo_observations, evaluate_imitation, pretrain,
+                                 split_by_episode)
 from vdtutorial.vd import LinearSVDO
 
 
@@ -152,13 +153,14 @@ def test_patience_needs_a_held_out_split():
 
 
 def test_a_checkpoint_is_named_after_its_data_set_and_both_names_read_back():
-    from vdtutorial import demos as demos_module, pretrain as pretrain_module
+    from vdtutorial import demos as demos_module
     from vdtutorial.demos import data_set_name, demo_path
+    from vdtutorial.experiments import checkpoints as checkpoints_module
 
     meta = {"task": "reach", "samples": 4000, "noise": 0.25}
     data_file, checkpoint = demo_path("reach", 4000, 0.25, 3), checkpoint_path(meta, "vd", "rgbd", 2)
     assert data_file.name.startswith(data_set_name("reach", 4000, 0.25) + "_seed")
     assert checkpoint.name.startswith(data_file.name.split("_seed")[0] + "_vd_rgbd")
-    read = demos_module._NAME.fullmatch(data_file.name), pretrain_module._NAME.fullmatch(checkpoint.name)
+    read = demos_module._NAME.fullmatch(data_file.name), checkpoints_module._NAME.fullmatch(checkpoint.name)
     assert [(m["task"], int(m["samples"]), float(m["noise"])) for m in read] == [("reach", 4000, 0.25)] * 2
     assert (read[0]["seed"], read[1]["seed"], read[1]["reg"], read[1]["obs"]) == ("3", "2", "vd", "rgbd")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vdtutorial.experiments import pretrain_stop as ps
-from vdtutorial.pretrain import default_config
+from vdtutorial.experiments.checkpoints import default_config
 from conftest import require_locked
 
 

@@ -34,7 +34,8 @@ from conftest import require_recorded_numerics
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments import (expert_reference, finetune, merge_seeds, read_rows, rederive, results_file,
                                     write_csv)
-from vdtutorial.pretrain import PretrainConfig, checkpoint_path
+from vdtutorial.experiments.checkpoints import checkpoint_path
+from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import data_dir
 from vdtutorial.trpo import TRPOConfig
 
@@ -120,7 +121,8 @@ def _first_epoch_again(samples: int, obs_mode: str) -> tuple[list[dict], dict]:
     and ``obs_mode``, on one thread: its logged rows, and the first row the checkpoint records. L2 pre-training
     has no schedule that depends on the number of epochs, so the first rows must agree."""
     from vdtutorial.demos import Demos
-    from vdtutorial.pretrain import load_checkpoint, pretrain
+    from vdtutorial.experiments.checkpoints import load_checkpoint
+    from vdtutorial.pretrain import pretrain
 
     shipped = load_checkpoint(checkpoint_path({"task": "reach", "samples": samples, "noise": 0.5}, "l2", obs_mode, 0))
     config = replace(PretrainConfig(**shipped.pretrain_info["config"]), epochs=1)
@@ -220,7 +222,8 @@ def test_a_shipped_checkpoint_regenerates(tolerance):
     """The 2000-sample L2 reach checkpoint of seed 0 (the cheapest to make, ~10 s) pre-trained again with
     the configuration it records: every tensor equal."""
     from vdtutorial.demos import Demos
-    from vdtutorial.pretrain import load_checkpoint, pretrain
+    from vdtutorial.experiments.checkpoints import load_checkpoint
+    from vdtutorial.pretrain import pretrain
 
     path = checkpoint_path({"task": "reach", "samples": 2000, "noise": 0.5}, "l2", "state", 0)
     shipped = load_checkpoint(path)
@@ -396,7 +399,7 @@ def test_a_shipped_pretrain_stop_run_regenerates(tolerance, tmp_path, monkeypatc
 
     from vdtutorial import settings
     from vdtutorial.experiments import pretrain_stop as ps
-    from vdtutorial.pretrain import load_checkpoint
+    from vdtutorial.experiments.checkpoints import load_checkpoint
 
     folder = RESULTS / "pretrain_stop"
     record = json.loads((folder / "pretrain_stop.json").read_text())

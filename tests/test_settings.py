@@ -26,7 +26,8 @@ def next_run_budgets() -> dict:
     from vdtutorial.experiments import (RunSpec, default_expert_episodes, default_seeds, default_total_steps,
                                         smooth_window)
     from vdtutorial.experiments.figures import figure_specs
-    from vdtutorial.pretrain import PretrainConfig, default_config
+    from vdtutorial.experiments.checkpoints import default_config
+    from vdtutorial.pretrain import PretrainConfig
 
     specs = figure_specs("fig4")
     return {

@@ -257,7 +257,7 @@ def test_pruned_fraction_is_the_reports_weight_fraction_exactly():
     """Pre-training logs vd.pruned_fraction each epoch (the core cannot import the analysis); the shipped
     checkpoints' histories were written with sparsity_report(mu).weight_fraction: the same float."""
     from vdtutorial.demos import Demos, demo_path
-    from vdtutorial.pretrain import checkpoint_path, load_checkpoint
+    from vdtutorial.experiments.checkpoints import checkpoint_path, load_checkpoint
 
     torch.manual_seed(0)
     net = nn.Sequential(vd.LinearSVDO(6, 5), nn.ReLU(), vd.LinearSVDO(5, 3))

@@ -31,8 +31,8 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from vdtutorial.vd import THRESHOLD, WEIGHT_LAYERS, make_conv2d, make_linear, prune_model
 from vdtutorial.trust_region import mean_kl
+from vdtutorial.vd import THRESHOLD, WEIGHT_LAYERS, make_conv2d, make_linear, prune_model
 
 KINDS = ("rgbd", "state", "mlp")
 #: Keys of the environments' image observation (see :class:`vdtutorial.envs.base.JacoEnv`).

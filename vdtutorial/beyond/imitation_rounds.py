@@ -21,9 +21,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
 from vdtutorial.demos import FORMAT_VERSION, Demos, collect, success_rate
+from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.policy import GaussianPolicy
-from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, default_config, pretrain
+from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig
 
 
 @dataclass
@@ -82,7 +84,7 @@ def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed
                 "rounds_done": k + 1}
         demos = Demos.concatenate(parts, meta)
         start = time.perf_counter()
-        policy, history = pretrain(demos, cfg, seed=seed, progress=progress)
+        policy, history = pretrain_with_sigma(demos, cfg, seed=seed, progress=progress)
         records.append({"round": k, **record, "labels": size, "labels_total": len(demos),
                         "expert_queries": rollout["expert_queries"], "expert_seconds": rollout["expert_seconds"],
                         "episodes": rollout["episodes"], "rollout_success_rate": success_rate(rollout),

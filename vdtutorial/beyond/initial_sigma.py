@@ -17,13 +17,17 @@ Taught in chapter 07.
 from __future__ import annotations
 
 import copy
-import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vdtutorial.demos import Demos
+from vdtutorial.policy import GaussianPolicy, obs_to_tensor
+from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, SIGMA_FITS, PretrainConfig, demo_observations, observation_rows,
+                                 pretrain, set_fixed_sigma, sigma_option, split_by_episode)
 from vdtutorial.vd import svdo_layers
 
 KINDS = ("fixed", "demos", "spread")
@@ -31,8 +35,8 @@ KINDS = ("fixed", "demos", "spread")
 IMAGE_FIT_STATES = 2048
 #: ... in minibatches of this size (:class:`InitialSigma`, "How a fit works").
 IMAGE_FIT_BATCH = 256
-#: The paper's (and today's) initial sigma, the policy's ``init_std``: the default of option (a).
-DEFAULT_VALUE = 0.3
+#: The paper's initial sigma, the policy's ``init_std``: the default of option (a).
+DEFAULT_VALUE = float(PAPER_INITIAL_SIGMA)
 
 
 @dataclass(frozen=True)
@@ -81,8 +85,7 @@ class InitialSigma:
         anyway). State inputs: full batch (the sets are small, <= 8000 state vectors, so the fit is exact and
         deterministic). Image inputs: one full-batch step through the convolutional sigma network over 7200
         RGBD images costs about half a minute on a laptop core, so 500 of them would take hours; the fit then
-        uses a seeded subset of ``IMAGE_FIT_STATES`` training states (chosen in :func:`vdtutorial.pretrain.
-        set_initial_sigma`) and seeded minibatches of ``IMAGE_FIT_BATCH`` (a few minutes per policy). Both
+        uses a seeded subset of ``IMAGE_FIT_STATES`` training states (chosen in :func:`set_initial_sigma`) and seeded minibatches of ``IMAGE_FIT_BATCH`` (a few minutes per policy). Both
         numbers are our choices, made for cost; the paper has no such fit.
 
     """
@@ -115,20 +118,7 @@ class InitialSigma:
     @property
     def spelling(self) -> str:
         """Inverse of :meth:`parse`: what a config or the command line stores."""
-        return f"{self.value:g}" if self.kind == "fixed" else self.kind
-
-
-def _softplus_inverse(y: float) -> float:
-    return math.log(math.expm1(y))
-
-
-@torch.no_grad()
-def set_fixed_sigma(policy, value: float) -> None:
-    """Option (a): set the sigma network's output bias so that sigma = ``value`` (the same formula as the
-    policy's constructor, so ``value`` = ``init_std`` changes nothing)."""
-    if not value > policy.min_std:
-        raise ValueError(f"a fixed sigma must exceed the policy's floor min_std = {policy.min_std}, got {value}")
-    policy.sigma.head[0].bias.fill_(_softplus_inverse(value - policy.min_std))
+        return sigma_option(self.value) if self.kind == "fixed" else self.kind
 
 
 def _sigma_of(policy, obs) -> torch.Tensor:
@@ -238,8 +228,7 @@ def apply_initial_sigma(policy, spec: InitialSigma, obs=None, actions: torch.Ten
     spread_net: the VD mean network whose spread option (c) follows (default: ``policy.mu``, which must
         then be a VD network). seed: seeds the weight draws of the spread and the minibatches."""
     if spec.kind == "fixed":
-        set_fixed_sigma(policy, spec.value)
-        return {"kind": "fixed", "value": spec.value}
+        return set_fixed_sigma(policy, spec.value)
     if obs is None or actions is None:
         raise ValueError(f"initial sigma {spec.kind!r} is fitted on demonstrations: pass obs and actions")
     actions = torch.as_tensor(actions, dtype=torch.float32)
@@ -258,3 +247,42 @@ def apply_initial_sigma(policy, spec: InitialSigma, obs=None, actions: torch.Ten
     return {"kind": spec.kind, "states": _count(obs), "batch": batch, "loss_first": losses[0],
             "loss_last": losses[-1], "demos_nll": nll, "sigma_mean": sigma.mean().item(),
             "sigma_median": sigma.median().item()}
+
+
+def set_initial_sigma(policy: GaussianPolicy, demos: Demos, config: PretrainConfig, seed: int,
+                      observations=None, spread_net=None) -> dict:
+    """Set the sigma that RL starts from by ``config.initial_sigma`` (:class:`InitialSigma`), fitting on the training split of pre-training with ``seed`` (options b and c). Also applies to a
+    policy read back from a checkpoint made with another option: mu is the same whatever the option.
+    Returns what was done (kind, and for a fit its losses and the resulting sigma)."""
+    spec = InitialSigma.parse(config.initial_sigma)
+    if spec.kind == "fixed":
+        return apply_initial_sigma(policy, spec)
+    if spec.kind == "spread" and spread_net is None and not policy.config["variational"]:
+        raise ValueError("initial_sigma='spread' follows the VD network's spread: an L2 policy needs the VD "
+                         "network pre-trained on the same demonstrations (spread_net)")
+    fit_idx, _ = split_by_episode(demos, config.val_fraction, seed)
+    if config.obs_mode == "rgbd" and len(fit_idx) > IMAGE_FIT_STATES:  # cost: a seeded subset (initial_sigma)
+        fit_idx = np.sort(np.random.default_rng(seed).choice(fit_idx, IMAGE_FIT_STATES, replace=False))
+    if observations is None:
+        obs = obs_to_tensor(demo_observations(demos, config.obs_mode, config.image_size, indices=fit_idx))
+    else:
+        obs = observation_rows(observations, fit_idx)
+    actions = torch.as_tensor(demos.actions[fit_idx], dtype=torch.float32)
+    return apply_initial_sigma(policy, spec, obs, actions, spread_net, seed)
+
+
+def pretrain_with_sigma(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
+                        observations=None, spread_net: nn.Module | None = None,
+                        device: torch.device | str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
+    """:func:`vdtutorial.pretrain.pretrain` with any ``config.initial_sigma``: mu cloned with the paper's fixed
+    sigma, then :func:`set_initial_sigma` fits the option's sigma on the same inputs, and the policy's
+    ``pretrain_info`` records the option. ``spread_net``: the VD mean network whose spread an L2 policy follows
+    under ``initial_sigma="spread"``."""
+    cfg = config or PretrainConfig()
+    if cfg.initial_sigma not in SIGMA_FITS:
+        return pretrain(demos, cfg, seed, progress, observations, device)
+    obs = observations if observations is not None else demo_observations(demos, cfg.obs_mode, cfg.image_size, progress)
+    policy, history = pretrain(demos, replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA), seed, progress, obs, device)
+    policy.pretrain_info["config"] = asdict(cfg)
+    policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, obs, spread_net)
+    return policy, history

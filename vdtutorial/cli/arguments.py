@@ -77,7 +77,7 @@ def progress_of(args) -> bool:
 
 # -- options several commands share ----------------------------------------------------------------------
 def epochs_help() -> str:
-    from vdtutorial.pretrain import default_config
+    from vdtutorial.experiments.checkpoints import default_config
 
     return (f"passes over the training split (default: {default_config('vd', 'state').epochs} with --obs state, "
             f"{default_config('vd', 'rgbd').epochs} with --obs rgbd)")

@@ -139,7 +139,8 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
     import torch
 
     from vdtutorial.demos import Demos, demo_path
-    from vdtutorial.pretrain import PretrainConfig, checkpoint_path, demo_observations, load_checkpoint, observation_space, pretrain
+    from vdtutorial.experiments.checkpoints import checkpoint_path, load_checkpoint
+    from vdtutorial.pretrain import PretrainConfig, demo_observations, observation_space, pretrain
     from vdtutorial.policy import obs_to_tensor
     from vdtutorial.analysis.compact import compact
     from vdtutorial.analysis.sparsity import sparsity_report
@@ -221,7 +222,8 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
 
     from vdtutorial.demos import Demos, demo_path
     from vdtutorial.experiments import NUM_ENVS, finetune_policy
-    from vdtutorial.pretrain import PretrainConfig, checkpoint_path, default_config, load_checkpoint
+    from vdtutorial.experiments.checkpoints import checkpoint_path, default_config, load_checkpoint
+    from vdtutorial.pretrain import PretrainConfig
     from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 
     iterations = iterations or budget(10, 2)

@@ -38,9 +38,10 @@ def cmd_pretrain(args) -> None:
     import torch
 
     from vdtutorial.demos import Demos
-    from vdtutorial.pretrain import (checkpoint_path, default_config, load_checkpoint, pretrain, pretrain_command,
-                                     save_checkpoint)
+    from vdtutorial.experiments.checkpoints import (checkpoint_path, default_config, load_checkpoint,
+                                                    pretrain_command, save_checkpoint)
     from vdtutorial.analysis.sparsity import sparsity_report
+    from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
 
     device = device_of(args)  # before any work
     torch.set_num_threads(1)
@@ -54,8 +55,8 @@ def cmd_pretrain(args) -> None:
     spread_net = None
     if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
         spread_net = load_checkpoint(checkpoint_path(demos.meta, "vd", args.obs, args.seed), variational=True).mu
-    policy, history = pretrain(demos, config, seed=args.seed, progress=progress_of(args), spread_net=spread_net,
-                               device=device)
+    policy, history = pretrain_with_sigma(demos, config, seed=args.seed, progress=progress_of(args), spread_net=spread_net,
+                                          device=device)
     command = (pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
                + (f" --epochs {args.epochs}" if args.epochs else "")
                + (f" --patience {args.patience}" if args.patience else "")
@@ -81,7 +82,7 @@ def cmd_evaluate(args) -> None:
     from vdtutorial.demos import Demos
     from vdtutorial.envs import ENV_IDS
     from vdtutorial.experiments.evaluation import ExpertController, PolicyController, successes_per_episode
-    from vdtutorial.pretrain import checkpoint_path, load_checkpoint
+    from vdtutorial.experiments.checkpoints import checkpoint_path, load_checkpoint
     from vdtutorial.settings import budget
 
     demos = Demos.load(args.demos)

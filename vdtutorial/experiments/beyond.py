@@ -35,17 +35,18 @@ from matplotlib.figure import Figure
 import vdtutorial
 from vdtutorial.beyond.dagger import BETA, dagger
 from vdtutorial.beyond.dart import dart
+from vdtutorial.beyond.imitation_rounds import cloning_config
 from vdtutorial.demos import Demos, demo_path, generate_demos
-from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
+from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import CONFIDENCE, mean_band, smooth_window
 from vdtutorial.experiments.effects import Claim, per_run, run_summaries, verdict, welch_interval
+from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.measures import MEASURES, measures_of
 from vdtutorial.experiments.plots import figure_title
 from vdtutorial.experiments.results import default_out, derive, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_trpo_config,
                                          finetune_steps, pretrained_policy, run_settings)
-from vdtutorial.beyond.imitation_rounds import cloning_config
-from vdtutorial.pretrain import PretrainConfig, default_config
+from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.settings import budget, is_quick, recorded_path

@@ -15,8 +15,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from vdtutorial.settings import budget
 from vdtutorial.analysis.sparsity import sparsity_report, SparsityReport
+from vdtutorial.settings import budget
 from vdtutorial.vd import make_linear, model_kl
 
 

@@ -19,9 +19,9 @@ import heapq
 from dataclasses import replace
 
 from vdtutorial.demos import demo_path
+from vdtutorial.experiments.checkpoints import RL_START_SIGMA, checkpoint_path
 from vdtutorial.experiments.figures import FIGURES, figure_specs
 from vdtutorial.experiments.jobs import RunSpec
-from vdtutorial.pretrain import RL_START_SIGMA, checkpoint_path
 
 
 def makespan(seconds: list[float], cores: int) -> float:

@@ -28,13 +28,14 @@ from pathlib import Path
 import torch
 
 import vdtutorial
+from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import smooth_window
 from vdtutorial.experiments.effects import Claim
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.plots import figure_title
 from vdtutorial.experiments.results import default_out, derive, experiment_command
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METHOD_LABELS, METRIC, NUM_ENVS, default_seeds, default_trpo_config
-from vdtutorial.pretrain import PretrainConfig, default_config
+from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import results_file, run_grid, write_csv
 from vdtutorial.settings import budget, data_dir, is_quick
 

@@ -12,11 +12,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vdtutorial.demos import demo_path
+from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.evaluation import EPISODE_STEPS
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHODS, METRIC, NUM_ENVS, default_expert_episodes,
                                          default_total_steps, expert_reference, expert_settings, finetune_steps,
                                          run_settings)
-from vdtutorial.pretrain import PretrainConfig, default_config
+from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.trpo import TRPOConfig
 

@@ -27,16 +27,17 @@ from matplotlib.figure import Figure
 
 import vdtutorial
 from vdtutorial.demos import Demos, demo_path
-from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
+from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import curves_from_rows
 from vdtutorial.experiments.effects import welch_interval
+from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.measures import measures_of
 from vdtutorial.experiments.plots import figure_title, plot_measures
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_seeds,
                                          default_trpo_config, pretrained_policy)
-from vdtutorial.pretrain import PretrainConfig, default_config
+from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.settings import budget, data_dir, is_quick

@@ -3,16 +3,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from vdtutorial.analysis.sparsity import sparsity_report
 from vdtutorial.demos import DemoFileError, Demos, demo_command, demo_path, generate_demos
 from vdtutorial.experiments.curves import Curve, vd_reaches_l2_final
 from vdtutorial.experiments.jobs import RunSpec
-from vdtutorial.runner.progress import live_by_default
 from vdtutorial.experiments.results import ExperimentResult, run_experiment
 from vdtutorial.experiments.runs import METHOD_LABELS, RL_METHODS, pretrained_policy
-from vdtutorial.settings import runs_dir
 from vdtutorial.pretrain import PretrainConfig
+from vdtutorial.runner.progress import live_by_default
+from vdtutorial.settings import runs_dir
 from vdtutorial.settings import budget
-from vdtutorial.analysis.sparsity import sparsity_report
 
 def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise: float = 0.5,
                     epochs: int | None = None, total_steps: int | None = None, workers: int = 2,

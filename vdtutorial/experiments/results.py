@@ -16,17 +16,18 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
+from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, final_point, record_window,
                                            smooth_window, vd_reaches_l2_final)
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.measures import measures_of
 from vdtutorial.experiments.plots import figure_title, plot_measures
-from vdtutorial.runner.grid import run_grid
-from vdtutorial.runner.rows import read_rows, results_file, write_csv
-from vdtutorial.runner.kernels import kernel_settings
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_trpo_config
-from vdtutorial.pretrain import PretrainConfig, default_config
+from vdtutorial.pretrain import PretrainConfig
+from vdtutorial.runner.grid import run_grid
+from vdtutorial.runner.kernels import kernel_settings
+from vdtutorial.runner.rows import read_rows, results_file, write_csv
 from vdtutorial.settings import budget, data_dir, is_quick, recorded_path, runs_dir
 from vdtutorial.trpo import TRPOConfig
 

@@ -17,18 +17,19 @@ import torch
 from gymnasium.wrappers import RecordEpisodeStatistics
 
 from vdtutorial.beyond.initial_sigma import InitialSigma
+from vdtutorial.beyond.initial_sigma import set_initial_sigma
 from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.envs import ENV_IDS, HORIZON
+from vdtutorial.experiments.checkpoints import (CheckpointError, checkpoint_path, default_config, load_checkpoint,
+                                                pretrain_command, save_checkpoint)
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
 from vdtutorial.fast.fisher import gauss_newton_fvp
 from vdtutorial.fast.policy import fast_policy
+from vdtutorial.policy import GaussianPolicy, make_policy
+from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, pretrain
 from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
                                      save_run_state)
 from vdtutorial.runner.rows import write_csv
-from vdtutorial.policy import GaussianPolicy, make_policy
-from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, CheckpointError, PretrainConfig, checkpoint_path,
-                                 default_config, load_checkpoint, pretrain, pretrain_command, save_checkpoint,
-                                 set_initial_sigma)
 from vdtutorial.settings import budget, recorded_path, runs_dir
 from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
 

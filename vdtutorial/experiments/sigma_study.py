@@ -29,15 +29,15 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
+from vdtutorial.beyond.initial_sigma import InitialSigma
 from vdtutorial.demos import demo_path
 from vdtutorial.envs import ENV_IDS
-from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, curves_from_rows, finetune, load_demos,
                                     mean_band, finetune_policy, read_rows, results_file, run_jobs,
                                     stored_rows, write_csv)
+from vdtutorial.experiments.checkpoints import default_config
+from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.plots import draw_band
-from vdtutorial.beyond.initial_sigma import InitialSigma
-from vdtutorial.pretrain import default_config
 from vdtutorial.settings import data_dir, runs_dir
 
 #: Candidates of the rule: option (a) at the paper's 0.3 and at the issue's probe value 0.05, (b), (c).

@@ -16,14 +16,15 @@ import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from vdtutorial.analysis.sparsity import sparsity_report
 from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
-from vdtutorial.runner.backends import run_jobs
+from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import mean_band
 from vdtutorial.experiments.results import default_out, experiment_command
-from vdtutorial.runner.rows import stored_rows, write_csv
 from vdtutorial.experiments.runs import pretrained_policy
-from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, default_config
-from vdtutorial.analysis.sparsity import sparsity_report
+from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig
+from vdtutorial.runner.backends import run_jobs
+from vdtutorial.runner.rows import stored_rows, write_csv
 
 #: Table I: (row, task, demonstrations, Sigma, the paper's neuron sparsification ratio).
 TABLE1 = (

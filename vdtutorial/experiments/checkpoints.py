@@ -1,0 +1,134 @@
+"""The experiments' pre-trained checkpoints: the settings they are made with (:func:`default_config`), their
+file names (:func:`checkpoint_path`), and saving and loading them with what made them
+(:func:`save_checkpoint`, :func:`load_checkpoint`). A checkpoint is the policy's config, its ``state_dict`` and
+its ``pretrain_info`` (the config, the seed, the data set's meta and the per-epoch log); loading one checks it is
+the policy that was asked for.
+
+Taught in chapter 05.
+"""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import torch
+
+import vdtutorial
+from vdtutorial.demos import DATA_SET_PATTERN, data_set_name, demo_path
+from vdtutorial.policy import GaussianPolicy
+from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig
+from vdtutorial.settings import budget, data_dir, recorded_path
+
+#: Where RL starts in the experiments and the shipped results (``default_config``): option (c), sigma fitted to the
+#: VD network's predictive spread, chosen by the rule written before the study (``data/results/sigma_study/RULE.md``)
+#: from its 5-seed runs (``sigma_study.json``): the most successes in the first 5 TRPO iterations (VD and L2 pooled,
+#: 37.8 against 34.7 for a fixed 0.05, 31.0 for "demos" and 2.8 for the fixed 0.3) among the options that learn at
+#: least as well as the fixed 0.3 later on. No pre-training then starts from the fixed 0.3 (its best start in the
+#: study). ``PretrainConfig()`` itself keeps the paper's setting, sigma untouched at the network's initial 0.3.
+RL_START_SIGMA = "spread"
+
+
+def rgbd_settings() -> dict:
+    """Settings that differ for image policies, looked up when a config is made (the epochs follow quick mode).
+
+    A policy that sees the cup only through the camera must learn image features before they pay off;
+    with the state-mode warm-up (30% of the epochs) the KL term pruned the whole image stream of the VD network before it was useful (measured: 100% of the
+    image stream's weights dropped, held-out MSE 0.043 vs L2's 0.028). Raising beta over all epochs
+    keeps the stream alive (held-out MSE 0.022). Epochs are fewer because an image epoch costs ~500x a
+    state epoch on a CPU.
+    """
+    return {"epochs": budget(40, 2), "beta_warmup": 1.0}
+
+
+def default_config(reg: str = "vd", obs_mode: str = "state") -> PretrainConfig:
+    """The pre-training settings used for shipped checkpoints and experiments, per observation mode, with RL
+    starting from ``RL_START_SIGMA``."""
+    return PretrainConfig(reg=reg, obs_mode=obs_mode, initial_sigma=RL_START_SIGMA,
+                          **(rgbd_settings() if obs_mode == "rgbd" else {}))
+
+
+def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sigma: str = PAPER_INITIAL_SIGMA) -> str:
+    """The command line that makes a checkpoint, as its meta records it (the data set's path relative to the
+    folder holding data/, so that a shipped checkpoint names no machine)."""
+    sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f" --sigma {initial_sigma}"
+    return f"python -m vdtutorial pretrain --reg {reg} --demos {recorded_path(demos_path)} --seed {seed} --obs {obs_mode}{sigma}"
+
+
+def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
+                    initial_sigma: str = PAPER_INITIAL_SIGMA, kl_samples: int | None = None,
+                    data_name: str | None = None, patience: int | None = None) -> Path:
+    """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma``, ``kl_samples``
+    or ``patience`` is added to the name (``..._seed0_initsigma-demos.pt``, ``..._seed0_kl7200.pt``,
+    ``..._seed0_stop10.pt``), so that it never replaces the default checkpoint. ``data_name`` names the data set in place of its
+    ``TASK_nSAMPLES_sigmaSIGMA``: a set made in rounds (DART's, DAgger's) has no Sigma to be named by."""
+    m = demos_meta
+    sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f"_initsigma-{initial_sigma}"
+    kl = "" if kl_samples is None else f"_kl{kl_samples}"
+    stop = "" if patience is None else f"_stop{patience}"
+    data = data_name or data_set_name(m["task"], m["samples"], m["noise"])
+    return Path(root or data_dir()) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
+
+
+def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> Path:
+    """``state_dict`` plus the policy's config and how it was made; written atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"vdtutorial": vdtutorial.__version__, **getattr(policy, "pretrain_info", {}), **(extra or {})}
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # two workers may make the same checkpoint
+    torch.save({"config": policy.config, "state_dict": policy.state_dict(), "meta": meta}, tmp)
+    tmp.replace(path)
+    return path
+
+
+#: The conventional file name of :func:`checkpoint_path`, read back to fill in a make-it hint.
+_NAME = re.compile(DATA_SET_PATTERN + r"_(?P<reg>vd|l2)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
+
+
+def _make_hint(path: Path) -> str:
+    """The command that makes the checkpoint ``path``, with the real values when the name is conventional."""
+    match = _NAME.fullmatch(path.name)
+    if not match:
+        return "Make it with: python -m vdtutorial pretrain --reg {vd,l2} --demos FILE --seed SEED --obs {state,rgbd} --out " + str(path)
+    demos = demo_path(match["task"], int(match["samples"]), float(match["noise"]), 0)
+    return (f"Make it with: {pretrain_command(match['reg'], demos, int(match['seed']), match['obs'])} --out {path}")
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing, unreadable, or not the policy that was asked for. ``difference``: for a
+    checkpoint that is readable but another policy, what differs (``epochs=150, expected 60``), alone."""
+
+    def __init__(self, message: str, difference: str | None = None):
+        super().__init__(message)
+        self.difference = difference
+
+
+def load_checkpoint(path, **expected) -> GaussianPolicy:
+    """Rebuild a policy from a checkpoint (``weights_only=True``: plain tensors and containers only).
+
+    ``expected`` entries are checked against the policy config (e.g. ``kind="state"``,
+    ``variational=True``) or the checkpoint's meta (e.g. ``task``); a mismatch raises
+    :class:`CheckpointError` naming the file and what differs."""
+    path = Path(path)
+    fix = _make_hint(path)
+    if not path.exists():
+        raise CheckpointError(f"checkpoint {path} does not exist. {fix}")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+        config, state, meta = blob["config"], blob["state_dict"], blob.get("meta", {})
+    except Exception as exc:  # torch raises several types for a damaged or foreign file
+        raise CheckpointError(f"checkpoint {path} is corrupt or not a vdtutorial checkpoint ({exc}). {fix}") from exc
+    # checkpoints made before ``initial_sigma`` existed started RL from the fixed default
+    where = {"initial_sigma": PAPER_INITIAL_SIGMA, **meta.get("demos", {}), **meta.get("config", {}), **config}
+    for key, want in expected.items():
+        if where.get(key) != want:
+            difference = f"{key}={where.get(key)!r}, expected {want!r}"
+            raise CheckpointError(f"checkpoint {path} has {difference}. {meta.get('command', fix)}", difference)
+    policy = GaussianPolicy.from_config(config)
+    try:
+        policy.load_state_dict(state)
+    except RuntimeError as exc:
+        raise CheckpointError(f"checkpoint {path} does not fit its own config ({exc}). {fix}") from exc
+    policy.eval()
+    policy.pretrain_info = meta
+    return policy
