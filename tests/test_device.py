@@ -16,7 +16,8 @@ from vdtutorial.experiments import NUM_ENVS
 from vdtutorial.experiments.checkpoints import checkpoint_path, load_checkpoint
 from vdtutorial.policy import on_device, torch_device
 from vdtutorial.pretrain import PretrainConfig, pretrain
-from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, make_vec_env
+from vdtutorial.rollout import make_vec_env
+from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig
 
 HAS_CUDA = torch.cuda.is_available()
 NO_GPU = "error: --device cuda: this machine has no CUDA GPU (torch.cuda.is_available() is False)"

@@ -8,7 +8,8 @@ from torch.distributions import Normal, kl_divergence
 
 from vdtutorial.fast.fisher import GaussNewtonFisher, gauss_newton_fvp, supports
 from vdtutorial.policy import make_policy, obs_to_tensor
-from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
+from vdtutorial.rollout import make_vec_env
+from vdtutorial.trpo import TRPO, TRPOConfig
 from vdtutorial.trust_region import double_backward_fvp, fisher_vector_product, flat_grad
 from vdtutorial.vd import svdo_layers
 

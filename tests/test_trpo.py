@@ -12,7 +12,8 @@ from torch.distributions import Normal, kl_divergence
 
 from vdtutorial.experiments.pendulum import pendulum_policy
 from vdtutorial.policy import make_policy, obs_to_tensor
-from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, _iteration_seeds, gae, make_vec_env
+from vdtutorial.rollout import iteration_seeds, make_vec_env
+from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, gae
 from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search
 
 
@@ -287,7 +288,7 @@ def test_success_and_episode_accounting():
     assert 0 <= batch.successes <= 4
     # replay the same (seeded) iteration by hand and count the successes
     env = make_env(num_envs=2)
-    env_seeds, noise_seed = _iteration_seeds(3, 0, 2)
+    env_seeds, noise_seed = iteration_seeds(3, 0, 2)
     gen = torch.Generator().manual_seed(noise_seed)
     obs, _ = env.reset(seed=env_seeds)
     successes, returns, running = 0, [], np.zeros(2)

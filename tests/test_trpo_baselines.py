@@ -7,7 +7,8 @@ import torch
 from gymnasium import spaces
 
 from vdtutorial.baselines import MLPBaseline
-from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, make_vec_env
+from vdtutorial.rollout import make_vec_env
+from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig
 from test_trpo import LinearPolicy, PointReach
 
 MLP_CONFIG = TRPOConfig(steps_per_iter=40, baseline="mlp", critic_batch_size=16, bootstrap_time_limits=True)

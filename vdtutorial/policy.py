@@ -45,15 +45,30 @@ CUP_DIMS = 3
 HEAD_INIT_SCALE = 0.1
 
 
+def map_obs(fn, obs):
+    """``fn`` applied to a batch of observations: to the array or tensor itself, or to each entry of a dict of
+    them (gymnasium's Dict observations, e.g. the image policy's "rgb", "depth" and "joints")."""
+    return {key: fn(value) for key, value in obs.items()} if isinstance(obs, dict) else fn(obs)
+
+
+def stack_obs(fn, observations: list):
+    """``fn`` applied to a list of observations, entry by entry for dicts: e.g. ``np.stack`` makes one batch."""
+    if isinstance(observations[0], dict):
+        return {key: fn([o[key] for o in observations]) for key in observations[0]}
+    return fn(observations)
+
+
+def _as_tensor(x, device):
+    tensor = torch.as_tensor(x, device=device)
+    return tensor if tensor.dtype == torch.uint8 else tensor.to(torch.float32)
+
+
 def obs_to_tensor(obs, device: torch.device | str | None = None):
     """Tensor(s) from a numpy array, a tensor, or a dict of either (gymnasium Dict observations):
     uint8 images stay uint8 (4x less memory in a rollout batch, and in a copy to a GPU; the network scales
     them), anything else becomes float32. ``device``: where the tensors go (None: where they are, a numpy
     array's on the CPU)."""
-    if isinstance(obs, dict):
-        return {key: obs_to_tensor(value, device) for key, value in obs.items()}
-    tensor = torch.as_tensor(obs, device=device)
-    return tensor if tensor.dtype == torch.uint8 else tensor.to(torch.float32)
+    return map_obs(lambda x: _as_tensor(x, device), obs)
 
 
 def torch_device(name: torch.device | str, option: str = "device") -> torch.device:

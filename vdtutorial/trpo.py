@@ -41,7 +41,8 @@ from torch.distributions import Normal
 from tqdm.auto import tqdm
 
 from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, MLPBaseline, Obs, default_baseline_features
-from vdtutorial.policy import obs_to_tensor, on_device, torch_device
+from vdtutorial.policy import map_obs, obs_to_tensor, on_device, stack_obs, torch_device
+from vdtutorial.rollout import Rollout, check_vec_env, iteration_seeds, rollout
 from vdtutorial.trust_region import FisherProduct, conjugate_gradient, double_backward_fvp, flat_grad, line_search, mean_kl
 
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
@@ -164,162 +165,28 @@ def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones:
 
 
 # ----------------------------------------------------------------------------------------------
-# Environment and data plumbing
+# 2. advantages: the second part of TRPO.collect
 # ----------------------------------------------------------------------------------------------
-def make_vec_env(env: str | Callable[[], gymnasium.Env], num_envs: int = 1, asynchronous: bool = False,
-                 **make_kwargs) -> gymnasium.vector.VectorEnv:
-    """A vector environment with same-step autoreset, as TRPO expects.
-
-    ``env`` is a registered id (made with ``gymnasium.make(env, **make_kwargs)``) or a function
-    returning an environment. ``asynchronous=True`` runs each copy in its own process.
-
-    Why same-step: gymnasium >= 1.0 autoresets a finished sub-environment either on the same step (its
-    final observation and info go into ``info["final_obs"]`` / ``info["final_info"]``) or on the next
-    step (which then ignores the action). With ``AutoresetMode.SAME_STEP`` every step of a batch is a
-    real transition.
-    """
-    make = (lambda: gymnasium.make(env, **make_kwargs)) if isinstance(env, str) else env
-    vector_cls = gymnasium.vector.AsyncVectorEnv if asynchronous else gymnasium.vector.SyncVectorEnv
-    return vector_cls([make] * num_envs, autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
-
-
-def _subset(obs: TensorObs, index: torch.Tensor) -> TensorObs:
-    """The observations at ``index`` of a batch (a tensor or a dict of tensors)."""
-    return {key: x[index] for key, x in obs.items()} if isinstance(obs, dict) else obs[index]
-
-
-def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
-    """TRPO measures its trust region from the old policy: KL(old, new) must be 0 before the step, so
-    ``distribution(obs)`` must be a function of (obs, parameters). A sparse-VD policy in training mode draws new
-    weight noise on every call and breaks this without any error downstream; asked twice, it answers twice."""
-    with torch.no_grad():
-        first, second = policy.distribution(obs), policy.distribution(obs)
-    if not (torch.equal(first.mean, second.mean) and torch.equal(first.stddev, second.stddev)):
-        raise ValueError("TRPO needs a deterministic policy: two evaluations on the same observations differ "
-                         "(a sparse-VD policy in training mode samples weight noise: call prune_() or eval() first)")
-    return True
-
-
-def _check_vec_env(env: gymnasium.vector.VectorEnv, steps_per_iter: int) -> None:
-    mode = env.metadata.get("autoreset_mode")
-    if mode != gymnasium.vector.AutoresetMode.SAME_STEP:
-        raise ValueError(f"TRPO needs a vector env with autoreset_mode=AutoresetMode.SAME_STEP, got {mode}: "
-                         "with NEXT_STEP the step after an episode end is a reset, not a transition "
-                         "(use vdtutorial.trpo.make_vec_env)")
-    if steps_per_iter % env.num_envs:
-        raise ValueError(f"steps_per_iter={steps_per_iter} is not a multiple of num_envs={env.num_envs}")
-
-
-def _stack(steps: list[Obs]) -> Obs:
-    """T observation batches of shape (N, ...) -> one batch of shape (T * N, ...), time-major."""
-    if isinstance(steps[0], dict):
-        return {key: _stack([s[key] for s in steps]) for key in steps[0]}
-    stacked = np.stack(steps)
-    return stacked.reshape(-1, *stacked.shape[2:])
-
-
-def _batch_of(observations: list[Obs]) -> Obs:
-    """Single observations (arrays or dicts of arrays) -> one batch, batch first."""
-    if isinstance(observations[0], dict):
-        return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
-    return np.stack(observations)
-
-
-
-def _iteration_seeds(seed: int, iteration: int, num_envs: int) -> tuple[list[int], int]:
-    """Environment reset seeds and the action-noise seed of one iteration. Every iteration starts by
-    resetting the vector environment with the first and drawing its action noise (and its Fisher
-    subsample) from a generator seeded with the second, so no generator state outlives an iteration."""
-    state = np.random.SeedSequence([seed, iteration]).generate_state(num_envs + 1)
-    return [int(s) for s in state[:-1]], int(state[-1])
-
-
-# ----------------------------------------------------------------------------------------------
-# 1. collect and 2. advantages: the parts of TRPO.collect
-# ----------------------------------------------------------------------------------------------
-@dataclass
-class Rollout:
-    """What running the policy for one batch gave, before any baseline: T steps of N sub-environments."""
-
-    observations: Obs             # (T * N, ...) the observations acted on, time-major
-    actions: torch.Tensor         # (T * N, action_dim) the sampled (unclipped) actions
-    timesteps: np.ndarray         # (T * N,) step index within the episode
-    rewards: np.ndarray           # (T, N)
-    dones: np.ndarray             # (T, N) True where an episode ended with the step
-    last_obs: Obs                 # (N, ...) the observations after the last step (where the batch cut off)
-    last_timesteps: np.ndarray    # (N,) their steps within the episode
-    episode_returns: list[float]  # undiscounted returns of the episodes that ended in the batch
-    successes: int                # how many of those ended with info["is_success"] True
-    time_limit_ends: list[tuple]  # (step, env, final observation, its time step) where a time limit struck
-
-
-def rollout(policy: nn.Module, env: gymnasium.vector.VectorEnv, steps_per_env: int, env_seeds: list[int],
-            generator: torch.Generator, keep_time_limit_ends: bool = False) -> Rollout:
-    """Step 1: reset ``env`` with ``env_seeds`` and run ``policy`` for ``steps_per_env`` vector steps, one
-    policy forward per step, the action noise drawn from ``generator`` and the actions clipped to the
-    action space. An episode that ends is reset in the same step; the trajectories still running at the
-    end are cut off there. ``keep_time_limit_ends`` records the episodes that a time limit ended, with
-    their final observations (for ``TRPOConfig.bootstrap_time_limits``)."""
-    n, space = env.num_envs, env.single_action_space
-    obs, _ = env.reset(seed=env_seeds)
-    t = np.zeros(n, dtype=np.int64)        # step within the current episode, per env
-    running_return = np.zeros(n)
-    observations, actions, timesteps = [], [], []
-    rewards, dones = np.zeros((steps_per_env, n)), np.zeros((steps_per_env, n))
-    episode_returns, successes, time_limit_ends = [], 0, []
-    for k in range(steps_per_env):
-        with torch.no_grad():  # one policy forward for all sub-environments
-            dist = policy.distribution(obs_to_tensor(obs))
-            action = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=generator,
-                                                          dtype=dist.mean.dtype)
-        next_obs, reward, terminated, truncated, info = env.step(np.clip(action.numpy(), space.low, space.high))
-        done = terminated | truncated
-        observations.append(obs)
-        actions.append(action)
-        timesteps.append(t)
-        rewards[k], dones[k] = reward, done
-        running_return += reward
-        if done.any():
-            successes += _successes(info["final_info"], done)
-            episode_returns.extend(running_return[done].tolist())
-            running_return[done] = 0.0
-            if keep_time_limit_ends:
-                time_limit_ends += [(k, i, info["final_obs"][i], t[i] + 1)
-                                    for i in np.flatnonzero(truncated & ~terminated)]
-        t = np.where(done, 0, t + 1)
-        obs = next_obs  # after an episode end this is already the next episode's first obs
-    return Rollout(_stack(observations), torch.cat(actions), np.concatenate(timesteps), rewards, dones, obs, t,
-                   episode_returns, successes, time_limit_ends)
-
-
-def _successes(final_info: dict, done: np.ndarray) -> int:
-    """How many of the episodes that ended in this vector step reported ``info["is_success"]`` True."""
-    if "is_success" not in final_info:
-        return 0
-    reported = np.flatnonzero(final_info["_is_success"] & done)
-    return sum(bool(final_info["is_success"][i]) for i in reported)
-
-
-def advantages_and_returns(run: Rollout, features: np.ndarray, baseline, baseline_features: Callable[[Obs], np.ndarray],
+def advantages_and_returns(trajectories: Rollout, features: np.ndarray, baseline, baseline_features: Callable[[Obs], np.ndarray],
                            config: TRPOConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Step 2: the advantages of ``run`` against ``baseline`` (fitted on the previous batch), normalised
+    """Step 2: the advantages of ``trajectories`` against ``baseline`` (fitted on the previous batch), normalised
     to mean 0 and std 1, and the targets the baseline is fitted to next (see ``TRPOConfig.baseline``);
-    both flat, time-major. ``features``: the baseline features of ``run.observations``.
+    both flat, time-major. ``features``: the baseline features of ``trajectories.observations``.
 
     Trajectories cut off by the batch end are bootstrapped with V of the observation after them. A
     time-limit end counts as the end of the (finite-horizon) task, value 0 after it, as in rllab; with
     ``bootstrap_time_limits``, gamma * V(final observation) is added to the reward of its last step (the
     episode still ends there: GAE stops at it)."""
-    values = baseline.predict(features, run.timesteps).reshape(run.rewards.shape)
-    last_values = baseline.predict(baseline_features(run.last_obs), run.last_timesteps)
-    rewards = run.rewards.copy()
-    if run.time_limit_ends:
-        steps, envs, final_obs, final_t = zip(*run.time_limit_ends)
-        final_values = baseline.predict(baseline_features(_batch_of(final_obs)), np.array(final_t))
+    values = baseline.predict(features, trajectories.timesteps).reshape(trajectories.rewards.shape)
+    last_values = baseline.predict(baseline_features(trajectories.last_obs), trajectories.last_timesteps)
+    rewards = trajectories.rewards.copy()
+    if trajectories.time_limit_ends:
+        steps, envs, final_obs, final_t = zip(*trajectories.time_limit_ends)
+        final_values = baseline.predict(baseline_features(stack_obs(np.stack, final_obs)), np.array(final_t))
         rewards[steps, envs] += config.gamma * final_values
-    advantages = gae(rewards, values, last_values, run.dones, config.gamma, config.gae_lambda)
+    advantages = gae(rewards, values, last_values, trajectories.dones, config.gamma, config.gae_lambda)
     if config.baseline == "linear":  # rllab: regress on the discounted returns
-        returns = gae(rewards, values, last_values, run.dones, config.gamma, 1.0) + values
+        returns = gae(rewards, values, last_values, trajectories.dones, config.gamma, 1.0) + values
     else:  # sb3-contrib: regress on the lambda-returns, less noisy targets for a network
         returns = advantages + values
     advantages, returns = advantages.reshape(-1), returns.reshape(-1)
@@ -346,6 +213,18 @@ class Batch:
         index = None if self.fvp_index is None else self.fvp_index.to(device)
         return replace(self, obs=obs_to_tensor(self.obs, device), actions=self.actions.to(device),
                        advantages=self.advantages.to(device), fvp_index=index)
+
+
+def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
+    """TRPO measures its trust region from the old policy: KL(old, new) must be 0 before the step, so
+    ``distribution(obs)`` must be a function of (obs, parameters). A sparse-VD policy in training mode draws new
+    weight noise on every call and breaks this without any error downstream; asked twice, it answers twice."""
+    with torch.no_grad():
+        first, second = policy.distribution(obs), policy.distribution(obs)
+    if not (torch.equal(first.mean, second.mean) and torch.equal(first.stddev, second.stddev)):
+        raise ValueError("TRPO needs a deterministic policy: two evaluations on the same observations differ "
+                         "(a sparse-VD policy in training mode samples weight noise: call prune_() or eval() first)")
+    return True
 
 
 def _make_baseline(config: TRPOConfig, env: gymnasium.vector.VectorEnv, features: Callable[[Obs], np.ndarray],
@@ -411,26 +290,26 @@ class TRPO:
         self.rows: list[dict] = []
         self.update_split: dict[str, float] = {}  # CPU seconds of the last update's parts (see update)
         self.checked_deterministic = False  # by the first update (see _check_deterministic)
-        _check_vec_env(self.env, self.config.steps_per_iter)
+        check_vec_env(self.env, self.config.steps_per_iter)
 
     # -- 1. collect, 2. advantages ----------------------------------------------------------------
     def collect(self) -> Batch:
         """Run the current policy for one batch (:func:`rollout`) and compute its advantages
         (:func:`advantages_and_returns`), with the seeds of (seed, iteration_index)."""
         cfg, n = self.config, self.env.num_envs
-        env_seeds, noise_seed = _iteration_seeds(self.seed, self.iteration_index, n)
+        env_seeds, noise_seed = iteration_seeds(self.seed, self.iteration_index, n)
         generator = torch.Generator().manual_seed(noise_seed)
-        run = rollout(self.policy, self.env, cfg.steps_per_iter // n, env_seeds, generator, cfg.bootstrap_time_limits)
-        features = self.baseline_features(run.observations)
-        advantages, returns = advantages_and_returns(run, features, self.baseline, self.baseline_features, cfg)
+        trajectories = rollout(self.policy, self.env, cfg.steps_per_iter // n, env_seeds, generator, cfg.bootstrap_time_limits)
+        features = self.baseline_features(trajectories.observations)
+        advantages, returns = advantages_and_returns(trajectories, features, self.baseline, self.baseline_features, cfg)
         fvp_index = None
         if cfg.fvp_subsample < 1.0:  # drawn after the actions, so the rollouts do not depend on it
             size = max(1, int(cfg.steps_per_iter * cfg.fvp_subsample))
             fvp_index = torch.randperm(cfg.steps_per_iter, generator=generator)[:size]
-        return Batch(obs=obs_to_tensor(run.observations), actions=run.actions,
+        return Batch(obs=obs_to_tensor(trajectories.observations), actions=trajectories.actions,
                      advantages=torch.as_tensor(advantages, dtype=torch.float32), features=features,
-                     timesteps=run.timesteps, returns=returns, episode_returns=run.episode_returns,
-                     successes=run.successes, fvp_index=fvp_index)
+                     timesteps=trajectories.timesteps, returns=returns, episode_returns=trajectories.episode_returns,
+                     successes=trajectories.successes, fvp_index=fvp_index)
 
     # -- 3-7. the update --------------------------------------------------------------------------
     def update(self, batch: Batch) -> dict:
@@ -440,7 +319,7 @@ class TRPO:
         On ``device``: the policy and the batch move there for the step, and the policy back to the CPU after it.
         The first update checks that the policy is deterministic (ValueError if not)."""
         if not self.checked_deterministic:
-            self.checked_deterministic = _check_deterministic(self.policy, _subset(batch.obs, slice(0, 8)))
+            self.checked_deterministic = _check_deterministic(self.policy, map_obs(lambda x: x[:8], batch.obs))
         with on_device(self.policy, self.device):
             return self._step(batch.to(self.device))
 
@@ -467,7 +346,7 @@ class TRPO:
         if index is None:  # F over the whole batch, at the forward pass just made
             Fvp = self.fvp(self.policy, self.params, obs, old, cfg.cg_damping, dist)
         else:  # F over the subsample (TRPOConfig.fvp_subsample)
-            Fvp = self.fvp(self.policy, self.params, _subset(batch.obs, index),
+            Fvp = self.fvp(self.policy, self.params, map_obs(lambda x: x[index], batch.obs),
                            Normal(old.mean[index], old.stddev[index]), cfg.cg_damping)
         timer.lap("fisher_setup")
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)

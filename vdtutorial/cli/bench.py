@@ -224,7 +224,8 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
     from vdtutorial.experiments import NUM_ENVS, finetune_policy
     from vdtutorial.experiments.checkpoints import checkpoint_path, default_config, load_checkpoint
     from vdtutorial.pretrain import PretrainConfig
-    from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
+    from vdtutorial.rollout import make_vec_env
+    from vdtutorial.trpo import TRPO, TRPOConfig
 
     iterations = iterations or budget(10, 2)
     threads = torch.get_num_threads()

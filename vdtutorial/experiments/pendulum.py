@@ -17,8 +17,9 @@ from tqdm.auto import tqdm
 from vdtutorial.fast.fisher import gauss_newton_fvp
 from vdtutorial.fast.policy import fast_policy
 from vdtutorial.policy import GaussianPolicy, make_policy
+from vdtutorial.rollout import make_vec_env
 from vdtutorial.settings import budget
-from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
+from vdtutorial.trpo import TRPO, TRPOConfig
 
 
 def pendulum_policy(env) -> GaussianPolicy:

@@ -27,11 +27,12 @@ from vdtutorial.fast.fisher import gauss_newton_fvp
 from vdtutorial.fast.policy import fast_policy
 from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, pretrain
+from vdtutorial.rollout import make_vec_env
 from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
                                      save_run_state)
 from vdtutorial.runner.rows import write_csv
 from vdtutorial.settings import budget, recorded_path, runs_dir
-from vdtutorial.trpo import TRPO, TRPOConfig, make_vec_env
+from vdtutorial.trpo import TRPO, TRPOConfig
 
 RL_METHODS = ("vd", "l2", "none")
 METHODS = RL_METHODS + ("expert",)
