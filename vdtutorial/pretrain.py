@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 
 from vdtutorial.demos import Demos
 from vdtutorial.envs import ENV_IDS
-from vdtutorial.policy import GaussianPolicy, make_policy, obs_to_tensor, on_device, torch_device
+from vdtutorial.policy import GaussianPolicy, make_policy, map_obs, obs_to_tensor, on_device, torch_device
 from vdtutorial.settings import budget
 from vdtutorial.vd import model_kl, pruned_fraction
 
@@ -156,9 +156,7 @@ def demo_observations(demos: Demos, obs_mode: str, image_size: int = 128, progre
 
 def observation_rows(obs, idx, device: torch.device | None = None):
     """The observations ``idx`` of ``obs`` (an array or a dict of arrays) as tensors, on ``device`` when given."""
-    if isinstance(obs, dict):
-        return {k: obs_to_tensor(v[idx], device) for k, v in obs.items()}
-    return obs_to_tensor(obs[idx], device)
+    return obs_to_tensor(map_obs(lambda x: x[idx], obs), device)
 
 
 def split_by_episode(demos: Demos, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
