@@ -9,7 +9,7 @@ pi/5 (eq. 10).
 
 Why pybullet's IK and not our own: ``calculateInverseKinematics`` is a damped-least-squares solver in
 C++; called from several rest poses with null-space limits it returns distinct arm postures (elbow and
-wrist variants) for the same hand pose in ~0.1 ms each. We refine each answer by re-solving from it a
+wrist variants) for the same hand pose, fast. We refine each answer by re-solving from it a
 few times and then *verify* it with forward kinematics, so the solver's approximations never reach G.
 
 Two changes to eq. 10 taken literally, both needed to reach the goal:
@@ -137,27 +137,10 @@ def reach_targets(cup_position, n_roll: int = 4, tilts_deg=(-35.0, 0.0, 60.0)):
     towards the base (cups near the base need it: the wrist's joint 5 cannot bend far enough to point
     straight down there) or away from it (a folded-elbow posture), each turned about the approach axis.
 
-    Wrist-roll variants in G (reaching). :func:`reach_targets` turns the hand about its approach axis in 4
-    steps of 90 degrees. The hand centre lies on joint 6's axis, so the roll cannot change success; the
-    variants only give eq. 9 more goals, and its labels for joint 6 can jump between them. Measured with and
-    without them (``n_roll`` 4 vs 1; 8000 demonstrations, Sigma 0.5, seed 0; VD and L2 pre-trained with the
-    default settings, seed 0; pre-RL successes per 200 steps with the mean action, 5 episodes):
-
-    =====================  ===========================  ===========================
-                           4 rolls (default)            1 roll
-    =====================  ===========================  ===========================
-    noiseless expert       2.62 steps per trajectory    3.23 steps per trajectory
-    held-out MSE, VD       joint 6: 0.041, mean 0.019   joint 6: 0.036, mean 0.014
-    held-out MSE, L2       joint 6: 0.032, mean 0.017   joint 6: 0.032, mean 0.012
-    pre-RL successes, VD   14.6 +- 3.0                  23.0 +- 4.8
-    pre-RL successes, L2   20.8 +- 2.4                  24.0 +- 5.9
-    =====================  ===========================  ===========================
-
-    Without the variants joint 6 is barely easier to imitate (its error stays the largest); the gain is in
-    joints 4 and 5, and the cloned policies start better, VD most. With them the expert needs 19% fewer
-    steps (the expert line of Figs. 4-6 is ~76 rather than ~62 successes per 200 steps). We keep 4 rolls:
-    the paper asks for "several distinct valid joint configurations" and the faster expert, the evidence
-    for the other choice is one seed, and changing it would change every reach data set and result.
+    Wrist-roll variants in G (reaching): the hand is also turned about its approach axis in ``n_roll`` steps
+    (default 4 of 90 degrees). The hand centre lies on joint 6's axis, so the roll cannot change success; it
+    gives eq. 9 more goals and a faster expert, and the paper asks for "several distinct valid joint
+    configurations". What the variants change: docs/results.md, "Measurements behind the code".
     """
     goal = reach_goal(cup_position)
     out = np.array([goal[0], goal[1], 0.0]) / np.hypot(goal[0], goal[1])

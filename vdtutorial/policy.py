@@ -161,17 +161,9 @@ class TwoStreamNet(nn.Module):
         pass through unchanged. :mod:`vdtutorial.fast.policy` normalises a batch once for both networks, for
         code that evaluates the policy on one batch many times (TRPO's update in the experiments).
 
-    Sizes (CPU budget: 2 shared cores)
-        The paper does not give its layer sizes. The defaults are 8/16/16 channels with kernels 8/4/3 and
-        strides 4/2/2 (128 -> 31 -> 14 -> 6 pixels, 576 features), then 64-64-32 units in each stream.
-        Measured here for one network (``mu``), a batch of 200, ``torch.set_num_threads(1)``, best of 6;
-        "VD" is sparse VD in train mode (local reparameterisation doubles the products; in eval mode or
-        once pruned it costs the same as plain):
-            rgbd 128 x 128, defaults:      forward 0.035 s (VD 0.066 s), forward + backward 0.089 s (VD 0.18 s);
-            rgbd 128 x 128, 16/32/32 5x5/2: forward 0.13 s (VD 0.30 s), forward + backward 0.39 s (VD 0.91 s);
-            state:                         forward 0.3 ms (VD 0.7 ms), forward + backward 0.6 ms (VD 1.3 ms).
-        With two threads on the shared, loaded machine the same runs were 2-4x slower and erratic, so one
-        thread per process is the better choice for these small networks.
+    Sizes: the paper does not give its layer sizes. The defaults are 8/16/16 channels with kernels 8/4/3 and
+        strides 4/2/2 (128 -> 31 -> 14 -> 6 pixels, 576 features), then 64-64-32 units in each stream, sized
+        for a laptop CPU with one thread per process (their cost: docs/results.md, "Measurements behind the code").
     """
 
     def __init__(self, kind: str, obs_shape, out_dim: int, variational: bool = False, *, obs_low=None, obs_high=None,
@@ -215,7 +207,7 @@ class TwoStreamNet(nn.Module):
         """Each stream's normalised input for a batch of observations (tensors)."""
         if self.kind == "rgbd":
             # Written into one preallocated image, in place: the same divisions and subtraction as
-            # cat([rgb / 255, depth / DEPTH_SCALE]) - 0.5 without the three temporary images (2x faster).
+            # cat([rgb / 255, depth / DEPTH_SCALE]) - 0.5 without the three temporary images.
             rgb = obs["rgb"]
             n, channels, height, width = rgb.shape
             image = torch.empty((n, channels + 1, height, width), dtype=torch.float32, device=rgb.device)

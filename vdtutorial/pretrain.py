@@ -95,8 +95,8 @@ class PretrainConfig:
     patience: stop on the held-out loss. ``None`` (the default, the shipped checkpoints' setting): run all
         ``epochs``. A number P: ``epochs`` becomes a cap, and cloning stops once the held-out MSE of the mean
         action has not improved for P epochs; mu is then the best epoch's. For VD the count starts when the KL
-        warm-up is over (before it, the objective itself is still changing). The paper does not say how long it
-        cloned; this is how issue 32 asks whether our fixed 40 image epochs stopped short.
+        warm-up is over (before it, the objective itself is still changing). The paper does not say how long
+        it cloned.
     """
 
     reg: str = "vd"

@@ -57,54 +57,28 @@ TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
 class TRPOConfig:
     """TRPO hyperparameters. ``steps_per_iter`` is the paper's; the paper reports no others, so
     ``max_kl``, ``cg_iters`` and ``fvp_subsample`` are rllab's defaults and the rest are common
-    choices.
+    choices (docs/differences.md, "TRPO").
 
-    steps_per_iter: environment steps per iteration, summed over the sub-environments of the
-        vector environment (must be a multiple of their number). The paper uses 200 with a
-        horizon of 25, i.e. 8 trajectories per batch. Larger batches give less noisy gradients
-        but fewer updates for the same budget.
-    gamma: discount factor of the returns. Over the paper's 25-step horizon 0.99 discounts the
-        last reward by only 0.99^25 = 0.78, so the final success bonus still counts from step 0.
-    gae_lambda: GAE's lambda, trading bias (0: one-step TD with the baseline) against variance
-        (1: Monte-Carlo returns minus the baseline).
-    max_kl: delta, the trust-region radius: the largest mean KL(pi_old || pi_new) over the batch
-        that an accepted step may have. 0.01 is the value from the TRPO paper and rllab.
-    cg_iters: conjugate-gradient iterations used to approximate F^-1 g. 10 is enough to get a good
-        direction without ever building F (which has as many rows as the policy has parameters).
-    fvp_subsample: the fraction of the batch on which the Fisher-vector products are computed (at
-        least one sample); a random subset, drawn per iteration from the iteration's seed. The
-        gradient g, the step size and the line search's KL check still use the whole batch. CG
-        needs ``cg_iters + 1`` products, and for image policies they dominate the update: Schulman
-        et al. (2015) computed them on 10% of the data. rllab, whose TRPO the paper used, did so
-        only in its first release (April 2016): its ``ConjugateGradientOptimizer`` has defaulted to
-        ``subsample_factor=1.`` since September 2016, and its TRPO passes no optimiser arguments, so
-        the paper (2018) most likely used the whole batch. The Fisher only sets the metric of the
-        step, but a small subset sees little of it: with 20 of 200 samples the full step overshoots
-        the KL bound, the line search cuts it back, and the policies here learned more slowly per
-        step (docs/results.md, chapter 07). 1.0 (the whole batch) is the default; smaller values are a
-        speed option and a control.
-    cg_damping: added to the Fisher matrix (F + damping * I) so that CG works on a well-conditioned
-        positive-definite matrix even when F is singular, e.g. along the directions of pruned
-        weights or with fewer samples than parameters.
-    backtrack_iters: how many step sizes the line search tries (full step, then halved each time)
-        before giving up and keeping the old parameters.
-    backtrack_coeff: the factor by which the line search shrinks the step each time.
-    baseline_reg: ridge coefficient of the linear baseline's least-squares fit (rllab's value);
-        it is multiplied by 10 (up to 5 times) if the solve is not finite.
-    baseline: ``"linear"`` (the default, and the paper's: rllab's :class:`LinearFeatureBaseline`)
-        or ``"mlp"``, a value network (:class:`MLPBaseline`) fitted by a few epochs of Adam per
-        iteration, as sb3-contrib and Spinning Up do. The network needs no hand-made features, but
-        brings its own hyperparameters (the four ``critic_*`` below, unused by the linear one).
-    critic_hidden: widths of the value network's tanh hidden layers.
-    critic_lr: Adam's learning rate for the value network.
-    critic_epochs: passes over the batch per iteration (sb3-contrib's ``n_critic_updates``).
-    critic_batch_size: minibatch size of those passes.
-    bootstrap_time_limits: at an episode end caused by a time limit (``truncated`` and not
-        ``terminated``), count the value of the final observation, gamma * V(s_final), as if the
-        episode went on, instead of 0. False is rllab's (and so the paper's) treatment: rllab's
-        sampler stops a path at ``max_path_length`` and appends a value of 0 after every path,
-        however it ended, so the horizon is part of the task. True is what sb3 does: the time limit
-        then only cuts an endless task into episodes, and V needs no notion of the time left.
+    steps_per_iter: environment steps per iteration, summed over the sub-environments (a multiple of their
+        number). The paper's 200 over a 25-step horizon is 8 trajectories per batch.
+    gamma: discount factor. Over 25 steps 0.99 keeps 0.99^25 = 0.78 of the final success bonus.
+    gae_lambda: GAE's lambda, trading bias (0: one-step TD) against variance (1: Monte-Carlo returns).
+    max_kl: delta, the trust-region radius: the largest mean KL(pi_old || pi_new) an accepted step may have.
+    cg_iters: conjugate-gradient iterations approximating F^-1 g without ever building F.
+    fvp_subsample: the fraction of the batch (a random subset drawn from the iteration's seed) on which the
+        Fisher-vector products are computed; g, the step size and the line search use the whole batch.
+        1.0 is the default, as in rllab's TRPO since its second release; smaller values are a speed option
+        and a control (docs/differences.md, "TRPO's Fisher").
+    cg_damping: added to F so that CG works on a positive-definite matrix even where F is singular (along
+        pruned weights, or with fewer samples than parameters).
+    backtrack_iters, backtrack_coeff: how many step sizes the line search tries, and the factor between them.
+    baseline_reg: ridge coefficient of the linear baseline's fit (rllab's value; x10 up to 5 times if the
+        solve is not finite).
+    baseline: ``"linear"`` (the paper's, rllab's :class:`LinearFeatureBaseline`) or ``"mlp"``, a value
+        network (:class:`MLPBaseline`) fitted by Adam each iteration, as sb3-contrib and Spinning Up do,
+        with the four ``critic_*`` settings: hidden widths, learning rate, epochs per batch, minibatch size.
+    bootstrap_time_limits: at an episode end caused by a time limit, count gamma * V(final observation)
+        instead of 0. False is rllab's (the paper's): the horizon is part of the task. True is sb3's.
     """
 
     steps_per_iter: int = 200

@@ -4,23 +4,12 @@ Success is placing the hand around the cup: the hand centre within :data:`POSITI
 grasp point on the cup's axis and the approach axis within :data:`TILT_TOLERANCE_DEG` of horizontal.
 Closing the fingers is not simulated; the paper's reward counts the placement.
 
-The success region must be a region the hand can actually be in: a pose that counts as a success but
-puts a finger into the cup or the palm onto the table is a collision, so a stated tolerance larger than
-the room between hand, cup and table is not the tolerance the task really has (with the reaching
-task's 3.5 cm cup and the grasp point 8 cm up there were 0.8 cm beside the lower fingers, 1.4 cm to the
-palm and 1.5 cm between palm and table, against a stated 3 cm, and no noisy demonstration succeeded).
-The numbers below are therefore chosen together, from the hand of ``jaco6.urdf`` (fingers 1.6 cm
-thick on a 6 cm circle around the approach axis, one of them up; the palm 5 cm behind the hand centre
-and 6.5 cm below it):
-
-* the cup (radius :data:`GRASP_CUP_RADIUS`, narrower than the reaching task's) leaves 2.4 cm beside each
-  lower finger and 3 cm to the palm;
-* at :data:`GRASP_HEIGHT` the upper finger passes 2.7 cm above the rim, and the arm stays 2.5 cm above
-  the table;
-* so every hand position within :data:`POSITION_TOLERANCE` = 2 cm of the grasp point, at the grasp
-  orientation, is collision-free, with a few millimetres to spare for a slightly turned hand; the
-  tilt tolerance is 10 degrees for the same reason (tilting the hand swings the palm towards the table).
-  ``tests/test_envs.py`` measures these clearances with pybullet.
+The success region must be one the hand can be in: a pose that counts as a success but puts a finger into
+the cup or the palm onto the table is a collision. So the cup (:data:`GRASP_CUP_RADIUS`, narrower than the
+reaching task's), the grasp height (:data:`GRASP_HEIGHT`) and the tolerances are chosen together from the
+hand of ``jaco6.urdf``: every hand position within the tolerance of the grasp point, at the grasp
+orientation, is collision-free, with a few millimetres to spare (``tests/test_envs.py`` measures the
+clearances; docs/results.md, "Measurements behind the code").
 
 Taught in chapters 01 and 08.
 """

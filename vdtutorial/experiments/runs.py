@@ -94,7 +94,7 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
                       progress: bool = False, source: str | Path | None = None) -> GaussianPolicy:
     """The policy pre-trained with ``reg`` ("vd" or "l2") on ``demos`` with ``config`` and ``seed``.
 
-    A checkpoint (``pretrain.checkpoint_path``) is reused when it was made from the same data set (task,
+    A checkpoint (``experiments.checkpoints.checkpoint_path``) is reused when it was made from the same data set (task,
     samples, Sigma, demonstration seed) with the same pre-training configuration and seed. The shipped
     one in ``data/checkpoints`` is looked at first, read only (not in quick mode, whose budgets never
     match it); then the one under ``checkpoints_root`` (default ``runs/``, ``runs/quick/`` in quick mode).
