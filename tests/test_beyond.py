@@ -15,7 +15,7 @@ from vdtutorial.experiments.beyond import comparisons, variants
 from vdtutorial.experiments.checkpoints import checkpoint_path, default_config
 from vdtutorial.experiments.curves import CONFIDENCE
 from vdtutorial.experiments.runs import pretrained_policy
-from vdtutorial.pretrain import PAPER_INITIAL_SIGMA
+from vdtutorial.pretrain import PAPER_SIGMA_OPTION
 from vdtutorial.runner.resume import ResumeError, check_resumable, read_run_state
 from vdtutorial.runner.rows import read_rows, results_file
 from vdtutorial.settings import is_quick
@@ -68,7 +68,7 @@ def small_run(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(beyond_module, "samples", lambda: LABELS)
         record = beyond_module.beyond(seeds=(0, 1), steps=STEPS, out=out, workers=1, progress=False, checkpoint_every=1,
-                                      start_sigma=PAPER_INITIAL_SIGMA)
+                                      start_sigma=PAPER_SIGMA_OPTION)
         yield out, record  # the patch holds while the module's tests run
 
 
@@ -94,7 +94,7 @@ def test_the_rl_stage_starts_from_the_variants_clone_pruned(small_run):
     variant = beyond_module.Variant("dart", "vd", 0.05)
     demos, _ = beyond_module.data_set(variant, out)
     clone = beyond_module.cloned_policy(variant, demos, 1, out).prune_()
-    job = beyond_module.RLJob(variant, 1, STEPS, out.resolve(), (out / "runs").resolve(), 1, PAPER_INITIAL_SIGMA)
+    job = beyond_module.RLJob(variant, 1, STEPS, out.resolve(), (out / "runs").resolve(), 1, PAPER_SIGMA_OPTION)
     started, real = [], runs_module.finetune_policy
 
     def finetune_policy(*args, **kwargs):  # the policy handed to TRPO, as it is before TRPO moves it
@@ -132,7 +132,7 @@ def test_an_interrupted_rl_run_continues_to_the_rows_of_an_uninterrupted_one(sma
     for name in ("beyond.csv.gz", "beyond.json"):
         (again / name).unlink()
     job = beyond_module.RLJob(beyond_module.Variant("dagger", "l2"), 1, STEPS, again.resolve(),
-                              (again / "runs").resolve(), 1, PAPER_INITIAL_SIGMA)
+                              (again / "runs").resolve(), 1, PAPER_SIGMA_OPTION)
     job.state_path.unlink()
     steps = job.compute()
     assert next(steps) == {"iteration": 1, "iterations": 2, "env_steps": 200}
@@ -142,7 +142,7 @@ def test_an_interrupted_rl_run_continues_to_the_rows_of_an_uninterrupted_one(sma
     with pytest.raises(ResumeError, match="initial_sigma: '0.3' -> 'spread'"):
         check_resumable(job.state_path, read_run_state(job.state_path), other.settings, other.rows_expected)
     resumed = beyond_module.beyond(seeds=(0, 1), steps=STEPS, out=again, workers=1, progress=False,  # samples: LABELS
-                                   checkpoint_every=1, start_sigma=PAPER_INITIAL_SIGMA)           # (small_run's patch)
+                                   checkpoint_every=1, start_sigma=PAPER_SIGMA_OPTION)           # (small_run's patch)
     assert _drop_wall_time(read_rows(results_file(again, "beyond"))) == _drop_wall_time(read_rows(results_file(out, "beyond")))
     assert resumed["rl"]["claims"] == record["rl"]["claims"]
 

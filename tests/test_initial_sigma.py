@@ -156,12 +156,12 @@ def test_the_default_start_is_the_sigma_study_choice():
     import json
 
     from vdtutorial.experiments.checkpoints import default_config
-    from vdtutorial.pretrain import PAPER_INITIAL_SIGMA
+    from vdtutorial.pretrain import PAPER_SIGMA_OPTION
     from vdtutorial.settings import data_dir
 
     study = json.loads((data_dir() / "results" / "sigma_study" / "sigma_study.json").read_text())
     assert len(study["seeds"]) == 5 and study["steps"] == 100_000
     chosen = study["summary"]["rule"]["chosen"]
     assert {default_config(reg, obs).initial_sigma for reg in ("vd", "l2") for obs in ("state", "rgbd")} == {chosen}
-    assert PretrainConfig().initial_sigma == PAPER_INITIAL_SIGMA == "0.3"
-    assert build_parser().parse_args(["pretrain", "--reg", "vd", "--demos", "x.npz"]).sigma == PAPER_INITIAL_SIGMA
+    assert PretrainConfig().initial_sigma == PAPER_SIGMA_OPTION == "0.3"
+    assert build_parser().parse_args(["pretrain", "--reg", "vd", "--demos", "x.npz"]).sigma == PAPER_SIGMA_OPTION

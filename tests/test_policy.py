@@ -12,7 +12,7 @@ from torch import nn
 from vdtutorial import vd
 from vdtutorial.analysis.compact import compact
 from vdtutorial.analysis.sparsity import sparsity_report, weight_layers
-from vdtutorial.policy import GaussianPolicy, TwoStreamNet, make_policy, obs_to_tensor
+from vdtutorial.policy import GaussianPolicy, PolicyNet, make_policy, obs_to_tensor
 
 IMAGE = 48  # smallest convenient size for the default convolutions: 48 -> 11 -> 4 -> 1 pixels
 JOINT_LIMIT = np.float32(2 * math.pi)
@@ -201,7 +201,7 @@ def test_compacting_a_trained_and_pruned_policy_keeps_its_outputs():
 
 def test_compacting_an_image_network():
     torch.manual_seed(6)
-    net = TwoStreamNet("rgbd", {"rgb": (3, IMAGE, IMAGE), "depth": (IMAGE * IMAGE,), "joints": (6,)}, 6,
+    net = PolicyNet("rgbd", {"rgb": (3, IMAGE, IMAGE), "depth": (IMAGE * IMAGE,), "joints": (6,)}, 6,
                        variational=True).eval()
     with torch.no_grad():
         for layer in vd.svdo_layers(net):

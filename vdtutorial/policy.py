@@ -1,7 +1,7 @@
 """The paper's policy: a Gaussian N(mu_phi(s), sigma_psi(s)) whose mean and standard deviation are each
 computed by the two-stream network of Fig. 2 (Section IV).
 
-Network kinds (``TwoStreamNet``), chosen from the observation space by :func:`make_policy`
+Network kinds (``PolicyNet``), chosen from the observation space by :func:`make_policy`
     ``"rgbd"``: the paper's network. Image stream: 3 convolutions (ReLU, no padding) and 3 fully
     connected layers; joint stream: 3 fully connected layers on the joint angles; both streams are
     concatenated into one final fully connected layer with one output per action dimension.
@@ -140,8 +140,8 @@ def _bounds_affine(low, high, dims: int) -> tuple[torch.Tensor, torch.Tensor]:
     return centre, half_width
 
 
-class TwoStreamNet(nn.Module):
-    """Fig. 2 network (module docstring, "Network kinds"; the normalisation of its inputs is below).
+class PolicyNet(nn.Module):
+    """The network of Fig. 2, one each for mu and sigma (module docstring, "Network kinds"; inputs: below).
 
     ``streams[0]`` is the scene stream (image, cup position, or the whole vector for ``"mlp"``),
     ``streams[1]`` the joint stream (absent for ``"mlp"``); ``head`` is the final fully connected layer.
@@ -234,11 +234,11 @@ def _jsonable(value):
 
 
 class GaussianPolicy(nn.Module):
-    """pi(a | s) = N(mu(s), diag(sigma(s)^2)), with ``mu`` and ``sigma`` two :class:`TwoStreamNet` of the same
+    """pi(a | s) = N(mu(s), diag(sigma(s)^2)), with ``mu`` and ``sigma`` two :class:`PolicyNet` of the same
     kind (Section IV). The pre-training phase trains ``mu`` only; the RL phase trains both.
 
-    kind, obs_shape, obs_low, obs_high: see :class:`TwoStreamNet`. action_dim: number of action dimensions.
-    variational: sparse VD layers in both networks. sizes: keyword sizes of :class:`TwoStreamNet`.
+    kind, obs_shape, obs_low, obs_high: see :class:`PolicyNet`. action_dim: number of action dimensions.
+    variational: sparse VD layers in both networks. sizes: keyword sizes of :class:`PolicyNet`.
     init_std: initial sigma (radians of joint-angle change for the Jaco tasks; the action range is
     +-pi/5 ~ +-0.63). min_std: floor of sigma.
 
@@ -264,7 +264,7 @@ class GaussianPolicy(nn.Module):
                                      sizes=dict(sizes or {}), init_std=init_std, min_std=min_std, obs_low=obs_low,
                                      obs_high=obs_high))
         self.min_std = min_std
-        nets = [TwoStreamNet(kind, obs_shape, action_dim, variational, obs_low=obs_low, obs_high=obs_high,
+        nets = [PolicyNet(kind, obs_shape, action_dim, variational, obs_low=obs_low, obs_high=obs_high,
                              **(sizes or {})) for _ in range(2)]
         self.mu, self.sigma = nets
         with torch.no_grad():
@@ -331,8 +331,8 @@ def make_policy(observation_space, action_dim: int, variational: bool = False, k
     kind: ``"rgbd"`` (Dict with "rgb", "depth" and "joints"), ``"state"`` (Box of joint angles then cup x, y, z),
     ``"mlp"`` (any Box), or ``"auto"``: Dict -> "rgbd", Box of shape (9,) -> "state" (the Jaco
     environments' state mode: 6 joints + 3 cup coordinates), any other Box -> "mlp". Pass ``kind="mlp"``
-    explicitly for a 9-number Box that is not a Jaco state. ``sizes``: see :class:`TwoStreamNet`.
-    normalise: map a vector observation from the space's bounds to [-1, 1] (:class:`TwoStreamNet`); False feeds
+    explicitly for a 9-number Box that is not a Jaco state. ``sizes``: see :class:`PolicyNet`.
+    normalise: map a vector observation from the space's bounds to [-1, 1] (:class:`PolicyNet`); False feeds
     it as it is. The bounds suit the Jaco tasks, where they are the joints' and the cup's ranges; a bound that is
     a loose clip shrinks what the policy sees (Pendulum-v1's angular velocity: +-8 rad/s, see
     :func:`vdtutorial.experiments.pendulum.pendulum_policy`).

@@ -40,10 +40,10 @@ from vdtutorial.settings import budget
 from vdtutorial.vd import model_kl, pruned_fraction
 
 REGULARISERS = ("vd", "l2")
-#: The paper's fixed initial sigma, 0.3 (option (a)): the default of ``PretrainConfig.initial_sigma`` and the sigma
-#: of the checkpoints that experiments cache (mu is the same under every option, which they apply on top)
-#: and of checkpoints made before the option existed. Changing the default keeps this constant.
-PAPER_INITIAL_SIGMA = "0.3"
+#: The paper's initial-sigma option, as a config spells it: sigma fixed at 0.3, option (a). The default of
+#: ``PretrainConfig.initial_sigma`` and the sigma of the checkpoints that experiments cache (mu is the same under
+#: every option, which they apply on top) and of checkpoints made before the option existed.
+PAPER_SIGMA_OPTION = "0.3"
 #: The options of ``PretrainConfig.initial_sigma`` that fit sigma after cloning (:mod:`vdtutorial.beyond.initial_sigma`);
 #: any other option is a number, a fixed sigma.
 SIGMA_FITS = ("demos", "spread")
@@ -109,7 +109,7 @@ class PretrainConfig:
     val_fraction: float = 0.1
     image_size: int = 128
     kl_samples: int | None = None
-    initial_sigma: str = PAPER_INITIAL_SIGMA
+    initial_sigma: str = PAPER_SIGMA_OPTION
     patience: int | None = None
 
     def __post_init__(self):

@@ -12,7 +12,7 @@ import torch
 from torch import nn
 
 from vdtutorial.analysis.sparsity import Edge, column_count, dead_units, kept_weights, unit_count, chain, graph, weight_layers
-from vdtutorial.policy import TwoStreamNet
+from vdtutorial.policy import PolicyNet
 
 
 def _fold_is_exact(layer: nn.Module) -> bool:
@@ -91,12 +91,12 @@ def compact(module: nn.Module) -> nn.Module:
 
     Works for ``nn.Sequential`` stacks of Linear / Conv2d (plain or sparse VD), elementwise activations and
     ``Flatten`` (a removed channel removes its H * W columns of the following Linear layer), and for
-    the policy's :class:`vdtutorial.policy.TwoStreamNet` networks, and modules with their own ``compact()`` method. The input
+    the policy's :class:`vdtutorial.policy.PolicyNet` networks, and modules with their own ``compact()`` method. The input
     and output sizes are unchanged; hidden layers shrink.
     """
     if isinstance(module, nn.Sequential):
         return rebuild_sequential(module, compact_layers(module, chain(module)[0]))
-    if isinstance(module, TwoStreamNet):
+    if isinstance(module, PolicyNet):
         replacements = compact_layers(module, graph(module))
         new = copy.deepcopy(module)
         new.streams = nn.ModuleList(rebuild_sequential(stream, replacements) for stream in module.streams)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from vdtutorial.policy import GaussianPolicy, TwoStreamNet
+from vdtutorial.policy import GaussianPolicy, PolicyNet
 from vdtutorial.vd import THRESHOLD, WEIGHT_LAYERS, SVDOLayer
 
 
@@ -99,7 +99,7 @@ def concat_edges(tails: list[tuple[nn.Module, tuple[nn.Module, ...]]], dst: nn.M
     return edges
 
 
-def _two_stream_edges(net: TwoStreamNet) -> list[Edge]:
+def _two_stream_edges(net: PolicyNet) -> list[Edge]:
     """The streams' own edges, and each stream's last weight layer into the head, which reads them concatenated."""
     edges, tails = [], []
     for stream in net.streams:
@@ -110,11 +110,11 @@ def _two_stream_edges(net: TwoStreamNet) -> list[Edge]:
 
 
 def graph(module: nn.Module) -> list[Edge]:
-    """The edges of ``module``: a policy's two networks, a :class:`~vdtutorial.policy.TwoStreamNet`, a module
+    """The edges of ``module``: a policy's two networks, a :class:`~vdtutorial.policy.PolicyNet`, a module
     with a ``weight_edges()`` method, or a Sequential."""
     if isinstance(module, GaussianPolicy):
         return _two_stream_edges(module.mu) + _two_stream_edges(module.sigma)
-    if isinstance(module, TwoStreamNet):
+    if isinstance(module, PolicyNet):
         return _two_stream_edges(module)
     if hasattr(module, "weight_edges"):
         return module.weight_edges()

@@ -25,7 +25,7 @@ from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
 from vdtutorial.demos import FORMAT_VERSION, Demos, collect, success_rate
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.policy import GaussianPolicy
-from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig
+from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig
 
 
 @dataclass
@@ -63,7 +63,7 @@ def round_seed(seed: int, k: int) -> int:
 def cloning_config(reg: str, config: PretrainConfig | None = None) -> PretrainConfig:
     """The pre-training settings of every round: the experiments' defaults for ``reg`` with sigma left at
     the paper's fixed value (the rounds need only the mean action; the start sigma of RL is set later)."""
-    return replace(config or default_config(reg), reg=reg, initial_sigma=PAPER_INITIAL_SIGMA)
+    return replace(config or default_config(reg), reg=reg, initial_sigma=PAPER_SIGMA_OPTION)
 
 
 def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed: int, plan,

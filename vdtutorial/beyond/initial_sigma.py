@@ -26,7 +26,7 @@ from torch import nn
 
 from vdtutorial.demos import Demos
 from vdtutorial.policy import GaussianPolicy, obs_to_tensor
-from vdtutorial.pretrain import (PAPER_INITIAL_SIGMA, SIGMA_FITS, PretrainConfig, demo_observations, observation_rows,
+from vdtutorial.pretrain import (PAPER_SIGMA_OPTION, SIGMA_FITS, PretrainConfig, demo_observations, observation_rows,
                                  pretrain, set_fixed_sigma, sigma_option, split_by_episode)
 from vdtutorial.vd import svdo_layers
 
@@ -36,7 +36,7 @@ IMAGE_FIT_STATES = 2048
 #: ... in minibatches of this size (:class:`InitialSigma`, "How a fit works").
 IMAGE_FIT_BATCH = 256
 #: The paper's initial sigma, the policy's ``init_std``: the default of option (a).
-DEFAULT_VALUE = float(PAPER_INITIAL_SIGMA)
+DEFAULT_VALUE = float(PAPER_SIGMA_OPTION)
 
 
 @dataclass(frozen=True)
@@ -282,7 +282,7 @@ def pretrain_with_sigma(demos: Demos, config: PretrainConfig | None = None, seed
     if cfg.initial_sigma not in SIGMA_FITS:
         return pretrain(demos, cfg, seed, progress, observations, device)
     obs = observations if observations is not None else demo_observations(demos, cfg.obs_mode, cfg.image_size, progress)
-    policy, history = pretrain(demos, replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA), seed, progress, obs, device)
+    policy, history = pretrain(demos, replace(cfg, initial_sigma=PAPER_SIGMA_OPTION), seed, progress, obs, device)
     policy.pretrain_info["config"] = asdict(cfg)
     policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, obs, spread_net)
     return policy, history

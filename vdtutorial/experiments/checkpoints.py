@@ -17,7 +17,7 @@ import torch
 import vdtutorial
 from vdtutorial.demos import DATA_SET_PATTERN, data_set_name, demo_path
 from vdtutorial.policy import GaussianPolicy
-from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig
+from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig
 from vdtutorial.settings import budget, data_dir, recorded_path
 
 #: Where RL starts in the experiments and the shipped results (``default_config``): option (c), sigma fitted to the
@@ -48,22 +48,22 @@ def default_config(reg: str = "vd", obs_mode: str = "state") -> PretrainConfig:
                           **(rgbd_settings() if obs_mode == "rgbd" else {}))
 
 
-def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sigma: str = PAPER_INITIAL_SIGMA) -> str:
+def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sigma: str = PAPER_SIGMA_OPTION) -> str:
     """The command line that makes a checkpoint, as its meta records it (the data set's path relative to the
     folder holding data/, so that a shipped checkpoint names no machine)."""
-    sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f" --sigma {initial_sigma}"
+    sigma = "" if initial_sigma == PAPER_SIGMA_OPTION else f" --sigma {initial_sigma}"
     return f"python -m vdtutorial pretrain --reg {reg} --demos {recorded_path(demos_path)} --seed {seed} --obs {obs_mode}{sigma}"
 
 
 def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
-                    initial_sigma: str = PAPER_INITIAL_SIGMA, kl_samples: int | None = None,
+                    initial_sigma: str = PAPER_SIGMA_OPTION, kl_samples: int | None = None,
                     data_name: str | None = None, patience: int | None = None) -> Path:
     """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma``, ``kl_samples``
     or ``patience`` is added to the name (``..._seed0_initsigma-demos.pt``, ``..._seed0_kl7200.pt``,
     ``..._seed0_stop10.pt``), so that it never replaces the default checkpoint. ``data_name`` names the data set in place of its
     ``TASK_nSAMPLES_sigmaSIGMA``: a set made in rounds (DART's, DAgger's) has no Sigma to be named by."""
     m = demos_meta
-    sigma = "" if initial_sigma == PAPER_INITIAL_SIGMA else f"_initsigma-{initial_sigma}"
+    sigma = "" if initial_sigma == PAPER_SIGMA_OPTION else f"_initsigma-{initial_sigma}"
     kl = "" if kl_samples is None else f"_kl{kl_samples}"
     stop = "" if patience is None else f"_stop{patience}"
     data = data_name or data_set_name(m["task"], m["samples"], m["noise"])
@@ -119,7 +119,7 @@ def load_checkpoint(path, **expected) -> GaussianPolicy:
     except Exception as exc:  # torch raises several types for a damaged or foreign file
         raise CheckpointError(f"checkpoint {path} is corrupt or not a vdtutorial checkpoint ({exc}). {fix}") from exc
     # checkpoints made before ``initial_sigma`` existed started RL from the fixed default
-    where = {"initial_sigma": PAPER_INITIAL_SIGMA, **meta.get("demos", {}), **meta.get("config", {}), **config}
+    where = {"initial_sigma": PAPER_SIGMA_OPTION, **meta.get("demos", {}), **meta.get("config", {}), **config}
     for key, want in expected.items():
         if where.get(key) != want:
             difference = f"{key}={where.get(key)!r}, expected {want!r}"

@@ -26,7 +26,7 @@ from vdtutorial.experiments.evaluation import EPISODE_STEPS, ExpertController, s
 from vdtutorial.fast.fisher import gauss_newton_fvp
 from vdtutorial.fast.policy import fast_policy
 from vdtutorial.policy import GaussianPolicy, make_policy
-from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig, pretrain
+from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig, pretrain
 from vdtutorial.rollout import make_vec_env
 from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
                                      save_run_state)
@@ -139,8 +139,8 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
         action = "pre-training again to replace it" if candidate == path else f"pre-training under {recorded_path(root)}"
         print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): {action}", flush=True)
     made_from = Path(source) if data_name else demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
-    if cfg.initial_sigma != PAPER_INITIAL_SIGMA:
-        base = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA)
+    if cfg.initial_sigma != PAPER_SIGMA_OPTION:
+        base = replace(cfg, initial_sigma=PAPER_SIGMA_OPTION)
         policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress, source)
         # the VD network whose spread L2 follows; L2's coefficient is no setting of VD's, so it is the default one's
         spread_net = (pretrained_policy("vd", demos, obs_mode, seed, replace(base, l2=PretrainConfig.l2), checkpoints_root,
@@ -177,7 +177,7 @@ def finetune_policy(method: str, env: gym.Env | gym.vector.VectorEnv, demos: Dem
         space = getattr(env, "single_observation_space", env.observation_space)
         actions = getattr(env, "single_action_space", env.action_space)
         return make_policy(space, actions.shape[0], variational=False, init_std=InitialSigma.parse(cfg.initial_sigma).value)
-    network = replace(cfg, initial_sigma=PAPER_INITIAL_SIGMA) if resumed else cfg
+    network = replace(cfg, initial_sigma=PAPER_SIGMA_OPTION) if resumed else cfg
     policy = pretrained_policy(method, demos, obs_mode, seed, network, checkpoints_root, progress, source)
     return policy.prune_() if method == "vd" else policy
 

@@ -22,7 +22,7 @@ from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import mean_band
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.runs import pretrained_policy
-from vdtutorial.pretrain import PAPER_INITIAL_SIGMA, PretrainConfig
+from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig
 from vdtutorial.runner.backends import run_jobs
 from vdtutorial.runner.rows import stored_rows, write_csv
 
@@ -126,7 +126,7 @@ def table1(obs_mode: str = "state", seeds=(0,), kl_weighting: str = "per-set", o
     checkpoints_root = Path(checkpoints_root if checkpoints_root is not None else out).resolve()
     # sparsity is a property of mu, which the initial sigma does not change: the checkpoints of the base setting
     config = replace(pretrain_config or default_config("vd", obs_mode), kl_samples=KL_WEIGHTINGS[kl_weighting],
-                     initial_sigma=PAPER_INITIAL_SIGMA)
+                     initial_sigma=PAPER_SIGMA_OPTION)
     plan = [(entry, seed) for seed in seeds for entry in TABLE1]
     jobs = [_SparsityJob(demo_path(task, samples, noise, 0, root=demos_root).resolve(), obs_mode, seed,
                          checkpoints_root, config) for (_, task, samples, noise, _), seed in plan]

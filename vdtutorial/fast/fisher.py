@@ -30,7 +30,7 @@ from torch.distributions import Normal
 
 from vdtutorial.fast.policy import (FastGaussianPolicy, applied_weight, conv_geometry, fused_conv2d, fused_first_layers,
                                     prepare_inputs)
-from vdtutorial.policy import GaussianPolicy, TwoStreamNet
+from vdtutorial.policy import GaussianPolicy, PolicyNet
 from vdtutorial.vd import WEIGHT_LAYERS, SVDOLayer
 
 #: The parameter-free modules the products let weight layers (vd.WEIGHT_LAYERS) be mixed with.
@@ -195,10 +195,10 @@ class _FirstConvolutions:
 
 
 class _NetTrace:
-    """A :class:`TwoStreamNet`'s forward pass at the current parameters, traced for tangent and backward
+    """A :class:`PolicyNet`'s forward pass at the current parameters, traced for tangent and backward
     passes."""
 
-    def __init__(self, net: TwoStreamNet, inputs: list[torch.Tensor], first_output: torch.Tensor | None = None):
+    def __init__(self, net: PolicyNet, inputs: list[torch.Tensor], first_output: torch.Tensor | None = None):
         """``inputs``: the network's stream inputs (:func:`vdtutorial.fast.policy.prepare_inputs`);
         ``first_output``: the scene stream's first layer already applied (by :class:`_FirstConvolutions`),
         or None to trace the scene stream whole."""

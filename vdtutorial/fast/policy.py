@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from vdtutorial.policy import GaussianPolicy, TwoStreamNet, obs_to_tensor
+from vdtutorial.policy import GaussianPolicy, PolicyNet, obs_to_tensor
 from vdtutorial.vd import SVDOLayer
 
 
@@ -83,7 +83,7 @@ class PreparedObs:
     sigma: list[torch.Tensor]
 
 
-def same_inputs(net: TwoStreamNet, other: TwoStreamNet) -> bool:
+def same_inputs(net: PolicyNet, other: PolicyNet) -> bool:
     """True when ``other`` turns every observation into the same stream inputs as ``net`` (same kind and
     normalisation), so that both can read one prepared copy."""
     if net.kind != other.kind:
@@ -112,7 +112,7 @@ def fused_first_layers(policy: GaussianPolicy, inputs: PreparedObs) -> list[nn.M
     return firsts if fusable_convolutions(firsts) else None
 
 
-def net_from_inputs(net: TwoStreamNet, inputs: list[torch.Tensor], first_scene_output: torch.Tensor | None = None):
+def net_from_inputs(net: PolicyNet, inputs: list[torch.Tensor], first_scene_output: torch.Tensor | None = None):
     """``net`` on stream inputs already made (:func:`prepare_inputs`); ``first_scene_output``, when given, is
     the scene stream's first layer already applied to ``inputs[0]`` (:func:`fused_conv2d`)."""
     scene, *others = net.streams
