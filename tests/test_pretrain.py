@@ -164,3 +164,31 @@ def test_a_checkpoint_is_named_after_its_data_set_and_both_names_read_back():
     read = demos_module._NAME.fullmatch(data_file.name), checkpoints_module._NAME.fullmatch(checkpoint.name)
     assert [(m["task"], int(m["samples"]), float(m["noise"])) for m in read] == [("reach", 4000, 0.25)] * 2
     assert (read[0]["seed"], read[1]["seed"], read[1]["reg"], read[1]["obs"]) == ("3", "2", "vd", "rgbd")
+
+
+def test_cloning_keeps_sigma_fixed_but_draws_its_weight_noise_as_the_docstring_says():
+    """Pre-training puts the whole VD policy in training mode: the sigma network's layers then sample weight
+    noise while their parameters stay fixed. The shipped checkpoints were made so, and the module docstring
+    says so (it used to describe sigma as deterministic)."""
+    import vdtutorial.pretrain as pretrain_module
+    from vdtutorial.vd import svdo_layers
+
+    small = generate_demos("reach", 120, 0.5, seed=5, progress=False)
+    modes, made = [], []
+    original = pretrain_module.make_policy
+
+    def recording_policy(*args, **kwargs):
+        policy = original(*args, **kwargs)
+        made.append({k: v.clone() for k, v in policy.sigma.state_dict().items()})
+        svdo_layers(policy.sigma)[0].register_forward_hook(lambda layer, inputs, output: modes.append(layer.training))
+        return policy
+
+    pretrain_module.make_policy = recording_policy
+    try:
+        policy, _ = pretrain(small, PretrainConfig(reg="vd", epochs=1, batch_size=40), seed=0, progress=False)
+    finally:
+        pretrain_module.make_policy = original
+    assert True in modes, "sigma's VD layers were never in training mode during cloning"
+    assert all(torch.equal(value, made[0][key]) for key, value in policy.sigma.state_dict().items()
+               if not key.endswith("bias") or "head" not in key)
+    assert "draw weight noise" in pretrain_module.__doc__

@@ -4,11 +4,12 @@ Both regularisers fit the same Gaussian policy pi(a|s) = N(mu(s), sigma(s)) to t
 by maximising the log-likelihood of the expert's actions. Only ``mu`` is trained; ``sigma`` keeps its
 initial parameters (the paper: "only the parameters of mu are trained in this stage, while those of
 sigma remain fixed"), so the likelihood is a weighted squared error whose weights sigma(s)^-2 come
-from the untrained sigma network.
+from the untrained sigma network. With sparse VD the whole policy is in training mode, so the sigma
+network's layers draw weight noise too: its parameters stay fixed, but each minibatch sees sigma
+through fresh noise (a few per cent; what it changes: docs/results.md, "Measurements behind the code").
 
 ``reg="vd"`` -- sparse variational dropout. ``mu`` has SVDO layers and the loss is the negative ELBO of
-eqs. 1-3 divided by N (dividing by the data set size keeps the loss on the scale of one sample and
-leaves its optimum unchanged):
+eqs. 1-3 divided by N (the scale of one sample; the optimum is unchanged):
 
     loss = - (1/M) sum_m log N(a_m | mu(s_m), sigma(s_m))  +  beta * KL(q(W) || p(W)) / N
 
@@ -17,7 +18,6 @@ the KL to the log-uniform prior. ``beta`` warms up linearly from 0 to 1 over the
 ``beta_warmup`` fraction of the epochs: early on the data term shapes the weights, and the KL, which
 pushes every weight towards being dropped, comes in gradually (without it many weights are pruned
 before the network has learnt anything).
-
 ``reg="l2"`` -- the baseline: ``mu`` has plain layers and the loss adds ``l2 * sum(W^2)`` over the
 weights of ``mu`` (weight decay; biases excluded).
 
