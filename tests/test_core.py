@@ -117,7 +117,7 @@ def test_no_docstring_or_comment_in_the_core_names_an_issue_a_date_or_a_measurem
 
 
 #: The issue's budget for the core is 2,600 lines; today's total is the ratchet: it may only go down.
-CORE_LINES_NOW, CORE_LINES_TARGET, MODULE_LINES_MAX = 2813, 2600, 450
+CORE_LINES_NOW, CORE_LINES_TARGET, MODULE_LINES_MAX = 2812, 2600, 450
 
 
 def test_the_core_stays_small():

@@ -192,3 +192,17 @@ def test_cloning_keeps_sigma_fixed_but_draws_its_weight_noise_as_the_docstring_s
     assert all(torch.equal(value, made[0][key]) for key, value in policy.sigma.state_dict().items()
                if not key.endswith("bias") or "head" not in key)
     assert "draw weight noise" in pretrain_module.__doc__
+
+
+def test_the_images_pretraining_renders_are_the_data_sets_own_in_float16_depth():
+    """One re-renderer (Demos.observations): pre-training keeps the RGB and stores depth as float16."""
+    small = generate_demos("reach", 30, 0.5, seed=6, progress=False)
+    env = gym.make(ENV_IDS["reach"], obs_mode="rgbd", image_size=32)
+    try:
+        full = small.observations(env, [0, 7, 19])
+    finally:
+        env.close()
+    obs = demo_observations(small, "rgbd", image_size=32, indices=[0, 7, 19])
+    assert obs["depth"].dtype == np.float16 and full["depth"].dtype == np.float32
+    assert np.array_equal(obs["rgb"], full["rgb"]) and np.array_equal(obs["depth"], full["depth"].astype(np.float16))
+    assert np.array_equal(obs["joints"], small.joints[[0, 7, 19]].astype(np.float32))

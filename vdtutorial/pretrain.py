@@ -139,19 +139,15 @@ def observation_space(task: str, obs_mode: str, image_size: int = 128) -> gym.Sp
 def demo_observations(demos: Demos, obs_mode: str, image_size: int = 128, progress: bool = False,
                       indices: np.ndarray | None = None):
     """The policy inputs of the samples ``indices`` (default: every sample): the state vectors, or RGBD
-    images re-rendered from the stored states (RGB as the env's uint8, depth as float16 to halve its
-    memory; converted per batch)."""
+    images re-rendered from the stored states (:meth:`Demos.observations`; depth as float16 to halve its
+    memory, converted per batch) with the stored joint angles."""
     indices = np.arange(len(demos)) if indices is None else np.asarray(indices)
     if obs_mode == "state":
         return demos.states[indices]
     env = gym.make(ENV_IDS[demos.meta["task"]], obs_mode="rgbd", image_size=image_size)
-    rgb = np.empty((len(indices), 3, image_size, image_size), dtype=np.uint8)
-    depth = np.empty((len(indices), image_size * image_size), dtype=np.float16)
-    for k, i in enumerate(tqdm(indices, desc="rendering demonstration images", disable=not progress)):
-        obs = env.unwrapped.observation_at(demos.joints[i], demos.cup[i, :2])
-        rgb[k], depth[k] = obs["rgb"], obs["depth"]
+    obs = demos.observations(env, indices, depth_dtype=np.float16, progress=progress)
     env.close()
-    return {"rgb": rgb, "depth": depth, "joints": demos.joints[indices].astype(np.float32)}
+    return {"rgb": obs["rgb"], "depth": obs["depth"], "joints": demos.joints[indices].astype(np.float32)}
 
 
 def observation_rows(obs, idx, device: torch.device | None = None):

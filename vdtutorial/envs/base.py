@@ -33,11 +33,9 @@ class JacoEnv(gym.Env):
         ``"joints"`` (6 angles, radians); or ``"state"`` -- a float32 vector of the 6 joint angles
         followed by the cup's base position (x, y, z), the fast mode for classes and CI.
         The image layout is the one gymnasium and Stable-Baselines3 treat as an image (uint8, channels
-        first), so their CNN policies read it unchanged. Depth keeps its metric precision in its own
-        key; as a flat vector it is what Stable-Baselines3 accepts besides a uint8 image (its checker
-        warns about a float or 2-D "image"), and the 8-bit quantisation an image would need (1.1 cm
-        steps over the camera's 2.9 m range) is avoided. The
-        paper's policy scales both inside the network (:mod:`vdtutorial.policy`).
+        first), so their CNN policies read it unchanged. Depth keeps its metric precision as a flat float
+        vector in its own key (no 8-bit image quantisation; Stable-Baselines3 accepts it besides a uint8
+        image). The paper's policy scales both inside the network (:mod:`vdtutorial.policy`).
     image_size: side S of the camera image in pixels.
     render_mode: ``"rgb_array"`` makes :meth:`render` return the camera's RGB image (S x S x 3, uint8).
 
