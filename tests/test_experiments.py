@@ -6,6 +6,8 @@ import json
 import math
 import os
 import signal
+import subprocess
+import sys
 import time
 import warnings
 from dataclasses import replace
@@ -166,6 +168,29 @@ def test_a_local_ray_that_times_out_at_startup_is_tried_again():
     with pytest.raises(RuntimeError, match=r"in 3 tries \(The current node timed out.*65983.*local backend"):
         backends._start_local_ray(ray, 2, {})
     assert ray.calls.count("init") == backends.LOCAL_RAY_ATTEMPTS
+
+
+def test_an_unreachable_ray_address_fails_within_30_s_in_one_line(tmp_path):
+    """An ``--address`` nothing answers at: one ``error:`` line and exit code 2 within 30 s (Ray alone kept
+    retrying the connection for minutes)."""
+    pytest.importorskip("ray")
+    start = time.monotonic()
+    run = subprocess.run([sys.executable, "-m", "vdtutorial", "experiment", "fig4", "--seeds", "0", "--steps", "400",
+                          "--backend", "ray", "--address", "127.0.0.1:1", "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=120, env={**os.environ, QUICK_ENV: "1"})
+    assert time.monotonic() - start < 30
+    assert run.returncode == 2
+    assert run.stderr.strip().splitlines()[-1].startswith("error: no Ray cluster answers at 127.0.0.1:1")
+
+
+def test_a_ray_address_that_never_answers_is_refused_after_the_timeout(monkeypatch):
+    def silent(address, timeout):
+        raise TimeoutError("timed out")
+
+    monkeypatch.setattr(backends.socket, "create_connection", silent)
+    with pytest.raises(ConnectionError, match=r"no Ray cluster answers at ray://10.0.0.1:10001 \(timed out\)"):
+        backends._check_reachable("ray://10.0.0.1:10001")
+    backends._check_reachable("auto")  # an address Ray resolves itself is left to Ray
 
 
 def _pool_job(job):

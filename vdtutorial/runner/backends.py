@@ -28,6 +28,7 @@ import multiprocessing
 import os
 import queue
 import signal
+import socket
 
 import torch
 
@@ -225,6 +226,24 @@ def _start_local_ray(ray, workers: int, runtime_env: dict) -> None:
                     "issue 65983): retry when the machine is less busy, or use the local backend") from exc
 
 
+#: Seconds to wait for a Ray cluster's address to answer before the run is refused. Ray itself keeps retrying an
+#: unreachable address for minutes.
+RAY_CONNECT_TIMEOUT = 10
+
+
+def _check_reachable(address: str, timeout: float = RAY_CONNECT_TIMEOUT) -> None:
+    """Refuse, in one line, a ``HOST:PORT`` (or ``ray://HOST:PORT``) address nothing answers at; ``"auto"`` and
+    other forms Ray resolves itself are left to Ray."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise ConnectionError(f"no Ray cluster answers at {address} ({exc}): start its head node "
+                              f"(ray start --head) or check the address") from None
+
+
 def _run_ray(fn, jobs, workers, address, listener) -> list:
     ray = _import_ray()
     started = not ray.is_initialized()
@@ -236,6 +255,7 @@ def _run_ray(fn, jobs, workers, address, listener) -> list:
         if address is None:  # a private local Ray, even if another one runs on this machine
             _start_local_ray(ray, workers, env)
         else:
+            _check_reachable(address)
             ray.init(address=address, runtime_env=env, logging_level=logging.WARNING)
     try:
         task = ray.remote(num_cpus=1)(_ray_task)
