@@ -326,15 +326,15 @@ def test_cli_kl_weightings_are_the_library_ones():
 
 
 def test_table1_fixed_weighting_pretrains_its_own_checkpoints(tmp_path):
-    """kl_weighting="fixed": every data set is pre-trained with kl_samples = 7200, into checkpoints of
+    """kl_weighting="fixed": every data set is pre-trained with kl_divisor = 7200, into checkpoints of
     their own name (never the per-set ones); a row per data set and seed."""
     rows = table1(seeds=(0, 1), kl_weighting="fixed", out=tmp_path, workers=1,
                   pretrain_config=PretrainConfig(epochs=1))
-    assert len(rows) == 12 and {r["kl_samples"] for r in rows} == {7200} and {r["seed"] for r in rows} == {0, 1}
+    assert len(rows) == 12 and {r["kl_divisor"] for r in rows} == {7200} and {r["seed"] for r in rows} == {0, 1}
     made = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
     assert len(made) == 12 and all(name.endswith(("_kl7200.pt")) for name in made)
     text = (tmp_path / "table1_fixed.txt").read_text()
-    assert "KL weighting: fixed (kl_samples=7200)" in text and "--kl-weighting fixed" in text
+    assert "KL weighting: fixed (kl_divisor=7200)" in text and "--kl-weighting fixed" in text
     assert all(0 <= r["neuron_fraction"] <= 1 for r in read_rows(tmp_path / "table1_fixed.csv"))
     with pytest.raises(ValueError, match="kl_weighting"):
         table1(kl_weighting="8000", out=tmp_path)
@@ -376,3 +376,19 @@ def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):
     runs.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
     saved = list(tmp_path.rglob("*.pt"))
     assert [p.name for p in saved] == ["reach_n40_sigma0.3_l2_state_seed0.pt"]
+
+
+def test_files_written_before_kl_divisor_was_renamed_still_load_and_merge():
+    """``PretrainConfig.kl_samples`` became ``kl_divisor`` (it divides the KL; it counts nothing). The shipped
+    checkpoints still record the old name: they load with the new one, and a results record that holds the old
+    name is the same experiment as one with the new."""
+    from vdtutorial.experiments.checkpoints import load_checkpoint
+    from vdtutorial.experiments.results import with_defaults
+    path = checkpoint_path(Demos.load(demo_path("reach", 8000, 0.5, 0)).meta, "vd", "state", 0)
+    assert "kl_samples" in torch.load(path, weights_only=True)["meta"]["config"]  # as shipped
+    config = load_checkpoint(path, kl_divisor=None).pretrain_info["config"]
+    assert "kl_samples" not in config and PretrainConfig(**config).kl_divisor is None
+    old, new = {"kl_samples": 7200, "epochs": 40}, {"kl_divisor": 7200, "epochs": 40}
+    names = set(old) | set(new)
+    assert with_defaults("pretrain_config", old, names) == with_defaults("pretrain_config", new, names)
+    assert with_defaults("pretrain_config", old, names) != with_defaults("pretrain_config", {**new, "kl_divisor": 1}, names)

@@ -9,7 +9,8 @@ import pytest
 
 from vdtutorial.course import install_check
 from vdtutorial.course.chapters import EditedFilesError, shipped_files, write_notebooks
-from vdtutorial.settings import BOOK_RECORD, data_dir, recorded_path
+from vdtutorial.experiments.paths import recorded_path
+from vdtutorial.settings import BOOK_RECORD, data_dir
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -56,7 +57,7 @@ def test_the_command_refuses_in_one_line(tmp_path, capsys):
 
 def test_chapters_run_from_a_written_folder_read_and_write_there(tmp_path):
     write_notebooks(tmp_path / "book")
-    where = subprocess.run([sys.executable, "-c", "from vdtutorial import settings as s; print(s.data_dir()); print(s.runs_dir())"],
+    where = subprocess.run([sys.executable, "-c", "from vdtutorial.experiments import paths as p; print(p.data_dir()); print(p.runs_dir())"],
                            cwd=tmp_path / "book" / "notebooks", capture_output=True, text=True, check=True).stdout.split()
     assert [Path(p) for p in where] == [tmp_path / "book" / "data", tmp_path / "book" / "runs"]
 

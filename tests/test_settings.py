@@ -15,6 +15,7 @@ import pytest
 
 import vdtutorial
 from vdtutorial import settings
+from vdtutorial.experiments import paths
 
 PACKAGE_DIR = Path(vdtutorial.__file__).parent
 #: The settings that are read when called: a call at import would freeze the value of that moment.
@@ -126,20 +127,20 @@ def test_the_settings_module_holds_constants_only():
     """The mode and the folders are functions: a value stored at import would be the one a learner's switch misses."""
     stored = {name for name, value in vars(settings).items()
               if not name.startswith("__") and not callable(value) and not isinstance(value, type(os))}
-    assert stored == {"QUICK_ENV", "DATA_ENV", "RUNS_ENV", "BOOK_RECORD", "_PACKAGE", "_INSTALLED_COPY", "annotations"}
+    assert stored == {"QUICK_ENV", "DATA_ENV", "BOOK_RECORD", "_PACKAGE", "INSTALLED_COPY", "annotations"}
 
 
 def test_the_folders_follow_the_working_directory_and_the_variables(tmp_path, monkeypatch):
     monkeypatch.delenv(settings.DATA_ENV, raising=False)
-    monkeypatch.delenv(settings.RUNS_ENV, raising=False)
+    monkeypatch.delenv(paths.RUNS_ENV, raising=False)
     shipped = settings.data_dir()
     (tmp_path / "book" / "notebooks").mkdir(parents=True)
     (tmp_path / "book" / settings.BOOK_RECORD).write_text("{}")
     monkeypatch.chdir(tmp_path / "book" / "notebooks")  # a chapter run from a folder written by `notebooks DEST`
-    assert (settings.data_dir(), settings.runs_dir()) == (tmp_path / "book" / "data", tmp_path / "book" / "runs")
+    assert (settings.data_dir(), paths.runs_dir()) == (tmp_path / "book" / "data", tmp_path / "book" / "runs")
     monkeypatch.setenv(settings.DATA_ENV, str(tmp_path / "elsewhere"))
-    monkeypatch.setenv(settings.RUNS_ENV, str(tmp_path / "out"))
-    assert (settings.data_dir(), settings.runs_dir()) == (tmp_path / "elsewhere", tmp_path / "out")
+    monkeypatch.setenv(paths.RUNS_ENV, str(tmp_path / "out"))
+    assert (settings.data_dir(), paths.runs_dir()) == (tmp_path / "elsewhere", tmp_path / "out")
     monkeypatch.delenv(settings.DATA_ENV)
     monkeypatch.chdir(tmp_path)
     assert settings.data_dir() == shipped

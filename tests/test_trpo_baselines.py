@@ -6,12 +6,17 @@ import pytest
 import torch
 from gymnasium import spaces
 
-from vdtutorial.baselines import MLPBaseline
+from vdtutorial.beyond.value_baseline import MLPBaseline, value_baseline
 from vdtutorial.rollout import make_vec_env
 from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig
 from test_trpo import LinearPolicy, PointReach
 
 MLP_CONFIG = TRPOConfig(steps_per_iter=40, baseline="mlp", critic_batch_size=16, bootstrap_time_limits=True)
+
+
+def mlp_trpo(seed: int) -> TRPO:
+    env = make_vec_env(lambda: PointReach(), 2)
+    return TRPO(LinearPolicy(), env, MLP_CONFIG, seed=seed, baseline=value_baseline(MLP_CONFIG, env, seed))
 
 
 def test_critic_fits_returns_on_a_toy_batch():
@@ -40,7 +45,7 @@ def test_config_validates_the_baseline_fields():
 def test_critic_state_survives_save_load_and_the_run_resumes_exactly(tmp_path):
     def fresh(seed_of_init):
         torch.manual_seed(seed_of_init)
-        return TRPO(LinearPolicy(), make_vec_env(lambda: PointReach(), 2), MLP_CONFIG, seed=7)
+        return mlp_trpo(7)
 
     full = fresh(0)
     full_rows = full.run(4 * 40, progress=False)
@@ -75,7 +80,7 @@ def test_checkpoint_written_before_the_critic_fields_existed_still_loads(tmp_pat
     resumed.load(tmp_path / "old.pt")
     assert resumed.iteration_index == 1
     with pytest.raises(ValueError, match="different seed or config"):  # but a critic run cannot resume it
-        TRPO(LinearPolicy(), make_vec_env(lambda: PointReach(), 2), MLP_CONFIG, seed=1).load(tmp_path / "old.pt")
+        mlp_trpo(1).load(tmp_path / "old.pt")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -119,8 +124,7 @@ def test_time_limit_bootstrap_uses_v_of_the_final_observation_only_where_truncat
                                          autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
     gamma = 0.5
     config = TRPOConfig(steps_per_iter=9, gamma=gamma, gae_lambda=1.0, baseline="mlp", bootstrap_time_limits=bootstrap)
-    algo = TRPO(LinearPolicy(), env, config, seed=0)
-    algo.baseline = KnownValue()
+    algo = TRPO(LinearPolicy(), env, config, seed=0, baseline=KnownValue())
     batch = algo.collect()
     # With lambda = 1 the value network's targets A + V are the discounted returns, bootstrapped
     # with gamma * V(final observation) = 0.5 * 13 after a time limit (and with 0 after a termination).
@@ -129,3 +133,11 @@ def test_time_limit_bootstrap_uses_v_of_the_final_observation_only_where_truncat
     expected = np.array([[plain[t], bootstrapped[t] if bootstrap else plain[t], plain[t]] for t in range(3)])
     np.testing.assert_allclose(batch.returns, expected.reshape(-1))  # time-major: (t, env)
     assert batch.episode_returns == [3.0, 3.0, 3.0]  # the logged returns are the rewards only
+
+
+def test_a_value_network_config_without_the_network_is_refused_with_where_to_find_it():
+    """The core builds only the paper's linear baseline; the network lives beside it (vdtutorial.beyond)."""
+    with pytest.raises(ValueError, match=r"is a value network: pass TRPO\(baseline=vdtutorial.beyond.value_baseline"):
+        TRPO(LinearPolicy(), make_vec_env(lambda: PointReach(), 2), MLP_CONFIG, seed=0)
+    algo = mlp_trpo(0)
+    assert isinstance(algo.baseline, MLPBaseline) and algo.baseline.net[0].in_features == PointReach().observation_space.shape[0]

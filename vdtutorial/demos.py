@@ -6,10 +6,9 @@ moves (eq. 7), and every visited state is paired with the *noiseless* expert act
 spreads the visited states around the expert's path, so the cloned policy sees how to come back when
 it drifts; the labels stay the expert's own decisions.
 
-A data set stores low-dimensional states (6 joint angles + cup position) and actions, not images:
-an RGBD observation is a deterministic function of the state (the camera is fixed), so
-:meth:`Demos.observations` re-renders it on demand. This keeps ``data/`` small (tens of kB per
-thousand samples instead of ~256 kB per 128x128 RGBD image).
+A data set stores low-dimensional states (6 joint angles + cup position) and actions, not images: an
+RGBD observation is a deterministic function of the state (the camera is fixed), so
+:meth:`Demos.observations` re-renders it on demand, and ``data/`` stays small.
 
 Files are zip archives of ``.npy`` arrays plus a JSON metadata record, written with fixed timestamps
 (same seed -> byte-identical file) and atomically (written aside, then renamed).
@@ -91,10 +90,8 @@ class Demos:
         return np.concatenate([self.joints, self.cup], axis=1).astype(np.float32)
 
     def observations(self, env: gym.Env, indices=None, depth_dtype=np.float32, progress: bool = False):
-        """Re-render the ``rgbd`` observations of the given samples in ``env`` (same task, ``obs_mode="rgbd"``).
-
-        Returns a dict of stacked arrays, as a batch of the env's observations, written into arrays made once.
-        ``depth_dtype``: float16 halves the memory of a whole data set's depth images (pre-training)."""
+        """Re-render the ``rgbd`` observations of the given samples in ``env`` (same task, ``obs_mode="rgbd"``)
+        as one batch (a dict of arrays). ``depth_dtype``: float16 halves the memory of a data set's depth."""
         base = env.unwrapped
         idx = np.arange(len(self)) if indices is None else np.asarray(indices)
         batch = {}
@@ -103,16 +100,6 @@ class Demos:
                 dtype = depth_dtype if key == "depth" else np.asarray(value).dtype
                 batch.setdefault(key, np.empty((len(idx), *np.shape(value)), dtype))[k] = value
         return batch
-
-    @classmethod
-    def concatenate(cls, parts: list["Demos"], meta: dict) -> "Demos":
-        """One data set from several collected one after another (the rounds of DART or DAgger), with
-        episode numbers shifted so that episodes of different parts stay distinct: the held-out split
-        holds out whole episodes."""
-        offsets = np.cumsum([0] + [int(part.episode.max()) + 1 if len(part) else 0 for part in parts[:-1]])
-        arrays = {name: np.concatenate([getattr(part, name) for part in parts]) for name in ARRAYS}
-        arrays["episode"] = np.concatenate([part.episode + offset for part, offset in zip(parts, offsets)]).astype(np.int32)
-        return cls(meta=dict(meta), **arrays)
 
     # -- files ---------------------------------------------------------------------------------------
     def save(self, path) -> Path:
@@ -163,8 +150,8 @@ _NAME = re.compile(DATA_SET_PATTERN + r"_seed(?P<seed>\d+)\.npz")
 
 
 def _regenerate_hint(path: Path, meta: dict) -> str:
-    """The command that makes ``path`` again, with the real task, size, Sigma and seed: taken from the
-    file's metadata or the caller's expectations, else from the conventional file name."""
+    """The command that makes ``path`` again, with the task, size, Sigma and seed of the file's metadata or the
+    caller's expectations, else of the conventional file name."""
     keys = ("task", "samples", "noise", "seed")
     values = dict(meta)
     match = _NAME.fullmatch(path.name)

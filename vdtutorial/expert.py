@@ -1,25 +1,23 @@
-"""The inverse-kinematics expert of Section V: the set G of goal configurations (eq. 9) and the
-expert's action (eq. 10).
+"""Section V's inverse-kinematics expert: the set G of goal configurations (eq. 9) and the expert's action (eq. 10).
 
-For each cup position we solve inverse kinematics from several start poses and for several hand
-orientations, keep the solutions that are within the joint limits, collision-free and put the hand
-where the task wants it, and drop near-duplicates: that is G. The expert then heads for the member of
-G nearest in L1 (eq. 9) along a straight joint-space line, moving the joint that has furthest to go by
-pi/5 (eq. 10).
+For each cup position we solve inverse kinematics from several start poses and hand orientations, keep the solutions
+that are within the joint limits, collision-free and put the hand where the task wants it, and drop near-duplicates:
+that is G. The expert heads for the member of G nearest in L1 (eq. 9) along a straight joint-space line, moving the
+joint that has furthest to go by pi/5 (eq. 10).
 
-Why pybullet's IK and not our own: ``calculateInverseKinematics`` is a damped-least-squares solver in
-C++; called from several rest poses with null-space limits it returns distinct arm postures (elbow and
-wrist variants) for the same hand pose, fast. We refine each answer by re-solving from it a
-few times and then *verify* it with forward kinematics, so the solver's approximations never reach G.
+Why pybullet's IK and not our own: ``calculateInverseKinematics`` is a fast damped-least-squares solver in C++;
+called from several rest poses with null-space limits it returns distinct arm postures (elbow and wrist variants) for
+the same hand pose. We refine each answer by re-solving from it a few times and then *verify* it with forward
+kinematics, so the solver's approximations never reach G.
 
 Two changes to eq. 10 taken literally, both needed to reach the goal:
 
-* Overshoot. Eq. 10 always moves the furthest joint by exactly pi/5, so once the arm is closer than
-  pi/5 to g* it jumps past it and oscillates. We take ``min(1, (pi/5) / max_i |g*_i - j_i|)`` of the
-  difference instead: the paper's step far away, the exact remaining difference near the goal.
-* Wrap-around. Joints 1, 4 and 6 of the Jaco turn without end (we bound them to +-2 pi). A goal angle
-  g_i and g_i +- 2 pi are the same posture, so eq. 9's L1 distance is taken to the nearest equivalent
-  angle within the limits, and eq. 10 moves towards that one.
+* Overshoot. Eq. 10 always moves the furthest joint by exactly pi/5, so once the arm is closer than pi/5 to g* it
+  jumps past it and oscillates. We take ``min(1, (pi/5) / max_i |g*_i - j_i|)`` of the difference instead: the
+  paper's step far away, the exact remaining difference near the goal.
+* Wrap-around. Joints 1, 4 and 6 of the Jaco turn without end (we bound them to +-2 pi). A goal angle g_i and
+  g_i +- 2 pi are the same posture, so eq. 9's L1 distance is taken to the nearest equivalent angle within the
+  limits, and eq. 10 moves towards that one.
 
 Taught in chapter 02.
 """
@@ -133,15 +131,13 @@ def solution_set(scene: JacoScene, targets) -> np.ndarray:
 
 
 def reach_targets(cup_position, n_roll: int = 4, tilts_deg=(-35.0, 0.0, 60.0)):
-    """Hand poses over the cup: hand centre at the reach goal, approach axis pointing down, tilted
-    towards the base (cups near the base need it: the wrist's joint 5 cannot bend far enough to point
-    straight down there) or away from it (a folded-elbow posture), each turned about the approach axis.
+    """Hand poses over the cup: hand centre at the reach goal, approach axis pointing down, tilted towards the base
+    (near the base the wrist's joint 5 cannot bend far enough to point straight down) or away from it (a folded elbow).
 
-    Wrist-roll variants in G (reaching): the hand is also turned about its approach axis in ``n_roll`` steps
-    (default 4 of 90 degrees). The hand centre lies on joint 6's axis, so the roll cannot change success; it
-    gives eq. 9 more goals and a faster expert, and the paper asks for "several distinct valid joint
-    configurations". What the variants change: docs/results.md, "Measurements behind the code".
-    """
+    Wrist-roll variants in G (reaching): each pose is also turned about its approach axis in ``n_roll`` steps (default
+    4 of 90 degrees). The hand centre lies on joint 6's axis, so the roll cannot change success; it gives eq. 9 more
+    goals and a faster expert, and the paper asks for "several distinct valid joint configurations". What the
+    variants change: docs/results.md, "Measurements behind the code"."""
     goal = reach_goal(cup_position)
     out = np.array([goal[0], goal[1], 0.0]) / np.hypot(goal[0], goal[1])
     for tilt in np.radians(tilts_deg):
@@ -164,12 +160,9 @@ def grasp_targets(cup_position, standoff: float = GRASP_STANDOFF, azimuths_deg=(
 
 
 def nearest_equivalent(g, j, lower, upper) -> np.ndarray:
-    """``g`` with each continuous joint shifted by the multiple of 2 pi that brings it nearest to ``j``
-    while staying within the limits; ``g`` unchanged where no shifted copy is within them.
-
-    The distance |g + 2 pi k - j| is convex in k, so the best k within the limits is the unconstrained
-    one, round((j - g) / 2 pi), clipped to the range of k that keeps g + 2 pi k within the limits.
-    """
+    """``g`` with each continuous joint shifted by the multiple of 2 pi that brings it nearest to ``j`` within the
+    limits, and left as it is where no shifted copy is within them. |g + 2 pi k - j| is convex in k, so the best k
+    is the unconstrained round((j - g) / 2 pi), clipped to the range of k that keeps g + 2 pi k within the limits."""
     g = np.array(g, dtype=np.float64)
     j, lower, upper = (np.asarray(x, dtype=np.float64) for x in (j, lower, upper))
     turn = 2 * math.pi
@@ -195,18 +188,13 @@ def step_towards(goal: np.ndarray, j: np.ndarray) -> np.ndarray:
 
 @dataclass
 class IKExpert:
-    """pi_exp for one episode of a Jaco environment: call :meth:`reset` after ``env.reset`` (it builds
-    G for the episode's cup), then :meth:`action` for any state of that episode.
-
-    The action is a function of the state alone (eq. 8 pairs each state with pi_exp(s)): the joint
-    angles and the cup (through G) decide it, never the states visited before. For grasping
-    (Section V-B) the expert follows eqs. 9-10 towards pre-grasp poses d_g away from the cup; in a state
-    whose hand is within :data:`FINAL_APPROACH_DISTANCE` of the grasp point and points at it (within
-    :data:`FINAL_APPROACH_ANGLE_DEG`), it solves IK for the grasp point with the hand's current
-    orientation, starting from the current joints, and, if that answer is valid and collision-free,
-    heads there instead. Because the IK is solved afresh in every such state, two visits of the same
-    state get the same label.
-    """
+    """pi_exp for one episode of a Jaco environment: call :meth:`reset` after ``env.reset`` (it builds G for the
+    episode's cup), then :meth:`action` for any state of that episode. The action is a function of the state alone
+    (eq. 8 pairs each state with pi_exp(s)): the joint angles and the cup (through G) decide it, never the states
+    visited before. For grasping (Section V-B) the expert follows eqs. 9-10 towards pre-grasp poses d_g away from the
+    cup and, once the hand is near the grasp point and points at it, heads for the grasp configuration of
+    :meth:`final_goal` instead. That IK is solved afresh in every such state, so two visits of the same state get the
+    same label."""
 
     env: JacoEnv
 
@@ -222,9 +210,8 @@ class IKExpert:
         return self.G
 
     def goal(self, joints=None) -> np.ndarray | None:
-        """g*(s) for the state whose joint angles are ``joints`` (default: the env's current ones): the
-        final grasp configuration in the grasping task's final approach, else eq. 9's nearest member of
-        G; None if G is empty."""
+        """g*(s) for the state with joint angles ``joints`` (default: the env's current ones): the final grasp
+        configuration in the grasping task's final approach, else eq. 9's nearest member of G; None if G is empty."""
         j = self.scene.joints.copy() if joints is None else np.asarray(joints, dtype=np.float64)
         if len(self.G) == 0:
             return None
@@ -238,9 +225,9 @@ class IKExpert:
         return np.zeros(N_JOINTS) if goal is None else step_towards(goal, j)
 
     def final_goal(self, joints) -> np.ndarray | None:
-        """Grasp phase (Section V-B): if the hand at ``joints`` is within :data:`FINAL_APPROACH_DISTANCE`
-        of the grasp point and points at it, the IK answer for the grasp point with the current hand
-        orientation; None otherwise, or if that answer is invalid or in collision."""
+        """Grasp phase (Section V-B): if the hand at ``joints`` is within :data:`FINAL_APPROACH_DISTANCE` of the grasp
+        point and points at it (within :data:`FINAL_APPROACH_ANGLE_DEG`), the IK answer from ``joints`` for the grasp
+        point at the current hand orientation; None otherwise, or if that answer is invalid or in collision."""
         j = np.asarray(joints, dtype=np.float64)
         saved = self.scene.joints.copy()
         self.scene.set_joints(j)

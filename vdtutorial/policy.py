@@ -12,11 +12,6 @@ Network kinds (``PolicyNet``), chosen from the observation space by :func:`make_
     TRPO), followed by the same final layer.
 Every layer is a plain or a sparse variational dropout layer according to one flag, ``variational``.
 
-Sparsity
-    ``analysis.sparsity.sparsity_report(policy.mu).neuron_fraction`` is the number to compare with the
-    paper's Table I (pre-training sparsifies ``mu`` only); ``analysis.compact.compact(policy.mu)`` gives the
-    pruned network as a small plain one.
-
 Taught in chapter 05.
 """
 from __future__ import annotations
@@ -46,8 +41,7 @@ HEAD_INIT_SCALE = 0.1
 
 
 def map_obs(fn, obs):
-    """``fn`` applied to a batch of observations: to the array or tensor itself, or to each entry of a dict of
-    them (gymnasium's Dict observations, e.g. the image policy's "rgb", "depth" and "joints")."""
+    """``fn`` applied to a batch of observations: the array or tensor, or each entry of a Dict observation."""
     return {key: fn(value) for key, value in obs.items()} if isinstance(obs, dict) else fn(obs)
 
 
@@ -64,18 +58,15 @@ def _as_tensor(x, device):
 
 
 def obs_to_tensor(obs, device: torch.device | str | None = None):
-    """Tensor(s) from a numpy array, a tensor, or a dict of either (gymnasium Dict observations):
-    uint8 images stay uint8 (4x less memory in a rollout batch, and in a copy to a GPU; the network scales
-    them), anything else becomes float32. ``device``: where the tensors go (None: where they are, a numpy
-    array's on the CPU)."""
+    """Tensor(s) from a numpy array, a tensor, or a dict of either: uint8 images stay uint8 (4x less memory;
+    the network scales them), anything else becomes float32. ``device``: where they go (None: where they are)."""
     return map_obs(lambda x: _as_tensor(x, device), obs)
 
 
 def torch_device(name: torch.device | str, option: str = "device") -> torch.device:
     """``name`` ("cpu", "cuda", "cuda:1", or a torch.device) as a ``torch.device`` this machine can run, else a
-    ValueError that says why in one line, naming the ``option`` that asked for it (the command line passes
-    "--device"). Only pre-training and TRPO's update run on a GPU; the package is CPU-first (the environments,
-    rollouts and checkpoints stay on the CPU)."""
+    one-line ValueError naming ``option`` (the command line's "--device"). Only pre-training and TRPO's update
+    run on a GPU; environments, rollouts and checkpoints stay on the CPU."""
     try:
         device = torch.device(name)
     except RuntimeError:
@@ -92,9 +83,8 @@ def torch_device(name: torch.device | str, option: str = "device") -> torch.devi
 @contextmanager
 def on_device(module: nn.Module, device: torch.device):
     """Run the ``with`` block with ``module`` on ``device``, then move it back to the CPU (also after an error).
-    ``Module.to`` keeps the same Parameter objects (only their data moves; unless
-    ``torch.__future__.set_overwrite_module_params_on_conversion(True)``), so lists of a module's parameters made
-    before, such as TRPO's, stay valid; on the CPU it changes nothing."""
+    ``Module.to`` keeps the same Parameter objects (only their data moves), so lists of a module's parameters
+    made before, such as TRPO's, stay valid."""
     module.to(device)
     try:
         yield module
@@ -108,11 +98,7 @@ def _is_unbatched(obs) -> bool:
 
 
 def image_shape(obs_shape: dict) -> tuple[int, int]:
-    """(channels, side) of the network's input image. ``obs_shape`` has ``"rgb"`` (3, S, S) and
-    ``"depth"`` (S * S, flattened) entries, or, in checkpoints made before the environments split the image by dtype, one
-    4-channel ``"rgbd"`` entry: both describe the same 4-channel network input."""
-    if "rgbd" in obs_shape:
-        return obs_shape["rgbd"][0], obs_shape["rgbd"][-1]
+    """(channels, side) of the network's input image: ``obs_shape["rgb"]`` is (3, S, S), plus one depth channel."""
     return obs_shape["rgb"][0] + 1, obs_shape["rgb"][-1]
 
 
@@ -154,12 +140,11 @@ class PolicyNet(nn.Module):
     scene_hidden: units of the fully connected layers of the scene stream; joint_hidden: of the joint stream.
 
     Input normalisation (inside the network, so checkpoints carry it)
-        RGB (uint8 from the environments) / 255 and depth / ``DEPTH_SCALE`` (the environments' 3 m camera
-        far plane), both in [0, 1], are stacked into one 4-channel image and shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and continuous
-        across the +-pi wrap of continuous joints. Other vector inputs (the cup position, a generic Box) are
-        mapped from the observation space's bounds to [-1, 1]; dimensions with infinite or zero-width bounds
-        pass through unchanged. :mod:`vdtutorial.fast.policy` normalises a batch once for both networks, for
-        code that evaluates the policy on one batch many times (TRPO's update in the experiments).
+        RGB (uint8) / 255 and depth / ``DEPTH_SCALE`` (the camera's 3 m far plane), both in [0, 1], are stacked
+        into one 4-channel image and shifted by -0.5. Joint angles enter as (sin, cos) pairs: bounded, and
+        continuous across the +-pi wrap of continuous joints. Other vector inputs (the cup position, a generic
+        Box) are mapped from the space's bounds to [-1, 1]; dimensions with infinite or zero-width bounds pass
+        through unchanged. (:mod:`vdtutorial.fast.policy` normalises a batch once for both networks.)
 
     Sizes: the paper does not give its layer sizes. The defaults are 8/16/16 channels with kernels 8/4/3 and
         strides 4/2/2 (128 -> 31 -> 14 -> 6 pixels, 576 features), then 64-64-32 units in each stream, sized

@@ -50,8 +50,7 @@ SIGMA_FITS = ("demos", "spread")
 
 
 def sigma_option(value: str | float) -> str:
-    """How a config spells an initial-sigma option: a fixed sigma as its number (``0.30`` -> ``"0.3"``) or the
-    name of a fit."""
+    """How a config spells an initial-sigma option: a fixed sigma's number (``0.30`` -> ``"0.3"``) or a fit's name."""
     if value in SIGMA_FITS:
         return value
     try:
@@ -71,6 +70,8 @@ def set_fixed_sigma(policy: GaussianPolicy, value: float) -> dict:
         raise ValueError(f"a fixed sigma must exceed the policy's floor min_std = {policy.min_std}, got {value}")
     policy.sigma.head[0].bias.fill_(math.log(math.expm1(value - policy.min_std)))
     return {"kind": "fixed", "value": value}
+
+
 @dataclass
 class PretrainConfig:
     """Hyperparameters of behavioural cloning.
@@ -83,20 +84,17 @@ class PretrainConfig:
     l2: weight-decay coefficient of the L2 baseline (L2 only).
     val_fraction: fraction of the episodes held out.
     image_size: camera image side for ``obs_mode="rgbd"``.
-    kl_samples: the N that divides the KL term of the ELBO (VD only). Eq. 3 sums the likelihood over
-        the N samples of D and adds the KL once, so per sample the KL weighs 1/N: ``None`` (the
-        default) uses this data set's own training-split size, as eq. 3 reads. A fixed number (e.g. the
-        largest set's N for every set) keeps the prior's weight per sample the same across data sets of
-        different sizes, so that Table I's rows differ only by their data; the paper does not say which
-        it used (see ``experiments.table1``).
+    kl_divisor: the N that divides the KL term of the ELBO (VD only). Eq. 3 sums the likelihood over the N
+        samples of D and adds the KL once, so per sample the KL weighs 1/N: ``None`` (the default) takes the
+        training split's size, as eq. 3 reads. A fixed number keeps the prior's weight per sample the same
+        across data sets of different sizes (Table I); the paper does not say which it used.
     initial_sigma: sigma at the start of RL, set after mu is cloned: a number (option (a), that fixed sigma;
         default: the paper's 0.3), or a fit, "demos" (b) or "spread" (c), which
         :func:`vdtutorial.beyond.initial_sigma.pretrain_with_sigma` runs. It does not change mu.
     patience: stop on the held-out loss. ``None`` (the default, the shipped checkpoints' setting): run all
-        ``epochs``. A number P: ``epochs`` becomes a cap, and cloning stops once the held-out MSE of the mean
-        action has not improved for P epochs; mu is then the best epoch's. For VD the count starts when the KL
-        warm-up is over (before it, the objective itself is still changing). The paper does not say how long
-        it cloned.
+        ``epochs``. A number P: ``epochs`` becomes a cap, and cloning stops once the held-out MSE of the mean action
+        has not improved for P epochs; mu is then the best epoch's. For VD the count starts when the KL warm-up is
+        over (before it, the objective itself is still changing). The paper does not say how long it cloned.
     """
 
     reg: str = "vd"
@@ -108,7 +106,7 @@ class PretrainConfig:
     l2: float = 1e-4
     val_fraction: float = 0.1
     image_size: int = 128
-    kl_samples: int | None = None
+    kl_divisor: int | None = None
     initial_sigma: str = PAPER_SIGMA_OPTION
     patience: int | None = None
 
@@ -122,8 +120,8 @@ class PretrainConfig:
             raise ValueError(f"obs_mode must be 'state' or 'rgbd', got {self.obs_mode!r}")
         if self.epochs < 1 or self.batch_size < 1 or not 0 <= self.val_fraction < 1:
             raise ValueError("epochs and batch_size must be >= 1 and val_fraction in [0, 1)")
-        if self.kl_samples is not None and self.kl_samples < 1:
-            raise ValueError(f"kl_samples must be None or a positive integer, got {self.kl_samples!r}")
+        if self.kl_divisor is not None and self.kl_divisor < 1:
+            raise ValueError(f"kl_divisor must be None or a positive integer, got {self.kl_divisor!r}")
         if self.patience is not None and (self.patience < 1 or self.val_fraction == 0):
             raise ValueError(f"patience must be None or a positive integer, with a held-out split (val_fraction > 0); "
                              f"got patience={self.patience!r}, val_fraction={self.val_fraction!r}")
@@ -193,9 +191,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     ``config.initial_sigma`` (:func:`set_fixed_sigma`). Returns the policy (in eval mode, sigma trainable again;
     a VD policy is not yet pruned: call ``policy.prune_()`` to start RL) and one log row per epoch.
     ``observations`` may pass inputs already made by :func:`demo_observations`. ``device``: where the cloning
-    runs (:func:`vdtutorial.policy.torch_device`; "cuda" for a GPU): the policy and each minibatch move there,
-    and the policy comes back to the CPU before sigma is set, so it is returned on the CPU. A GPU gives the
-    same computation up to floating-point rounding (and other random draws for VD's weight noise).
+    runs ("cuda": a GPU, the same computation up to rounding); the policy is returned on the CPU.
 
     Both use Adam, minibatches of ``batch_size``, a held-out split by whole episodes (samples of one
     trajectory are strongly correlated; splitting by sample would leak), and log per epoch the training
@@ -237,7 +233,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
                 nll = -policy.log_prob(o, a).mean()
                 if cfg.reg == "vd":
                     beta = min(1.0, step / max(1.0, cfg.beta_warmup * total_steps))
-                    loss = nll + beta * model_kl(policy.mu) / (cfg.kl_samples or n_train)
+                    loss = nll + beta * model_kl(policy.mu) / (cfg.kl_divisor or n_train)
                 else:
                     loss = nll + cfg.l2 * sum((w ** 2).sum() for w in weights)
                 optimiser.zero_grad()

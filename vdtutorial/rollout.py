@@ -1,7 +1,6 @@
-"""Step 1 of TRPO, collecting: the policy run in a vector environment for one batch (:func:`rollout`), and
-the vector environment it needs (:func:`make_vec_env`). Every iteration resets the environments and draws
-its action noise from seeds of (run seed, iteration) alone (:func:`iteration_seeds`), so a run resumed from
-a checkpoint continues exactly.
+"""Step 1 of TRPO, collecting: the policy run in a vector environment for one batch (:func:`rollout`), and the vector
+environment it needs (:func:`make_vec_env`). Every iteration resets the environments and draws its action noise from
+seeds of (run seed, iteration) alone (:func:`iteration_seeds`), so a run resumed from a checkpoint continues exactly.
 
 Taught in chapter 06b.
 """
@@ -21,15 +20,13 @@ from vdtutorial.policy import obs_to_tensor, stack_obs
 
 def make_vec_env(env: str | Callable[[], gymnasium.Env], num_envs: int = 1, asynchronous: bool = False,
                  **make_kwargs) -> gymnasium.vector.VectorEnv:
-    """A vector environment with same-step autoreset, as TRPO expects.
+    """A vector environment with same-step autoreset, as TRPO expects. ``env`` is a registered id (made with
+    ``gymnasium.make(env, **make_kwargs)``) or a function returning an environment; ``asynchronous=True`` runs each
+    copy in its own process.
 
-    ``env`` is a registered id (made with ``gymnasium.make(env, **make_kwargs)``) or a function
-    returning an environment. ``asynchronous=True`` runs each copy in its own process.
-
-    Why same-step: gymnasium >= 1.0 autoresets a finished sub-environment either on the same step (its
-    final observation and info go into ``info["final_obs"]`` / ``info["final_info"]``) or on the next
-    step (which then ignores the action). With ``AutoresetMode.SAME_STEP`` every step of a batch is a
-    real transition.
+    Why same-step: gymnasium >= 1.0 autoresets a finished sub-environment either on the same step (its final
+    observation and info go into ``info["final_obs"]`` / ``info["final_info"]``) or on the next step (which then
+    ignores the action). With ``AutoresetMode.SAME_STEP`` every step of a batch is a real transition.
     """
     make = (lambda: gymnasium.make(env, **make_kwargs)) if isinstance(env, str) else env
     vector_cls = gymnasium.vector.AsyncVectorEnv if asynchronous else gymnasium.vector.SyncVectorEnv
@@ -47,9 +44,8 @@ def check_vec_env(env: gymnasium.vector.VectorEnv, steps_per_iter: int) -> None:
 
 
 def iteration_seeds(seed: int, iteration: int, num_envs: int) -> tuple[list[int], int]:
-    """Environment reset seeds and the action-noise seed of one iteration. Every iteration starts by
-    resetting the vector environment with the first and drawing its action noise (and its Fisher
-    subsample) from a generator seeded with the second, so no generator state outlives an iteration."""
+    """One iteration's environment reset seeds, and the seed of the generator for its action noise (and its Fisher
+    subsample): each iteration starts afresh from both, so no generator state outlives an iteration."""
     state = np.random.SeedSequence([seed, iteration]).generate_state(num_envs + 1)
     return [int(s) for s in state[:-1]], int(state[-1])
 
@@ -78,11 +74,10 @@ class Rollout:
 
 def rollout(policy: nn.Module, env: gymnasium.vector.VectorEnv, steps_per_env: int, env_seeds: list[int],
             generator: torch.Generator, keep_time_limit_ends: bool = False) -> Rollout:
-    """Step 1: reset ``env`` with ``env_seeds`` and run ``policy`` for ``steps_per_env`` vector steps, one
-    policy forward per step, the action noise drawn from ``generator`` and the actions clipped to the
-    action space. An episode that ends is reset in the same step; the trajectories still running at the
-    end are cut off there. ``keep_time_limit_ends`` records the episodes that a time limit ended, with
-    their final observations (for ``TRPOConfig.bootstrap_time_limits``)."""
+    """Step 1: reset ``env`` with ``env_seeds`` and run ``policy`` for ``steps_per_env`` vector steps, one policy
+    forward per step, the action noise drawn from ``generator`` and the actions clipped to the action space. An episode
+    that ends is reset in the same step; those still running at the end are cut off. ``keep_time_limit_ends`` records
+    the episodes that a time limit ended, with their final observations (for ``TRPOConfig.bootstrap_time_limits``)."""
     n, space = env.num_envs, env.single_action_space
     obs, _ = env.reset(seed=env_seeds)
     t = np.zeros(n, dtype=np.int64)        # step within the current episode, per env
@@ -93,8 +88,7 @@ def rollout(policy: nn.Module, env: gymnasium.vector.VectorEnv, steps_per_env: i
     for k in range(steps_per_env):
         with torch.no_grad():  # one policy forward for all sub-environments
             dist = policy.distribution(obs_to_tensor(obs))
-            action = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=generator,
-                                                          dtype=dist.mean.dtype)
+            action = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=generator, dtype=dist.mean.dtype)
         next_obs, reward, terminated, truncated, info = env.step(np.clip(action.numpy(), space.low, space.high))
         done = terminated | truncated
         observations.append(obs)

@@ -1,11 +1,9 @@
-"""The quick switch and the folders, each read when a run asks for it.
+"""The quick switch and the data folder, each read when a run asks for it.
 
-``VDTUTORIAL_QUICK=1`` (set by CI) shrinks every budget -- samples, epochs, seeds, RL steps -- so that
-a run goes through the same code path end to end in seconds instead of hours. Library code never reads
-the environment variable itself: it calls :func:`budget` with the full-scale value and the quick one when a
-run starts. Nothing here is decided at import: the mode, the data folder and the output folder are looked
-up on every call, so :func:`use_quick` (or a changed working directory or variable) reaches every run
-made after it, in the same kernel.
+``VDTUTORIAL_QUICK=1`` (set by CI) shrinks every budget -- samples, epochs, seeds, RL steps -- so that a run goes
+through the same code path end to end in seconds instead of hours. Library code never reads the variable itself: it
+calls :func:`budget` with the full-scale value and the quick one when a run starts. Nothing is decided at import,
+so :func:`use_quick` (or a changed working directory or variable) reaches every run made after it, in the same kernel.
 
 Taught in chapter 00.
 """
@@ -16,13 +14,13 @@ from pathlib import Path
 
 #: The environment variable behind the switch (CI and ``classroom grade`` set it for the kernels they start).
 QUICK_ENV = "VDTUTORIAL_QUICK"
-#: The variables that move the data folder and the output folder elsewhere.
-DATA_ENV, RUNS_ENV = "VDTUTORIAL_DATA", "VDTUTORIAL_RUNS"
+#: The variable that moves the data folder elsewhere.
+DATA_ENV = "VDTUTORIAL_DATA"
 #: The file that marks a folder written by ``python -m vdtutorial notebooks DEST`` (:mod:`vdtutorial.course.chapters`).
 BOOK_RECORD = "vdtutorial-book.json"
 _PACKAGE = Path(__file__).resolve().parent
 #: The copy of the chapters and data inside an installed package (the wheel carries them there).
-_INSTALLED_COPY = _PACKAGE / "book"
+INSTALLED_COPY = _PACKAGE / "book"
 
 
 def is_quick() -> bool:
@@ -31,12 +29,9 @@ def is_quick() -> bool:
 
 
 def use_quick(on: bool | None) -> bool:
-    """Switch quick mode from inside a notebook, so students need no environment variable before starting
-    Jupyter. ``None`` keeps what the environment says (nbmake and CI runs). Returns the mode.
-
-    The switch is the variable itself, so worker processes started later follow it, and every budget asked
-    for after this call obeys it: re-run a chapter's cells and they take the new sizes.
-    """
+    """Switch quick mode from inside a notebook (``None`` keeps what the environment says); returns the mode. The
+    switch is the variable itself, so worker processes started later follow it, and every budget asked for after
+    this call obeys it: re-run a chapter's cells and they take the new sizes."""
     if on is not None:
         os.environ[QUICK_ENV] = "1" if on else "0"
     return is_quick()
@@ -55,7 +50,7 @@ def shipped_dir() -> Path:
     checkout = _PACKAGE.parent
     if (checkout / "pyproject.toml").is_file() and (checkout / "data").is_dir():
         return checkout
-    return _INSTALLED_COPY
+    return INSTALLED_COPY
 
 
 def project_dir() -> Path:
@@ -70,23 +65,3 @@ def data_dir() -> Path:
     """Where shipped and generated artefacts live (demonstrations, checkpoints, result CSVs): ``data/`` in
     :func:`project_dir`, or the folder named by ``VDTUTORIAL_DATA``."""
     return Path(os.environ.get(DATA_ENV, project_dir() / "data"))
-
-
-def runs_dir() -> Path:
-    """Where commands write what they make unless told otherwise (``--out``): ``runs/`` beside ``data/`` (or
-    the folder named by ``VDTUTORIAL_RUNS``), so that the shipped artefacts in ``data/`` are never replaced by
-    accident. When the package's own copy is all there is (an installed wheel used outside a folder written by
-    ``notebooks DEST``), nothing is written into the installation: ``runs/`` in the working directory."""
-    if RUNS_ENV in os.environ:
-        return Path(os.environ[RUNS_ENV])
-    project = project_dir()
-    return (Path.cwd() if project == _INSTALLED_COPY else project) / "runs"
-
-
-def recorded_path(path) -> str:
-    """``path`` as a record that may be shipped writes it (a result's JSON, a checkpoint's command): relative
-    to the folder that holds ``data/`` when it is inside it (``data/demos/...``, ``runs/...``), so that a
-    shipped file never names the machine that made it and its commands run from any clone or copy. A
-    path outside that folder (a user's scratch folder) is written as given."""
-    path, project = Path(path).resolve(), data_dir().resolve().parent
-    return path.relative_to(project).as_posix() if path.is_relative_to(project) else str(path)

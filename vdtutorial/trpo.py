@@ -40,7 +40,7 @@ from torch import nn
 from torch.distributions import Normal
 from tqdm.auto import tqdm
 
-from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, MLPBaseline, Obs, default_baseline_features
+from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, Obs, default_baseline_features
 from vdtutorial.policy import map_obs, obs_to_tensor, on_device, stack_obs, torch_device
 from vdtutorial.rollout import Rollout, check_vec_env, iteration_seeds, rollout
 from vdtutorial.trust_region import FisherProduct, conjugate_gradient, double_backward_fvp, flat_grad, line_search, mean_kl
@@ -48,11 +48,12 @@ from vdtutorial.trust_region import FisherProduct, conjugate_gradient, double_ba
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
 #: The columns of a log row that measure time rather than learning (:meth:`TRPO.iterate`).
 TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
+#: The parts of :meth:`TRPO.update` whose CPU seconds ``TRPO.update_split`` holds (CPU time: it depends less on
+#: what else runs on the machine than wall time).
+UPDATE_PARTS = ("gradient", "fisher_setup", "cg_products", "line_search", "baseline")
 
 
-# ----------------------------------------------------------------------------------------------
-# Hyperparameters
-# ----------------------------------------------------------------------------------------------
+# -- Hyperparameters -----------------------------------------------------------------------------------------
 @dataclass
 class TRPOConfig:
     """TRPO hyperparameters. ``steps_per_iter`` is the paper's; the paper reports no others, so
@@ -75,8 +76,9 @@ class TRPOConfig:
     baseline_reg: ridge coefficient of the linear baseline's fit (rllab's value; x10 up to 5 times if the
         solve is not finite).
     baseline: ``"linear"`` (the paper's, rllab's :class:`LinearFeatureBaseline`) or ``"mlp"``, a value
-        network (:class:`MLPBaseline`) fitted by Adam each iteration, as sb3-contrib and Spinning Up do,
-        with the four ``critic_*`` settings: hidden widths, learning rate, epochs per batch, minibatch size.
+        network fitted by Adam each iteration, as sb3-contrib and Spinning Up do, that ``TRPO(baseline=...)``
+        is given (:mod:`vdtutorial.beyond.value_baseline`), with the four ``critic_*`` settings: hidden widths,
+        learning rate, epochs per batch, minibatch size.
     bootstrap_time_limits: at an episode end caused by a time limit, count gamma * V(final observation)
         instead of 0. False is rllab's (the paper's): the horizon is part of the task. True is sb3's.
     """
@@ -109,10 +111,7 @@ class TRPOConfig:
         self.critic_hidden = tuple(self.critic_hidden)
 
 
-
-# ----------------------------------------------------------------------------------------------
-# Advantages
-# ----------------------------------------------------------------------------------------------
+# -- Advantages ----------------------------------------------------------------------------------------------
 def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones: np.ndarray,
         gamma: float, lam: float) -> np.ndarray:
     """Generalised advantage estimates, one per step.
@@ -138,9 +137,7 @@ def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones:
     return advantages
 
 
-# ----------------------------------------------------------------------------------------------
-# 2. advantages: the second part of TRPO.collect
-# ----------------------------------------------------------------------------------------------
+# -- 2. advantages: the second part of TRPO.collect ----------------------------------------------------------
 def advantages_and_returns(trajectories: Rollout, features: np.ndarray, baseline, baseline_features: Callable[[Obs], np.ndarray],
                            config: TRPOConfig) -> tuple[np.ndarray, np.ndarray]:
     """Step 2: the advantages of ``trajectories`` against ``baseline`` (fitted on the previous batch), normalised
@@ -182,8 +179,7 @@ class Batch:
     fvp_index: torch.Tensor | None = None  # (m,) the samples of the Fisher-vector products; None = all
 
     def to(self, device: torch.device) -> "Batch":
-        """A copy with the tensors of the policy's update on ``device`` (the baseline's numpy arrays stay; on the
-        CPU the copy holds the same tensors)."""
+        """A copy with the policy update's tensors on ``device`` (the baseline's numpy arrays stay)."""
         index = None if self.fvp_index is None else self.fvp_index.to(device)
         return replace(self, obs=obs_to_tensor(self.obs, device), actions=self.actions.to(device),
                        advantages=self.advantages.to(device), fvp_index=index)
@@ -201,64 +197,37 @@ def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
     return True
 
 
-def _make_baseline(config: TRPOConfig, env: gymnasium.vector.VectorEnv, features: Callable[[Obs], np.ndarray],
-                   seed: int) -> LinearFeatureBaseline | MLPBaseline:
-    """The baseline ``config.baseline`` names; a network's input width comes from a sample of the (batched)
-    observation space."""
-    if config.baseline == "linear":
-        return LinearFeatureBaseline(config.baseline_reg)
-    num_features = features(env.observation_space.sample()).shape[1]
-    return MLPBaseline(num_features, config.critic_hidden, config.critic_lr, config.critic_epochs,
-                       config.critic_batch_size, seed=seed)
-
-
-class _CPUTimer:
-    """CPU seconds of consecutive parts of a computation: ``lap(name)`` closes the part since the last lap
-    (or the start). CPU time, not wall time: it depends less on what else runs on the machine."""
-
-    def __init__(self):
-        self.seconds: dict[str, float] = {}
-        self._last = time.process_time()
-
-    def lap(self, part: str) -> None:
-        now = time.process_time()
-        self.seconds[part] = now - self._last
-        self._last = now
-
-
-# ----------------------------------------------------------------------------------------------
-# The algorithm
-# ----------------------------------------------------------------------------------------------
+# -- The algorithm -------------------------------------------------------------------------------------------
 class TRPO:
     """TRPO on a gymnasium vector environment.
 
-    policy: the nn.Module to train. Its ``distribution(obs)`` returns a diagonal
-        ``torch.distributions.Normal`` for a float32 tensor of shape (B, d) or a dict of such tensors
-        (log-probabilities are summed over the last dimension), and is a deterministic function of
-        (obs, parameters): the KL at the old parameters must be 0 (see :mod:`vdtutorial.policy`).
-    env: a vector environment with ``AutoresetMode.SAME_STEP`` (see :func:`make_vec_env`) that
-        returns fresh observation arrays each step (gymnasium's default ``copy=True``), or a
-        zero-argument function that builds one.
+    policy: the nn.Module to train. Its ``distribution(obs)`` returns a diagonal ``torch.distributions.Normal`` for
+        a float32 tensor (B, d) or a dict of such tensors (log-probabilities are summed over the last dimension), and
+        is a deterministic function of (obs, parameters): the KL at the old parameters must be 0.
+    env: a vector environment with ``AutoresetMode.SAME_STEP`` (see :func:`make_vec_env`) that returns fresh
+        observation arrays each step (gymnasium's default ``copy=True``), or a zero-argument function that builds one.
     config: hyperparameters, :class:`TRPOConfig`.
     seed: the run's seed; with the parameters it determines every iteration.
-    baseline_features: maps a batch of observations (array or dict of arrays, batch first) to a
-        float array (batch, k) of low-dimensional features for the baseline (linear or network);
-        by default :func:`vdtutorial.baselines.default_baseline_features`.
+    baseline_features: maps a batch of observations (array or dict of arrays, batch first) to a float array
+        (batch, k) of the baseline's features; by default :func:`vdtutorial.baselines.default_baseline_features`.
+    baseline: V, with ``predict``, ``fit``, ``state_dict`` and ``load_state_dict``; by default rllab's linear one.
     fvp: step 4's Fisher-vector product (default :func:`vdtutorial.trust_region.double_backward_fvp`, any policy);
         an exact one changes the cost only (experiments: :func:`vdtutorial.fast.fisher.gauss_newton_fvp`).
-    device: where :meth:`update` runs ("cpu"; "cuda": a GPU, see :func:`vdtutorial.policy.torch_device`);
-        rollouts, the baseline and checkpoints stay on the CPU.
+    device: where :meth:`update` runs ("cuda": a GPU); rollouts, the baseline and checkpoints stay on the CPU.
     """
 
     def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
                  config: TRPOConfig | None = None, seed: int = 0,
                  baseline_features: Callable[[Obs], np.ndarray] | None = None,
-                 fvp: FisherProduct = double_backward_fvp, device: torch.device | str = "cpu"):
+                 baseline=None, fvp: FisherProduct = double_backward_fvp, device: torch.device | str = "cpu"):
         self.policy, self.fvp, self.device = policy, fvp, torch_device(device)
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
         self.config, self.seed = config or TRPOConfig(), seed
         self.baseline_features = baseline_features or default_baseline_features
-        self.baseline = _make_baseline(self.config, self.env, self.baseline_features, seed)
+        if baseline is None and self.config.baseline != "linear":
+            raise ValueError(f"config.baseline={self.config.baseline!r} is a value network: pass TRPO(baseline="
+                             "vdtutorial.beyond.value_baseline.value_baseline(config, env, seed))")
+        self.baseline = LinearFeatureBaseline(self.config.baseline_reg) if baseline is None else baseline
         self.params = [p for p in policy.parameters() if p.requires_grad]
         self.iteration_index = 0
         self.rows: list[dict] = []
@@ -287,18 +256,17 @@ class TRPO:
 
     # -- 3-7. the update --------------------------------------------------------------------------
     def update(self, batch: Batch) -> dict:
-        """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the
-        step's statistics: mean KL, entropy (before the step), surrogate improvement, line search
-        outcome (accepted fraction of the full step, or "rejected"); the CPU seconds of its parts: ``update_split``.
-        On ``device``: the policy and the batch move there for the step, and the policy back to the CPU after it.
-        The first update checks that the policy is deterministic (ValueError if not)."""
+        """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the step's
+        statistics: mean KL, entropy (before the step), surrogate improvement, line search outcome (accepted
+        fraction of the full step, or "rejected"); the CPU seconds of its parts go to ``update_split``. The
+        first update checks that the policy is deterministic (ValueError if not)."""
         if not self.checked_deterministic:
             self.checked_deterministic = _check_deterministic(self.policy, map_obs(lambda x: x[:8], batch.obs))
         with on_device(self.policy, self.device):
             return self._step(batch.to(self.device))
 
     def _step(self, batch: Batch) -> dict:
-        cfg, timer = self.config, _CPUTimer()
+        cfg, laps = self.config, [time.process_time()]
         obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs  # a fast policy's, made once
         # One forward with graph at theta_old gives pi_old (detached), the surrogate and g.
         dist = self.policy.distribution(obs)
@@ -316,24 +284,24 @@ class TRPO:
         surrogate = surrogate_of(dist)
         index = batch.fvp_index
         g = flat_grad(surrogate, self.params, retain_graph=index is None)  # the double backward may reuse the graph
-        timer.lap("gradient")
+        laps.append(time.process_time())
         if index is None:  # F over the whole batch, at the forward pass just made
             Fvp = self.fvp(self.policy, self.params, obs, old, cfg.cg_damping, dist)
         else:  # F over the subsample (TRPOConfig.fvp_subsample)
             Fvp = self.fvp(self.policy, self.params, map_obs(lambda x: x[index], batch.obs),
                            Normal(old.mean[index], old.stddev[index]), cfg.cg_damping)
-        timer.lap("fisher_setup")
+        laps.append(time.process_time())
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
         sFs = (direction @ Fvp(direction)).item()
-        timer.lap("cg_products")
+        laps.append(time.process_time())
         # Scale so that the KL's quadratic model, 0.5 step^T F step, is max_kl (a zero gradient: a zero step, rejected).
         full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction if sFs > 0 else torch.zeros_like(direction)
         fraction, improvement, kl = line_search(self.params, full_step, surrogate_and_kl, cfg.max_kl,
                                                 cfg.backtrack_iters, cfg.backtrack_coeff, surrogate.item())
-        timer.lap("line_search")
+        laps.append(time.process_time())
         self.baseline.fit(batch.features, batch.timesteps, batch.returns)
-        timer.lap("baseline")
-        self.update_split = timer.seconds
+        laps.append(time.process_time())
+        self.update_split = {part: float(t) for part, t in zip(UPDATE_PARTS, np.diff(laps))}
         return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(),
                 "surrogate_improvement": improvement,
                 "line_search": "rejected" if fraction is None else fraction}
@@ -386,8 +354,7 @@ class TRPO:
 
     def restore(self, state: dict) -> None:
         """Continue from a :meth:`checkpoint` of a run with the same seed and config."""
-        # fields added to TRPOConfig after a checkpoint was written take defaults that keep the old behaviour
-        saved_config = {**asdict(TRPOConfig()), **state["config"]}
+        saved_config = {**asdict(TRPOConfig()), **state["config"]}  # a field added since: its old behaviour
         if state["seed"] != self.seed or saved_config != asdict(self.config):
             raise ValueError("checkpoint was written with a different seed or config; resuming it would "
                              "not continue the same run")

@@ -36,45 +36,41 @@ K1, K2, K3 = 0.63576, 1.87320, 1.48695
 def kl_approx(log_alpha: torch.Tensor) -> torch.Tensor:
     """Elementwise KL(q(w | theta, alpha) || log-uniform prior), Molchanov et al.'s approximation.
 
-    -KL ~ k1 sigmoid(k2 + k3 log alpha) - 0.5 log(1 + 1/alpha) - k1, with log(1 + exp(-log alpha))
-    computed as ``softplus(-log_alpha)`` so it neither overflows nor loses precision. The KL is
-    positive, decreases monotonically in alpha and tends to 0 as alpha -> infinity: that slope is what
-    pushes unnecessary weights towards pure noise, i.e. towards being pruned.
+    -KL ~ k1 sigmoid(k2 + k3 log alpha) - 0.5 log(1 + 1/alpha) - k1, with log(1 + exp(-log alpha)) computed as
+    ``softplus(-log_alpha)`` so it neither overflows nor loses precision. The KL is positive, decreases monotonically in
+    alpha and tends to 0 as alpha -> infinity: that slope pushes unneeded weights to pure noise, i.e. to pruning.
 
     Objective (paper, eqs. 1-3)
-        Maximise the variational lower bound N/M sum_m log p(y_m | x_m, w) - KL(q || p) with a log-uniform
-        prior p. Its KL term depends on alpha only and has no closed form; :func:`kl_approx` uses Molchanov's
-        fitted approximation. Per example, the loss to minimise is the mean negative log-likelihood plus
-        beta * KL / N; a warm-up of beta from 0 to 1 lets the data term shape theta before the prior starts
-        pruning.
+        Maximise the variational lower bound N/M sum_m log p(y_m | x_m, w) - KL(q || p) with a log-uniform prior p,
+        whose KL term depends on alpha only and has no closed form (hence the fit above). Per example, the loss to
+        minimise is the mean negative log-likelihood plus beta * KL / N; a warm-up of beta from 0 to 1 lets the data
+        term shape theta before the prior starts pruning.
     """
     neg_kl = K1 * torch.sigmoid(K2 + K3 * log_alpha) - 0.5 * F.softplus(-log_alpha) - K1
     return -neg_kl
 
 
 class SVDOLayer(nn.Module):
-    """What the sparse-VD linear and convolutional layers share: parameters, the train / eval / pruned
-    forward, the KL term and pruning. Subclasses only say how a weight tensor is applied (``_op``).
+    """What the sparse-VD linear and convolutional layers share: parameters, the train / eval / pruned forward, the
+    KL term and pruning. Subclasses only say how a weight tensor is applied (``_op``).
 
     Additive parametrisation
-        Learning alpha directly makes the gradient with respect to theta very noisy once alpha is large. As
-        Molchanov et al. do, each layer learns ``log_sigma2`` (the log variance sigma^2 = alpha theta^2 of
-        the weight) next to ``theta`` (the attribute ``weight``), and derives
-        ``log_alpha = log_sigma2 - log(theta^2 + 1e-8)``. ``log_sigma2`` starts at -10: the noise is
-        negligible at first and the network starts as an ordinary one. (A consequence: weights initialised
-        with |theta| < e^((-10 - 3) / 2) ~ 0.0015 are pruned from the start.)
+        Learning alpha directly makes the gradient with respect to theta very noisy once alpha is large. As Molchanov
+        et al. do, each layer learns ``log_sigma2`` (the log variance sigma^2 = alpha theta^2 of the weight) next to
+        ``theta`` (the attribute ``weight``), and derives ``log_alpha = log_sigma2 - log(theta^2 + 1e-8)``.
+        ``log_sigma2`` starts at -10: the noise is negligible at first and the network starts as an ordinary one.
+        (A consequence: weights initialised with |theta| < e^((-10 - 3) / 2) ~ 0.0015 are pruned from the start.)
 
     Clipping log alpha to [-8, 8]
-        Below -8 the noise standard deviation is under e^-4 ~ 2% of |theta| and the KL term is nearly flat,
-        so nothing is lost; above 8 the weight is dropped with p > 0.9997 anyway. Clipping keeps
-        ``log(theta^2)`` from running to -infinity as theta shrinks to zero, which would otherwise make the
-        KL value and its gradient explode.
+        Below -8 the noise standard deviation is under e^-4 ~ 2% of |theta| and the KL term is nearly flat, so
+        nothing is lost; above 8 the weight is dropped with p > 0.9997 anyway. Clipping keeps ``log(theta^2)`` from
+        running to -infinity as theta shrinks to zero, which would otherwise make the KL value and its gradient explode.
 
     Local reparameterisation (the efficient form of eq. 4)
         The weights of one layer are independent Gaussians, so each pre-activation is Gaussian with mean
-        x theta^T + b and variance x^2 sigma^2^T. Sampling the pre-activations instead of the weights costs
-        one extra matrix product and one noise draw per output instead of per weight, and gives a
-        lower-variance gradient estimate (the noise is independent between the examples of a mini-batch).
+        x theta^T + b and variance x^2 sigma^2^T. Sampling the pre-activations instead of the weights costs one extra
+        matrix product and one noise draw per output instead of per weight, and gives a lower-variance gradient
+        estimate (the noise is independent between the examples of a mini-batch).
     """
 
     def __init__(self, weight_shape: tuple[int, ...], bias: bool):
@@ -102,8 +98,7 @@ class SVDOLayer(nn.Module):
         return torch.clamp(self.log_sigma2 - torch.log(self.weight**2 + EPS), LOG_ALPHA_MIN, LOG_ALPHA_MAX)
 
     def keep_mask(self, threshold: float = THRESHOLD) -> torch.Tensor:
-        """Boolean mask of the weights that are kept: log alpha <= threshold, or the frozen mask once the
-        layer has been pruned (then ``threshold`` is ignored: the mask no longer changes)."""
+        """Boolean mask of the kept weights: log alpha <= threshold, or the frozen mask once the layer is pruned."""
         return self.mask if self.pruned else self.log_alpha <= threshold
 
     def kl(self) -> torch.Tensor:
@@ -112,15 +107,10 @@ class SVDOLayer(nn.Module):
 
     @torch.no_grad()
     def prune_(self, threshold: float = THRESHOLD) -> "SVDOLayer":
-        """Freeze the mask log alpha <= threshold for RL fine-tuning (idempotent).
-
-        Pruning and fine-tuning
-            In eval mode a layer is deterministic and uses theta with the weights of log alpha > 3 set to zero.
-            :meth:`prune_` freezes that mask for the RL phase: from then on the forward pass is always the
-            deterministic ``theta * mask`` (also in train mode), ``log_sigma2`` stops training (the paper trains W
-            but not alpha in the RL phase), pruned thetas are set to zero and get an exactly zero gradient, so
-            no gradient-based optimiser (Adam, or TRPO's conjugate-gradient step) can revive them.
-        """
+        """Freeze the mask log alpha <= threshold for RL fine-tuning (idempotent): from then on the forward pass is
+        always eval mode's deterministic ``theta * mask`` (also in train mode), ``log_sigma2`` stops training (the paper
+        trains W but not alpha in the RL phase), and pruned thetas are set to zero and get an exactly zero gradient, so
+        no gradient-based optimiser (Adam, or TRPO's conjugate-gradient step) can revive them."""
         self.mask.copy_(self.keep_mask(threshold))
         self.weight.mul_(self.mask)
         self.pruned.fill_(True)
@@ -162,9 +152,9 @@ def _pair(value) -> tuple[int, int]:
 
 
 class Conv2dSVDO(SVDOLayer):
-    """2-D convolution with sparse variational dropout; drop-in replacement for ``nn.Conv2d`` (no groups,
-    no dilation). Under local reparameterisation the output variance is the convolution of x^2 with
-    sigma^2, exactly as for the linear layer, since a convolution is a linear map with shared weights."""
+    """2-D convolution with sparse variational dropout; drop-in replacement for ``nn.Conv2d`` (no groups, no
+    dilation). Under local reparameterisation the output variance is the convolution of x^2 with sigma^2, exactly as
+    for the linear layer, since a convolution is a linear map with shared weights."""
 
     def __init__(self, in_channels: int, out_channels: int, kernel_size, stride=1, padding=0, bias: bool = True):
         kernel_size = _pair(kernel_size)
@@ -198,8 +188,7 @@ def svdo_layers(module: nn.Module) -> list[SVDOLayer]:
 
 
 def model_kl(module: nn.Module) -> torch.Tensor:
-    """Sum of the KL terms of every sparse-VD layer of ``module``; zero for a plain network, so a single
-    training loop serves both the plain and the variational model."""
+    """Total KL of ``module``'s sparse-VD layers; zero for a plain network, so one training loop serves both models."""
     return sum((layer.kl() for layer in svdo_layers(module)), torch.zeros(()))
 
 
@@ -217,8 +206,7 @@ WEIGHT_LAYERS = (nn.Linear, nn.Conv2d, SVDOLayer)
 
 @torch.no_grad()
 def pruned_fraction(module: nn.Module, threshold: float = THRESHOLD) -> float:
-    """Fraction of the weights of ``module``'s sparse-VD layers with log alpha > ``threshold`` (biases excluded):
-    the number pre-training logs each epoch. :func:`vdtutorial.analysis.sparsity.sparsity_report` gives it per
-    layer, with the pruned neurons."""
+    """Fraction of the weights (biases excluded) of ``module``'s sparse-VD layers with log alpha > ``threshold``, the
+    number pre-training logs each epoch; :func:`vdtutorial.analysis.sparsity.sparsity_report` gives it per layer."""
     layers = svdo_layers(module)
     return sum(int((~layer.keep_mask(threshold)).sum()) for layer in layers) / sum(layer.weight.numel() for layer in layers)

@@ -4,8 +4,8 @@ Modules, one idea each: :mod:`~vdtutorial.beyond.initial_sigma` (the exploration
 policy starts RL with, a value the paper does not give), :mod:`~vdtutorial.beyond.imitation_rounds`
 (cloning in rounds of new demonstrations), :mod:`~vdtutorial.beyond.dart` (noise injected into the
 expert, Laskey et al. 2017) and :mod:`~vdtutorial.beyond.dagger` (the expert relabels the learner's own
-states, Ross et al. 2011). They build on the core and nothing in the core needs them, except the
-pre-training's choice of initial sigma, which is still read from here.
+states, Ross et al. 2011), and :mod:`~vdtutorial.beyond.value_baseline` (a value network for TRPO's baseline,
+as sb3-contrib uses). They build on the core, and nothing in the core needs them.
 
 Taught in chapters 07 and 09.
 """

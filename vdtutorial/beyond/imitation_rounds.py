@@ -22,10 +22,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
-from vdtutorial.demos import FORMAT_VERSION, Demos, collect, success_rate
+from vdtutorial.demos import ARRAYS, FORMAT_VERSION, Demos, collect, success_rate
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.policy import GaussianPolicy
 from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig
+
+
+def concatenate_demos(parts: list[Demos], meta: dict) -> Demos:
+    """One data set from several collected one after another (the rounds), with episode numbers shifted so
+    that episodes of different parts stay distinct: the held-out split holds out whole episodes."""
+    offsets = np.cumsum([0] + [int(part.episode.max()) + 1 if len(part) else 0 for part in parts[:-1]])
+    arrays = {name: np.concatenate([getattr(part, name) for part in parts]) for name in ARRAYS}
+    arrays["episode"] = np.concatenate([part.episode + offset for part, offset in zip(parts, offsets)]).astype(np.int32)
+    return Demos(meta=dict(meta), **arrays)
 
 
 @dataclass
@@ -82,7 +91,7 @@ def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed
         parts.append(part)
         meta = {"format_version": FORMAT_VERSION, "task": task, "samples": sum(map(len, parts)), "seed": int(seed), "method": method, "reg": reg,
                 "rounds_done": k + 1}
-        demos = Demos.concatenate(parts, meta)
+        demos = concatenate_demos(parts, meta)
         start = time.perf_counter()
         policy, history = pretrain_with_sigma(demos, cfg, seed=seed, progress=progress)
         records.append({"round": k, **record, "labels": size, "labels_total": len(demos),

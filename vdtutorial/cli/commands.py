@@ -11,7 +11,8 @@ from pathlib import Path
 
 from vdtutorial.cli.arguments import CommandError, device_of, output_path, progress_of
 from vdtutorial.runner.kernels import kernel_settings, pinned
-from vdtutorial.settings import data_dir, runs_dir
+from vdtutorial.experiments.paths import runs_dir
+from vdtutorial.settings import data_dir
 
 def cmd_demos(args) -> None:
     from vdtutorial.demos import SHIPPED_NOISE, demo_path, generate_demos

@@ -1,8 +1,7 @@
 """What the reaching and grasping environments share: spaces, action handling, the episode loop.
 
-A task subclass only says what the goal is (:meth:`JacoEnv._goal_status`) and what it is worth
-(:meth:`JacoEnv._reward`); everything else -- observation modes, action checks, joint limits,
-collision-checked motion, the horizon, rendering -- lives here once.
+A task subclass only defines its goal (:meth:`JacoEnv._goal_status`) and its reward (:meth:`JacoEnv._reward`); the rest
+-- observation modes, action checks, joint limits, collision-checked motion, the horizon, rendering -- lives here once.
 
 Taught in chapter 01.
 """
@@ -27,22 +26,20 @@ class JacoEnv(gym.Env):
 
     Parameters
     ----------
-    obs_mode: ``"rgbd"`` -- the paper's observation, a dict with ``"rgb"`` (uint8, 3 x S x S, in
-        [0, 255]), ``"depth"`` (float32, S * S: the S x S depth image in metres, clipped to the camera's
-        far plane, flattened row by row; ``obs["depth"].reshape(S, S)`` gives the picture) and
-        ``"joints"`` (6 angles, radians); or ``"state"`` -- a float32 vector of the 6 joint angles
-        followed by the cup's base position (x, y, z), the fast mode for classes and CI.
-        The image layout is the one gymnasium and Stable-Baselines3 treat as an image (uint8, channels
-        first), so their CNN policies read it unchanged. Depth keeps its metric precision as a flat float
-        vector in its own key (no 8-bit image quantisation; Stable-Baselines3 accepts it besides a uint8
-        image). The paper's policy scales both inside the network (:mod:`vdtutorial.policy`).
+    obs_mode: ``"rgbd"`` -- the paper's observation, a dict with ``"rgb"`` (uint8, 3 x S x S, in [0, 255]),
+        ``"depth"`` (float32, S * S: the S x S depth image in metres, clipped to the camera's far plane, flattened row
+        by row; ``obs["depth"].reshape(S, S)`` gives the picture) and ``"joints"`` (6 angles, radians); or ``"state"``
+        -- a float32 vector of the 6 joint angles followed by the cup's base position (x, y, z), the fast mode for
+        classes and CI. The image layout is the one gymnasium and Stable-Baselines3 treat as an image (uint8, channels
+        first), so their CNN policies read it unchanged. Depth keeps its metric precision as a flat float vector in its
+        own key (no 8-bit image quantisation; Stable-Baselines3 accepts it besides a uint8 image). The paper's policy
+        scales both inside the network (:mod:`vdtutorial.policy`).
     image_size: side S of the camera image in pixels.
     render_mode: ``"rgb_array"`` makes :meth:`render` return the camera's RGB image (S x S x 3, uint8).
 
-    Actions are clipped to [-pi/5, pi/5]^6 (the paper's action range); NaN, infinity or a wrong shape
-    raise ``ValueError``. The new joint angles are clipped to the joint limits. The motion from the
-    old to the new angles is checked for collisions along the way (see
-    :meth:`JacoScene.path_in_collision`).
+    Actions are clipped to [-pi/5, pi/5]^6 (the paper's action range); NaN, infinity or a wrong shape raise
+    ``ValueError``. The new joint angles are clipped to the joint limits, and the motion from the old to the new
+    angles is checked for collisions along the way (:meth:`JacoScene.path_in_collision`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}

@@ -1,10 +1,9 @@
 """pybullet, imported without its build-time banner.
 
-pybullet's C extension writes ``pybullet build time: ...`` to the process's standard error when it is
-first imported. That line would otherwise open every command (``--help`` included), every worker
-process and every notebook that imports the package, so the first import happens here with file
-descriptor 2 pointed at ``/dev/null`` for the duration of the import only: warnings and errors after
-it are untouched. Importing pybullet anywhere later is free: Python hands back the module it has.
+pybullet's C extension writes ``pybullet build time: ...`` to the process's standard error on its first import. That
+line would otherwise open every command (``--help`` included), every worker process and every notebook that imports
+the package, so the first import happens here with file descriptor 2 pointed at ``/dev/null`` during the import
+only: later warnings and errors are untouched. Importing pybullet anywhere later is free: Python reuses the module.
 
 Taught in chapter 01.
 """

@@ -1,15 +1,14 @@
 """The grasping task (Section V-B): bring the open hand around a cup that can be hit.
 
-Success is placing the hand around the cup: the hand centre within :data:`POSITION_TOLERANCE` of the
-grasp point on the cup's axis and the approach axis within :data:`TILT_TOLERANCE_DEG` of horizontal.
-Closing the fingers is not simulated; the paper's reward counts the placement.
+Success is placing the hand around the cup: the hand centre within :data:`POSITION_TOLERANCE` of the grasp point on
+the cup's axis and the approach axis within :data:`TILT_TOLERANCE_DEG` of horizontal. Closing the fingers is not
+simulated; the paper's reward counts the placement.
 
-The success region must be one the hand can be in: a pose that counts as a success but puts a finger into
-the cup or the palm onto the table is a collision. So the cup (:data:`GRASP_CUP_RADIUS`, narrower than the
-reaching task's), the grasp height (:data:`GRASP_HEIGHT`) and the tolerances are chosen together from the
-hand of ``jaco6.urdf``: every hand position within the tolerance of the grasp point, at the grasp
-orientation, is collision-free, with a few millimetres to spare (``tests/test_envs.py`` measures the
-clearances; docs/results.md, "Measurements behind the code").
+The success region must be one the hand can be in: a pose that counts as a success but puts a finger into the cup or
+the palm onto the table is a collision. So the cup (:data:`GRASP_CUP_RADIUS`, narrower than the reaching task's), the
+grasp height (:data:`GRASP_HEIGHT`) and the tolerances are chosen together from the hand of ``jaco6.urdf``: every hand
+position within the tolerance of the grasp point, at the grasp orientation, is collision-free, with a few millimetres
+to spare (``tests/test_envs.py`` measures the clearances; docs/results.md, "Measurements behind the code").
 
 Taught in chapters 01 and 08.
 """
@@ -44,11 +43,9 @@ def tilt_deg(approach) -> float:
 
 
 class JacoGraspEnv(JacoEnv):
-    """Grasp: reward ``-1 + 25 succ_t - 25 fail_t``; collisions with the cup, table or itself fail.
-
-    ``info`` carries ``is_success``, ``is_failure``, ``distance`` (hand centre to grasp point) and
-    ``tilt_deg`` (approach axis vs horizontal).
-    """
+    """Grasp: reward ``-1 + 25 succ_t - 25 fail_t``; collisions with the cup, table or itself fail. ``info`` carries
+    ``is_success``, ``is_failure``, ``distance`` (hand centre to grasp point) and ``tilt_deg`` (approach axis vs
+    horizontal)."""
 
     cup_collidable = True
     cup_radius = GRASP_CUP_RADIUS

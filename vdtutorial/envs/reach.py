@@ -20,12 +20,9 @@ def reach_goal(cup_position) -> np.ndarray:
 
 
 class JacoReachEnv(JacoEnv):
-    """Reach: reward eq. 11, ``R_t = -|a_{t-1}|_2 - d_t + 20 succ_t - 50 fail_t``.
-
-    ``d_t`` is the distance of the hand centre from the goal point :func:`reach_goal`; success
-    (within :data:`SUCCESS_TOLERANCE`) and failure (collision with the table or itself) end the
-    episode. ``info`` carries ``is_success``, ``is_failure`` and ``distance``.
-    """
+    """Reach: reward eq. 11, ``R_t = -|a_{t-1}|_2 - d_t + 20 succ_t - 50 fail_t``, ``d_t`` the distance of the hand
+    centre from the goal point :func:`reach_goal`. Success (within :data:`SUCCESS_TOLERANCE`) and failure (collision
+    with the table or itself) end the episode. ``info`` carries ``is_success``, ``is_failure`` and ``distance``."""
 
     cup_collidable = False
     default_image_size = 128

@@ -1,10 +1,9 @@
 """The pybullet world shared by both tasks: a table, the Jaco-like arm, a cup and a fixed RGBD camera.
 
-The scene is kinematic: joint angles are set directly (``resetJointState``) and collisions are found
-with pybullet's collision detection, without integrating dynamics. The paper's V-REP setup commands
-joint-angle deltas and treats the motion as exact ("transition dynamics ... assumed to have very small
-variance", Section IV), so a kinematic world models the same MDP and runs several thousand steps per
-second on a laptop core, which a dynamic simulation with position controllers would not.
+The scene is kinematic: joint angles are set directly (``resetJointState``) and pybullet's collision detection finds
+collisions, with no dynamics integrated. The paper's V-REP setup commands joint-angle deltas and treats the motion as
+exact ("transition dynamics ... assumed to have very small variance", Section IV), so a kinematic world models the same
+MDP and runs several thousand steps per second on a laptop core, unlike a dynamic simulation with position controllers.
 
 Units are metres and radians. The world origin is the arm's base on the table top (z = 0).
 
@@ -30,9 +29,7 @@ N_JOINTS = 6
 #: Pairs of arm links whose collision counts as self-collision. Links that touch by construction
 #: (neighbours, and the links of the curved wrist, which overlap at every pose) are excluded.
 SELF_COLLISION_PAIRS = tuple(
-    (LINKS[a], LINKS[b])
-    for a in ("base", "link1")
-    for b in ("link4", "link5", "link6", "hand")
+    (LINKS[a], LINKS[b]) for a in ("base", "link1") for b in ("link4", "link5", "link6", "hand")
 ) + tuple((LINKS["link2"], LINKS[b]) for b in ("link5", "link6", "hand"))
 
 TABLE_HALF_EXTENTS = (0.55, 0.6, 0.02)
@@ -61,15 +58,14 @@ def _c_floats(n: int) -> struct.Struct:
 
 
 def camera_buffers(rgba, zbuf) -> tuple[np.ndarray, np.ndarray]:
-    """Flat uint8 and float32 arrays of ``pybullet.getCameraImage``'s RGBA and z-buffer when pybullet
-    returns them as flat sequences of Python ints and floats (a build without numpy support, such as a
-    source build in pip's isolated environment; a build with it returns numpy arrays already).
+    """Flat uint8 and float32 arrays of ``pybullet.getCameraImage``'s RGBA and z-buffer from a pybullet without numpy
+    support (e.g. a source build in pip's isolated environment), which gives them as Python int and float sequences.
 
-    numpy converts such sequences one element at a time (``np.asarray``, ``np.fromiter``); C buffers are
-    cheaper: ``bytearray`` packs the 0-255 ints into bytes, ``struct`` packs the floats as C floats, and
-    numpy wraps the bytes without another pass. The values are identical bit for bit: the colours are
-    bytes in pybullet, and its depths are C floats widened to Python floats, so narrowing them back to
-    float32 is exact. The z-buffer's array is read-only (:meth:`JacoScene.render_rgbd` only reads it).
+    numpy converts such sequences one element at a time (``np.asarray``, ``np.fromiter``); C buffers are cheaper:
+    ``bytearray`` packs the 0-255 ints into bytes, ``struct`` packs the floats as C floats, and numpy wraps the bytes
+    without another pass. The values are identical bit for bit: pybullet's colours are bytes and its depths C floats
+    widened to Python floats, so narrowing them back to float32 is exact. The z-buffer's array is read-only
+    (:meth:`JacoScene.render_rgbd` only reads it).
     """
     return (np.frombuffer(bytearray(rgba), dtype=np.uint8),
             np.frombuffer(_c_floats(len(zbuf)).pack(*zbuf), dtype=np.float32))
@@ -81,10 +77,8 @@ class JacoScene:
     Parameters
     ----------
     image_size: side of the square camera image in pixels (128 for reaching, 256 for grasping in the paper).
-    cup_collidable: whether the cup has a collision shape. The reaching task's cup cannot be hit
-        (Section V-A); the grasping task's cup can (Section V-B).
-    cup_radius: radius of the cup in metres (the grasping task uses a narrower one that fits between the
-        open fingers, see :mod:`vdtutorial.envs.grasp`).
+    cup_collidable: whether the cup has a collision shape: not in reaching (Section V-A), in grasping (Section V-B).
+    cup_radius: in metres (grasping's narrower cup fits between the open fingers, see :mod:`vdtutorial.envs.grasp`).
     """
 
     def __init__(self, image_size: int = 128, cup_collidable: bool = False, cup_radius: float = CUP_RADIUS):
@@ -99,14 +93,11 @@ class JacoScene:
         table_vis = p.createVisualShape(p.GEOM_BOX, halfExtents=TABLE_HALF_EXTENTS, rgbaColor=(0.72, 0.58, 0.42, 1), physicsClientId=c)
         self.table = p.createMultiBody(0, table_col, table_vis, basePosition=TABLE_CENTRE, physicsClientId=c)
         # The arm faces +x: Kinova's base frame has the home pose reaching towards -y, so turn it by 90 deg.
-        self.arm = p.loadURDF(
-            arm_urdf_path(), basePosition=(0, 0, 0), baseOrientation=p.getQuaternionFromEuler((0, 0, math.pi / 2)),
-            useFixedBase=True, flags=p.URDF_USE_SELF_COLLISION, physicsClientId=c,
-        )
-        cup_col = (
-            p.createCollisionShape(p.GEOM_CYLINDER, radius=cup_radius, height=CUP_HEIGHT, physicsClientId=c)
-            if cup_collidable else -1
-        )
+        self.arm = p.loadURDF(arm_urdf_path(), basePosition=(0, 0, 0),
+                              baseOrientation=p.getQuaternionFromEuler((0, 0, math.pi / 2)), useFixedBase=True,
+                              flags=p.URDF_USE_SELF_COLLISION, physicsClientId=c)
+        cup_col = (p.createCollisionShape(p.GEOM_CYLINDER, radius=cup_radius, height=CUP_HEIGHT, physicsClientId=c)
+                   if cup_collidable else -1)
         cup_vis = p.createVisualShape(p.GEOM_CYLINDER, radius=cup_radius, length=CUP_HEIGHT, rgbaColor=(0.85, 0.2, 0.15, 1), physicsClientId=c)
         self.cup = p.createMultiBody(0, cup_col, cup_vis, basePosition=(0.45, 0, CUP_HEIGHT / 2), physicsClientId=c)
         self.bodies = {"table": self.table, "arm": self.arm, "cup": self.cup}
@@ -163,9 +154,8 @@ class JacoScene:
         return len(p.getContactPoints(bodyA=self.arm, physicsClientId=self.client)) > 0
 
     def path_in_collision(self, q_from, q_to, max_joint_step: float = 0.2) -> bool:
-        """Check the straight joint-space motion from ``q_from`` to ``q_to`` at sub-steps of at most
-        ``max_joint_step`` radians per joint, so that a large action cannot jump through the table.
-        Leaves the arm at ``q_to``."""
+        """Check the straight joint-space motion from ``q_from`` to ``q_to`` at sub-steps of at most ``max_joint_step``
+        radians per joint, so that a large action cannot jump through the table. Leaves the arm at ``q_to``."""
         q_from, q_to = np.asarray(q_from, float), np.asarray(q_to, float)
         n = max(1, int(math.ceil(np.max(np.abs(q_to - q_from)) / max_joint_step)))
         for k in range(1, n + 1):
@@ -177,17 +167,13 @@ class JacoScene:
 
     # -- camera --------------------------------------------------------------------------------------
     def render_rgbd(self) -> tuple[np.ndarray, np.ndarray]:
-        """RGB (uint8, H x W x 3) and depth in metres (float32, H x W) from the fixed camera.
-
-        TinyRenderer, no shadows and no segmentation mask: the cheapest image pybullet makes without
-        a GPU. The z-buffer is turned into metric depth with the projection's near/far planes.
-        """
+        """RGB (uint8, H x W x 3) and depth in metres (float32, H x W) from the fixed camera: TinyRenderer, no shadows
+        and no segmentation mask, the cheapest image pybullet makes without a GPU. The z-buffer is turned into metric
+        depth with the projection's near/far planes."""
         warn_if_images_are_slow()
         s = self.image_size
-        _, _, rgba, zbuf, _ = p.getCameraImage(
-            s, s, self._view, self._proj, shadow=0, renderer=p.ER_TINY_RENDERER,
-            flags=p.ER_NO_SEGMENTATION_MASK, physicsClientId=self.client,
-        )
+        _, _, rgba, zbuf, _ = p.getCameraImage(s, s, self._view, self._proj, shadow=0, renderer=p.ER_TINY_RENDERER,
+                                               flags=p.ER_NO_SEGMENTATION_MASK, physicsClientId=self.client)
         if not isinstance(rgba, np.ndarray):  # pybullet without numpy support: flat tuples
             rgba, zbuf = camera_buffers(rgba, zbuf)
         rgba = np.asarray(rgba, dtype=np.uint8).reshape(s, s, 4)

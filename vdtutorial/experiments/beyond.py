@@ -49,7 +49,8 @@ from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_EN
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
-from vdtutorial.settings import budget, is_quick, recorded_path
+from vdtutorial.experiments.paths import recorded_path
+from vdtutorial.settings import budget, is_quick
 
 TASK = "reach"
 #: Sigma values of the paper's Fig. 6, the hand-set ones.

@@ -18,7 +18,8 @@ import vdtutorial
 from vdtutorial.demos import DATA_SET_PATTERN, data_set_name, demo_path
 from vdtutorial.policy import GaussianPolicy
 from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig
-from vdtutorial.settings import budget, data_dir, recorded_path
+from vdtutorial.experiments.paths import recorded_path
+from vdtutorial.settings import budget, data_dir
 
 #: Where RL starts in the experiments and the shipped results (``default_config``): option (c), sigma fitted to the
 #: VD network's predictive spread, chosen by the rule written before the study (``data/results/sigma_study/RULE.md``)
@@ -55,16 +56,26 @@ def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sig
     return f"python -m vdtutorial pretrain --reg {reg} --demos {recorded_path(demos_path)} --seed {seed} --obs {obs_mode}{sigma}"
 
 
+#: Fields of ``PretrainConfig`` renamed since files were written: old name -> current name.
+RENAMED_FIELDS = {"kl_samples": "kl_divisor"}
+
+
+def current_field_names(config: dict) -> dict:
+    """A recorded ``PretrainConfig`` (a checkpoint's or a results record's) with renamed fields under their
+    current names (:data:`RENAMED_FIELDS`), so that files written before a rename still load and compare."""
+    return {RENAMED_FIELDS.get(key, key): value for key, value in config.items()}
+
+
 def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
-                    initial_sigma: str = PAPER_SIGMA_OPTION, kl_samples: int | None = None,
+                    initial_sigma: str = PAPER_SIGMA_OPTION, kl_divisor: int | None = None,
                     data_name: str | None = None, patience: int | None = None) -> Path:
-    """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma``, ``kl_samples``
+    """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma``, ``kl_divisor``
     or ``patience`` is added to the name (``..._seed0_initsigma-demos.pt``, ``..._seed0_kl7200.pt``,
     ``..._seed0_stop10.pt``), so that it never replaces the default checkpoint. ``data_name`` names the data set in place of its
     ``TASK_nSAMPLES_sigmaSIGMA``: a set made in rounds (DART's, DAgger's) has no Sigma to be named by."""
     m = demos_meta
     sigma = "" if initial_sigma == PAPER_SIGMA_OPTION else f"_initsigma-{initial_sigma}"
-    kl = "" if kl_samples is None else f"_kl{kl_samples}"
+    kl = "" if kl_divisor is None else f"_kl{kl_divisor}"
     stop = "" if patience is None else f"_stop{patience}"
     data = data_name or data_set_name(m["task"], m["samples"], m["noise"])
     return Path(root or data_dir()) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
@@ -118,6 +129,8 @@ def load_checkpoint(path, **expected) -> GaussianPolicy:
         config, state, meta = blob["config"], blob["state_dict"], blob.get("meta", {})
     except Exception as exc:  # torch raises several types for a damaged or foreign file
         raise CheckpointError(f"checkpoint {path} is corrupt or not a vdtutorial checkpoint ({exc}). {fix}") from exc
+    if "config" in meta:
+        meta = {**meta, "config": current_field_names(meta["config"])}
     # checkpoints made before ``initial_sigma`` existed started RL from the fixed default
     where = {"initial_sigma": PAPER_SIGMA_OPTION, **meta.get("demos", {}), **meta.get("config", {}), **config}
     for key, want in expected.items():

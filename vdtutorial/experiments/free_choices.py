@@ -2,7 +2,7 @@
 VD-vs-L2 verdict moves.
 
 The rows (:data:`CHOICES`): L2's coefficient (``PretrainConfig.l2``, 1e-4); the KL term's weight in VD's ELBO
-(``kl_samples``, the N dividing it: by default the training split's size, as eq. 3 reads) and its warm-up
+(``kl_divisor``, the N dividing it: by default the training split's size, as eq. 3 reads) and its warm-up
 (``beta_warmup``); the sigma L2's policy starts RL from (``initial_sigma``; the figures fit it to VD's predictive
 spread). The likelihood's sigma, 0.3 (the sigma network's output, frozen while mu is cloned), is no row of its
 own: the loss is sum (a - mu)^2 / (2 sigma^2) plus the regulariser, and Adam's steps do not change when a loss is
@@ -69,9 +69,9 @@ class FreeChoice:
 CHOICES = (
     FreeChoice("l2_small", "L2 coefficient", "l2", {"l2": 1e-4 / 9}, "1.1e-5 (= likelihood sigma 0.1)", "1e-4"),
     FreeChoice("l2_large", "L2 coefficient", "l2", {"l2": 1e-4 / 0.09}, "1.1e-3 (= likelihood sigma 1.0)", "1e-4"),
-    FreeChoice("kl_weak", "KL weight", "vd", {"kl_samples": 9 * TRAIN_SPLIT}, "N = 64800, 1/9 (= likelihood sigma 0.1)",
+    FreeChoice("kl_weak", "KL weight", "vd", {"kl_divisor": 9 * TRAIN_SPLIT}, "N = 64800, 1/9 (= likelihood sigma 0.1)",
                "N = training split"),
-    FreeChoice("kl_strong", "KL weight", "vd", {"kl_samples": round(0.09 * TRAIN_SPLIT)},
+    FreeChoice("kl_strong", "KL weight", "vd", {"kl_divisor": round(0.09 * TRAIN_SPLIT)},
                "N = 648, x11.1 (= likelihood sigma 1.0)", "N = training split"),
     FreeChoice("no_warmup", "KL warm-up", "vd", {"beta_warmup": 0.0}, "none (beta = 1 from the start)", "30% of the epochs"),
     FreeChoice("long_warmup", "KL warm-up", "vd", {"beta_warmup": 1.0}, "over all epochs", "30% of the epochs"),

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from vdtutorial.beyond.value_baseline import value_baseline
 from vdtutorial.fast.fisher import gauss_newton_fvp
 from vdtutorial.fast.policy import fast_policy
 from vdtutorial.policy import GaussianPolicy, make_policy
@@ -127,7 +128,8 @@ def _ours_pendulum(variant: PendulumVariant, seed: int, total_steps: int) -> dic
                        variant.num_envs)
     torch.manual_seed(seed)
     policy = pendulum_policy(env)
-    algo = TRPO(fast_policy(policy), env, variant.config, seed=seed, fvp=gauss_newton_fvp)
+    network = value_baseline(variant.config, env, seed) if variant.config.baseline == "mlp" else None
+    algo = TRPO(fast_policy(policy), env, variant.config, seed=seed, baseline=network, fvp=gauss_newton_fvp)
     start, cpu_start = time.perf_counter(), time.process_time()  # the training only, as for sb3-contrib
     algo.run(total_steps, progress=False)                          # (building Adam imports torch._dynamo once)
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start

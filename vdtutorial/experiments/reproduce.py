@@ -11,7 +11,7 @@ from vdtutorial.experiments.results import ExperimentResult, run_experiment
 from vdtutorial.experiments.runs import METHOD_LABELS, RL_METHODS, pretrained_policy
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner.progress import live_by_default
-from vdtutorial.settings import runs_dir
+from vdtutorial.experiments.paths import runs_dir
 from vdtutorial.settings import budget
 
 def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise: float = 0.5,

@@ -16,7 +16,7 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
-from vdtutorial.experiments.checkpoints import default_config
+from vdtutorial.experiments.checkpoints import current_field_names, default_config
 from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, final_point, record_window,
                                            smooth_window, vd_reaches_l2_final)
 from vdtutorial.experiments.effects import claim_effects
@@ -28,7 +28,8 @@ from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner.grid import run_grid
 from vdtutorial.runner.kernels import kernel_settings
 from vdtutorial.runner.rows import read_rows, results_file, write_csv
-from vdtutorial.settings import budget, data_dir, is_quick, recorded_path, runs_dir
+from vdtutorial.experiments.paths import recorded_path, runs_dir
+from vdtutorial.settings import budget, data_dir, is_quick
 from vdtutorial.trpo import TRPOConfig
 
 @dataclass
@@ -228,8 +229,9 @@ def with_defaults(key: str, value, names) -> dict:
     defaults (:data:`CONFIGS`); other keys as they are."""
     if key not in CONFIGS or not isinstance(value, dict):
         return value
+    names = current_field_names(dict.fromkeys(names))
     return {**{f.name: f.default for f in fields(CONFIGS[key]) if f.name in names and f.default is not MISSING},
-            **value}
+            **current_field_names(value)}
 
 
 def _names(records: list[dict], key: str) -> set:

@@ -31,7 +31,8 @@ from vdtutorial.rollout import make_vec_env
 from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
                                      save_run_state)
 from vdtutorial.runner.rows import write_csv
-from vdtutorial.settings import budget, recorded_path, runs_dir
+from vdtutorial.experiments.paths import recorded_path, runs_dir
+from vdtutorial.settings import budget
 from vdtutorial.trpo import TRPO, TRPOConfig
 
 RL_METHODS = ("vd", "l2", "none")
@@ -118,7 +119,7 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
                          "give its path as source")
     data_name = Path(source).stem if made_in_rounds(meta) else None
     root = Path(checkpoints_root) if checkpoints_root is not None else budget(runs_dir(), runs_dir() / "quick")
-    names = {"initial_sigma": cfg.initial_sigma, "kl_samples": cfg.kl_samples, "data_name": data_name,
+    names = {"initial_sigma": cfg.initial_sigma, "kl_divisor": cfg.kl_divisor, "data_name": data_name,
              "patience": cfg.patience}
     path = checkpoint_path(meta, reg, obs_mode, seed, root=root, **names)
     shipped = checkpoint_path(meta, reg, obs_mode, seed, **names)

@@ -38,7 +38,8 @@ from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, curves_from_rows, f
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.plots import draw_band
-from vdtutorial.settings import data_dir, runs_dir
+from vdtutorial.experiments.paths import runs_dir
+from vdtutorial.settings import data_dir
 
 #: Candidates of the rule: option (a) at the paper's 0.3 and at the issue's probe value 0.05, (b), (c).
 OPTIONS = ("0.3", "0.05", "demos", "spread")

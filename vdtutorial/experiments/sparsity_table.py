@@ -5,7 +5,7 @@ Why two weightings: eq. 3 is the sum over the N samples of D of the log-likeliho
 so per sample the KL weighs 1/N -- a small data set is pushed harder towards the prior, and so pruned
 more. Table I reports the opposite trend (more data, sparser). The paper does not say how its loss
 was normalised, so the table is measured both ways: ``per-set`` (1/N with each set's own training-split
-size, eq. 3 as written, ``PretrainConfig.kl_samples=None``) and ``fixed`` (1/N_8000 for every set, the
+size, eq. 3 as written, ``PretrainConfig.kl_divisor=None``) and ``fixed`` (1/N_8000 for every set, the
 8000-sample set's nominal training split, so that the rows differ only by their data).
 
 Taught in chapter 05.
@@ -37,7 +37,7 @@ TABLE1 = (
 )
 
 
-#: The KL weightings of Table I: the ``PretrainConfig.kl_samples`` each one sets (module docstring, "Why two weightings").
+#: The KL weightings of Table I: the ``PretrainConfig.kl_divisor`` each one sets (module docstring, "Why two weightings").
 #: "fixed" divides by the 8000-sample set's nominal training split, 8000 x (1 - 0.1 held out).
 KL_WEIGHTINGS = {"per-set": None, "fixed": round(8000 * (1 - PretrainConfig.val_fraction))}
 
@@ -112,7 +112,7 @@ def table1(obs_mode: str = "state", seeds=(0,), kl_weighting: str = "per-set", o
            address: str | None = None) -> list[dict]:
     """Table I: neuron sparsification of the VD-pre-trained mu on each of the five reaching data sets and
     the grasping set, for each of ``seeds``, beside the paper's ratios, plus the fraction of weights
-    pruned. ``kl_weighting`` ("per-set" or "fixed", :data:`KL_WEIGHTINGS`) sets ``kl_samples`` of the
+    pruned. ``kl_weighting`` ("per-set" or "fixed", :data:`KL_WEIGHTINGS`) sets ``kl_divisor`` of the
     pre-training configuration. Reuses (or makes) the same checkpoints as the fine-tuning runs (per-set
     weighting). Writes ``table1_WEIGHTING.csv`` (a row per data set and seed) and ``table1_WEIGHTING.txt``
     (:func:`format_table1`, the command, the configuration) into ``out`` (default ``runs/table1``; quick
@@ -125,21 +125,21 @@ def table1(obs_mode: str = "state", seeds=(0,), kl_weighting: str = "per-set", o
     out = Path(out) if out is not None else default_out("table1")
     checkpoints_root = Path(checkpoints_root if checkpoints_root is not None else out).resolve()
     # sparsity is a property of mu, which the initial sigma does not change: the checkpoints of the base setting
-    config = replace(pretrain_config or default_config("vd", obs_mode), kl_samples=KL_WEIGHTINGS[kl_weighting],
+    config = replace(pretrain_config or default_config("vd", obs_mode), kl_divisor=KL_WEIGHTINGS[kl_weighting],
                      initial_sigma=PAPER_SIGMA_OPTION)
     plan = [(entry, seed) for seed in seeds for entry in TABLE1]
     jobs = [_SparsityJob(demo_path(task, samples, noise, 0, root=demos_root).resolve(), obs_mode, seed,
                          checkpoints_root, config) for (_, task, samples, noise, _), seed in plan]
     measured = run_jobs(_sparsity_job, jobs, workers, backend, address)
     rows = stored_rows([{"experiment": row, "task": task, "samples": samples, "noise": noise, "obs_mode": obs_mode, "seed": seed,
-             "kl_weighting": kl_weighting, "kl_samples": config.kl_samples, **m, "neuron_fraction_paper": paper}
+             "kl_weighting": kl_weighting, "kl_divisor": config.kl_divisor, **m, "neuron_fraction_paper": paper}
             for ((row, task, samples, noise, paper), seed), m in zip(plan, measured)])
     write_csv(out / f"table1_{kl_weighting}.csv", rows)
     text = format_table1(rows)
     command = experiment_command("table1", obs=obs_mode, seeds=seeds, kl_weighting=kl_weighting, workers=workers,
                                  out=out)
     (out / f"table1_{kl_weighting}.txt").write_text(
-        f"KL weighting: {kl_weighting} (kl_samples={config.kl_samples})\n{text}\n\ncommand: {command}\n"
+        f"KL weighting: {kl_weighting} (kl_divisor={config.kl_divisor})\n{text}\n\ncommand: {command}\n"
         f"pretrain config: {asdict(config)}\n")
     print(text)
     return rows
