@@ -122,18 +122,19 @@ def test_book_command_line():
 
 # -- the book in a browser -------------------------------------------------------------------------------
 class Chromium:
-    """Headless Chromium driven over the DevTools protocol, with every request recorded and the network
-    blocked (no name resolves, and every connection goes to a closed local port). One browser per page: in a
+    """Headless Chromium driven over the DevTools protocol, with every request recorded and, when ``offline``, the
+    network blocked (no name resolves, and every connection goes to a closed local port). One browser per page: in a
     browser that has already shown a page with meshcat scenes, the next page's first screenshot took 25-30 s on
     a quiet 2-core machine and over 120 s under load (a fresh browser: under 1 s)."""
 
-    def __init__(self, executable: str):
+    def __init__(self, executable: str, offline: bool = True):
         import websocket
 
         self.profile = Path(tempfile.mkdtemp(prefix="vdtutorial-chromium-"))
+        blocked = ["--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9"] if offline else []
         self.process = subprocess.Popen(
             [executable, "--headless", "--no-sandbox", "--no-first-run", "--remote-debugging-port=0",
-             f"--user-data-dir={self.profile}", "--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9",
+             f"--user-data-dir={self.profile}", *blocked,
              "--window-size=1280,900", "--enable-unsafe-swiftshader", "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         port_file, deadline = self.profile / "DevToolsActivePort", time.monotonic() + 60
