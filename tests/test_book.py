@@ -249,6 +249,7 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
         page = book.index.parent / chapter.page
         assert not re.search(r"""<(?:script|link|img|iframe)\b[^>]*\b(?:src|href)\s*=\s*["']?(?:https?:)?//""",
                              page.read_text())
+        assert page.read_text().count("<details>") >= 3, "the self-check's answers, folded"
         with Chromium(executable) as browser:
             browser.show(page, f"{chapter.page}'s equations, widgets and scenes")
             _check_chapter_page(browser, chapter, previous=book.chapters[k - 1].page if k else None)
