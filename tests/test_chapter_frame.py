@@ -42,3 +42,16 @@ def test_a_chapter_closes_with_a_self_check_whose_answers_are_folded(path):
     assert len(questions) >= 3 and all(q.endswith("?") and len(a) > 40 for q, a in questions), questions
     assert closing.source.count("<details>") == closing.source.count("</details>") == len(questions)
     assert "**Library names in this" in closing.source, "the footer names the library functions the chapter uses"
+
+
+@pytest.mark.parametrize("path", CHAPTERS, ids=lambda p: p.stem)
+def test_a_chapter_states_the_run_times_that_teaching_md_measured(path):
+    """The first code cell's comment gives the chapter's run time in both modes: the numbers of TEACHING.md's
+    "Time per chapter" table, so that the two never disagree."""
+    comment = next(cell.source for cell in nbformat.read(path, as_version=4).cells if cell.cell_type == "code")
+    quick = re.search(r"\(this chapter: ([\d.]+ (?:s|min)) on a quiet 2-core machine\)", comment).group(1)
+    full = re.search(r"\(this chapter: ([\d.]+ (?:s|min)) on the same machine;", comment).group(1)
+    teaching = (ROOT / "notebooks" / "TEACHING.md").read_text()
+    number = path.stem.split("_")[0]
+    assert re.search(rf"^\| {number} [^|]+\| {re.escape(quick)} \| {re.escape(full)} \|$", teaching, re.MULTILINE), \
+        (quick, full)
