@@ -56,3 +56,10 @@ def test_the_exercise_count_the_guides_quote_is_the_chapters():
     quoted = f"{len(graded)} graded exercises ({sum(graded):g} points)"
     assert quoted in (ROOT / "README.md").read_text()
     assert f"{len(graded)} exercises worth {sum(graded):g} points" in (ROOT / "notebooks" / "TEACHING.md").read_text()
+
+
+def test_data_readme_names_every_results_folder():
+    """Every folder of shipped results has a row in data/README.md saying what made it."""
+    readme = (ROOT / "data" / "README.md").read_text()
+    folders = sorted(p.name for p in (ROOT / "data" / "results").iterdir() if p.is_dir())
+    assert folders and [f for f in folders if f"`results/{f}/" not in readme] == []
