@@ -222,13 +222,19 @@ def _scene_pixels(browser, frame_index):
     return matplotlib.image.imread(io.BytesIO(browser.screenshot(rect)), format="png")[..., :3]
 
 
-@pytest.fixture(scope="module")
-def quick_book(tmp_path_factory):
+def chromium_executable(test: str) -> str:
+    """Debian's chromium, for ``test``; skipped without it, except in CI (``CI`` set), where .ci/run installs it."""
     executable = shutil.which("chromium") or shutil.which("chromium-browser")
     if executable is None:
         if os.environ.get("CI"):
-            pytest.fail("CI needs Debian's chromium for the book's browser test (.ci/run installs it)")
-        pytest.skip("the browser test needs chromium (apt-get install chromium)")
+            pytest.fail(f"CI needs Debian's chromium for {test} (.ci/run installs it)")
+        pytest.skip(f"{test} needs chromium (apt-get install chromium)")
+    return executable
+
+
+@pytest.fixture(scope="module")
+def quick_book(tmp_path_factory):
+    executable = chromium_executable("the book's browser test")
     out = tmp_path_factory.mktemp("book")
     book = html_book.build_book(out, numbers=TESTED_CHAPTERS, quick=True, log=lambda line: None)
     return executable, book

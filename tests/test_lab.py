@@ -10,7 +10,6 @@ as in ``test_book.py``; JupyterLab is started with ``expose_app_in_browser`` so 
 """
 import json
 import os
-import shutil
 import socket
 import subprocess
 import sys
@@ -19,7 +18,7 @@ import urllib.request
 
 import pytest
 
-from test_book import Chromium
+from test_book import Chromium, chromium_executable
 from vdtutorial.course.chapters import write_notebooks
 
 pytestmark = pytest.mark.pipeline  # chapters end to end: CI's lock leg only
@@ -58,11 +57,7 @@ def _free_port() -> int:
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     """JupyterLab serving a written copy of the chapters, in quick mode, with its own settings and workspaces."""
-    executable = shutil.which("chromium") or shutil.which("chromium-browser")
-    if executable is None:
-        if os.environ.get("CI"):
-            pytest.fail("CI needs Debian's chromium for the JupyterLab test (.ci/run installs it)")
-        pytest.skip("the JupyterLab test needs chromium (apt-get install chromium)")
+    executable = chromium_executable("the JupyterLab test")
     home = tmp_path_factory.mktemp("lab")
     write_notebooks(home / "book")
     port = _free_port()
