@@ -1,6 +1,7 @@
 """Tests of vdtutorial.trpo and vdtutorial.trust_region: each piece against a hand or brute-force computation, then the whole
 algorithm on a tiny 1-D reaching task defined here."""
 import copy
+import math
 
 import gymnasium
 import numpy as np
@@ -14,7 +15,8 @@ from vdtutorial.experiments.pendulum import pendulum_policy
 from vdtutorial.policy import make_policy, obs_to_tensor
 from vdtutorial.rollout import iteration_seeds, make_vec_env
 from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, gae
-from vdtutorial.trust_region import conjugate_gradient, fisher_vector_product, flat_grad, line_search
+from vdtutorial.trust_region import (conjugate_gradient, double_backward_fvp, fisher_vector_product, flat_grad, line_search,
+                                     mean_kl)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -382,6 +384,53 @@ def test_learns_pendulum():
     algo = TRPO(pendulum_policy(env), env, TRPOConfig(steps_per_iter=1600), seed=0)
     returns = [r["mean_return"] for r in algo.run(20 * 1600, progress=False)]
     assert np.mean(returns[-3:]) > np.mean(returns[:3]) + 200
+
+
+def pieces_step(policy, params, obs, actions, advantages, config):
+    """Steps 3-6 assembled from vdtutorial.trust_region, as chapter 06b's learner does, for TRPO(step=...)."""
+    with torch.no_grad():
+        dist = policy.distribution(obs)
+        old = Normal(dist.mean.clone(), dist.stddev.clone())
+        old_log_prob = old.log_prob(actions).sum(-1)
+
+    def surrogate_and_kl():
+        dist = policy.distribution(obs)
+        return (torch.exp(dist.log_prob(actions).sum(-1) - old_log_prob) * advantages).mean(), mean_kl(old, dist)
+
+    g = flat_grad(surrogate_and_kl()[0], params)
+    Fvp = double_backward_fvp(policy, params, obs, old, config.cg_damping)
+    s = conjugate_gradient(Fvp, g, config.cg_iters)
+    full_step = math.sqrt(2 * config.max_kl / (s @ Fvp(s)).item()) * s
+    fraction, improvement, kl = line_search(params, full_step, surrogate_and_kl, config.max_kl,
+                                            config.backtrack_iters, config.backtrack_coeff)
+    return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(), "surrogate_improvement": improvement,
+            "line_search": "rejected" if fraction is None else fraction}
+
+
+def test_a_step_from_the_library_pieces_reproduces_the_default_update():
+    """TRPO(step=...) (chapter 06b's hook): the pieces assembled by hand give the default update's parameters and log."""
+    runs = {}
+    for step in (None, pieces_step):
+        torch.manual_seed(0)
+        env = make_vec_env("Pendulum-v1", 2)
+        algo = TRPO(pendulum_policy(env), env, TRPOConfig(steps_per_iter=400), seed=3, step=step)
+        rows = [{k: v for k, v in algo.iterate().items() if k not in TIMING_COLUMNS} for _ in range(2)]
+        runs[step] = rows, [p.detach().clone() for p in algo.params], algo.baseline.weights.copy()
+        algo.close()
+    (rows, params, weights), (my_rows, my_params, my_weights) = runs[None], runs[pieces_step]
+    assert my_rows == rows
+    assert all(torch.equal(p, q) for p, q in zip(params, my_params))
+    np.testing.assert_array_equal(my_weights, weights)
+
+
+def test_a_step_that_returns_no_statistics_is_refused():
+    env = make_env()
+    algo = TRPO(LinearPolicy(), env, TRPOConfig(steps_per_iter=40), seed=0, step=lambda *args: None)
+    with pytest.raises(TypeError, match="must return a dict"):
+        algo.iterate()
+    algo = TRPO(LinearPolicy(), env, TRPOConfig(steps_per_iter=40), seed=0, step=lambda *args: {"mean_kl": 0.0})
+    with pytest.raises(TypeError, match="line_search"):
+        algo.iterate()
 
 
 def test_mean_kl_is_the_gaussian_kl_summed_over_actions_and_averaged_over_states():

@@ -1,6 +1,5 @@
-r"""Trust Region Policy Optimization (Schulman et al., 2015): the reinforcement-learning stage, in which the
-paper fine-tunes its pre-trained policy with rllab's TRPO, 200 environment steps per iteration over 25-step
-horizons (the defaults of :class:`TRPOConfig`). Chapter 06 assembles it from its pieces; chapter 07 runs it.
+r"""Trust Region Policy Optimization (Schulman et al., 2015), with which the paper fine-tunes its pre-trained policy
+(rllab's; 200 steps per iteration, 25-step horizons: :class:`TRPOConfig`). Taught in chapters 06a and 06b.
 
 One iteration (:meth:`TRPO.iterate`), as pseudocode::
 
@@ -9,9 +8,8 @@ One iteration (:meth:`TRPO.iterate`), as pseudocode::
                  batch (:mod:`vdtutorial.baselines`), bootstrapped with V where the batch end cut a
                  trajectory off; then normalised to mean 0, std 1                (advantages_and_returns)
     3. gradient  g = grad of the surrogate L(theta) = mean[ pi_theta(a|s) / pi_old(a|s) * A ]
-    4. direction s ~= F^-1 g by conjugate gradient on Fisher-vector products F v (F: the Hessian of the
-                 mean KL(pi_old || pi_theta), plus damping), by double backward
-                 (:func:`~vdtutorial.trust_region.double_backward_fvp`; ``TRPO(fvp=...)`` takes another)
+    4. direction s ~= F^-1 g by conjugate gradient on Fisher-vector products F v (F: the Hessian of the mean
+                 KL(pi_old || pi_theta), plus damping), by double backward (``TRPO(fvp=...)`` takes another)
     5. step      beta = sqrt(2 delta / s^T F s): the full step beta * s has a quadratic-model KL of delta
     6. search    halve the step until its mean KL is <= delta and the surrogate improved, else keep
                  theta_old (the numerics of steps 3-6: :mod:`vdtutorial.trust_region`)
@@ -21,8 +19,6 @@ Only ``[p for p in policy.parameters() if p.requires_grad]`` moves: frozen param
 never do, and a weight that the forward pass multiplies by a 0/1 pruning mask gets a gradient, a Fisher
 product and so a step of exactly 0: pruned weights stay pruned. Every iteration is a pure function of
 (seed, iteration index, parameters and baseline at its start), so a checkpoint resumes a run exactly.
-
-Taught in chapters 06a and 06b.
 """
 from __future__ import annotations
 
@@ -48,9 +44,10 @@ from vdtutorial.trust_region import FisherProduct, conjugate_gradient, double_ba
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
 #: The columns of a log row that measure time rather than learning (:meth:`TRPO.iterate`).
 TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
-#: The parts of :meth:`TRPO.update` whose CPU seconds ``TRPO.update_split`` holds (CPU time: it depends less on
-#: what else runs on the machine than wall time).
+#: The parts of :meth:`TRPO.update` whose CPU seconds (less machine-dependent than wall time) ``update_split`` holds.
 UPDATE_PARTS = ("gradient", "fisher_setup", "cg_products", "line_search", "baseline")
+#: The statistics an update returns (:meth:`TRPO.update`), also those a ``TRPO(step=...)`` must return.
+STEP_STATS = ("mean_kl", "entropy", "surrogate_improvement", "line_search")
 
 
 # -- Hyperparameters -----------------------------------------------------------------------------------------
@@ -67,18 +64,16 @@ class TRPOConfig:
     max_kl: delta, the trust-region radius: the largest mean KL(pi_old || pi_new) an accepted step may have.
     cg_iters: conjugate-gradient iterations approximating F^-1 g without ever building F.
     fvp_subsample: the fraction of the batch (a random subset drawn from the iteration's seed) on which the
-        Fisher-vector products are computed; g, the step size and the line search use the whole batch.
-        1.0 is the default, as in rllab's TRPO since its second release; smaller values are a speed option
-        and a control (docs/differences.md, "TRPO's Fisher").
+        Fisher-vector products are computed (g, the step size and the line search use the whole batch). 1.0 is
+        rllab's default since its second release; less is a speed option (docs/differences.md, "TRPO's Fisher").
     cg_damping: added to F so that CG works on a positive-definite matrix even where F is singular (along
         pruned weights, or with fewer samples than parameters).
     backtrack_iters, backtrack_coeff: how many step sizes the line search tries, and the factor between them.
     baseline_reg: ridge coefficient of the linear baseline's fit (rllab's value; x10 up to 5 times if the
         solve is not finite).
-    baseline: ``"linear"`` (the paper's, rllab's :class:`LinearFeatureBaseline`) or ``"mlp"``, a value
-        network fitted by Adam each iteration, as sb3-contrib and Spinning Up do, that ``TRPO(baseline=...)``
-        is given (:mod:`vdtutorial.beyond.value_baseline`), with the four ``critic_*`` settings: hidden widths,
-        learning rate, epochs per batch, minibatch size.
+    baseline: ``"linear"`` (the paper's, rllab's :class:`LinearFeatureBaseline`) or ``"mlp"``, a value network
+        fitted by Adam each iteration as in sb3-contrib, given as ``TRPO(baseline=...)``
+        (:mod:`vdtutorial.beyond.value_baseline`); ``critic_*``: its widths, learning rate, epochs, minibatch.
     bootstrap_time_limits: at an episode end caused by a time limit, count gamma * V(final observation)
         instead of 0. False is rllab's (the paper's): the horizon is part of the task. True is sb3's.
     """
@@ -140,9 +135,8 @@ def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones:
 # -- 2. advantages: the second part of TRPO.collect ----------------------------------------------------------
 def advantages_and_returns(trajectories: Rollout, features: np.ndarray, baseline, baseline_features: Callable[[Obs], np.ndarray],
                            config: TRPOConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Step 2: the advantages of ``trajectories`` against ``baseline`` (fitted on the previous batch), normalised
-    to mean 0 and std 1, and the targets the baseline is fitted to next (see ``TRPOConfig.baseline``);
-    both flat, time-major. ``features``: the baseline features of ``trajectories.observations``.
+    """Step 2: the advantages of ``trajectories`` against ``baseline`` (fitted on the previous batch), normalised,
+    and the baseline's next targets (``TRPOConfig.baseline``), flat, time-major; ``features`` of the observations.
 
     Trajectories cut off by the batch end are bootstrapped with V of the observation after them. A
     time-limit end counts as the end of the (finite-horizon) task, value 0 after it, as in rllab; with
@@ -186,9 +180,8 @@ class Batch:
 
 
 def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
-    """TRPO measures its trust region from the old policy: KL(old, new) must be 0 before the step, so
-    ``distribution(obs)`` must be a function of (obs, parameters). A sparse-VD policy in training mode draws new
-    weight noise on every call and breaks this without any error downstream; asked twice, it answers twice."""
+    """TRPO's KL(old, new) must be 0 before the step, so ``distribution(obs)`` must be a function of (obs, parameters);
+    a sparse-VD policy in training mode draws new weight noise on every call and breaks this silently."""
     with torch.no_grad():
         first, second = policy.distribution(obs), policy.distribution(obs)
     if not (torch.equal(first.mean, second.mean) and torch.equal(first.stddev, second.stddev)):
@@ -201,9 +194,8 @@ def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
 class TRPO:
     """TRPO on a gymnasium vector environment.
 
-    policy: the nn.Module to train. Its ``distribution(obs)`` returns a diagonal ``torch.distributions.Normal`` for
-        a float32 tensor (B, d) or a dict of such tensors (log-probabilities are summed over the last dimension), and
-        is a deterministic function of (obs, parameters): the KL at the old parameters must be 0.
+    policy: the nn.Module to train; ``distribution(obs)``, a diagonal Normal for a float32 tensor (B, d) or a dict of
+        them (log-probabilities summed over the last dimension), a deterministic function of (obs, parameters).
     env: a vector environment with ``AutoresetMode.SAME_STEP`` (see :func:`make_vec_env`) that returns fresh
         observation arrays each step (gymnasium's default ``copy=True``), or a zero-argument function that builds one.
     config: hyperparameters, :class:`TRPOConfig`.
@@ -214,13 +206,16 @@ class TRPO:
     fvp: step 4's Fisher-vector product (default :func:`vdtutorial.trust_region.double_backward_fvp`, any policy);
         an exact one changes the cost only (experiments: :func:`vdtutorial.fast.fisher.gauss_newton_fvp`).
     device: where :meth:`update` runs ("cuda": a GPU); rollouts, the baseline and checkpoints stay on the CPU.
+    step: ``step(policy, params, obs, actions, advantages, config) -> dict``, the learner's steps 3-6 (parameters left at
+        the new point, :data:`STEP_STATS` returned); chapter 06b drives TRPO with the learner's update through it.
     """
 
     def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
                  config: TRPOConfig | None = None, seed: int = 0,
                  baseline_features: Callable[[Obs], np.ndarray] | None = None,
-                 baseline=None, fvp: FisherProduct = double_backward_fvp, device: torch.device | str = "cpu"):
-        self.policy, self.fvp, self.device = policy, fvp, torch_device(device)
+                 baseline=None, fvp: FisherProduct = double_backward_fvp, device: torch.device | str = "cpu",
+                 step: Callable[..., dict] | None = None):
+        self.policy, self.fvp, self.device, self.step = policy, fvp, torch_device(device), step
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
         self.config, self.seed = config or TRPOConfig(), seed
         self.baseline_features = baseline_features or default_baseline_features
@@ -237,8 +232,7 @@ class TRPO:
 
     # -- 1. collect, 2. advantages ----------------------------------------------------------------
     def collect(self) -> Batch:
-        """Run the current policy for one batch (:func:`rollout`) and compute its advantages
-        (:func:`advantages_and_returns`), with the seeds of (seed, iteration_index)."""
+        """One batch of the current policy (:func:`rollout`) and its advantages, seeded by (seed, iteration_index)."""
         cfg, n = self.config, self.env.num_envs
         env_seeds, noise_seed = iteration_seeds(self.seed, self.iteration_index, n)
         generator = torch.Generator().manual_seed(noise_seed)
@@ -256,10 +250,9 @@ class TRPO:
 
     # -- 3-7. the update --------------------------------------------------------------------------
     def update(self, batch: Batch) -> dict:
-        """One TRPO step on ``batch`` (steps 3-6), then refit the baseline (step 7). Returns the step's
-        statistics: mean KL, entropy (before the step), surrogate improvement, line search outcome (accepted
-        fraction of the full step, or "rejected"); the CPU seconds of its parts go to ``update_split``. The
-        first update checks that the policy is deterministic (ValueError if not)."""
+        """Steps 3-6 on ``batch``, then refit the baseline (step 7). Returns :data:`STEP_STATS`: mean KL, entropy before
+        the step, surrogate improvement, line search (accepted fraction or "rejected"); CPU seconds: ``update_split``.
+        The first update checks that the policy is deterministic (ValueError if not)."""
         if not self.checked_deterministic:
             self.checked_deterministic = _check_deterministic(self.policy, map_obs(lambda x: x[:8], batch.obs))
         with on_device(self.policy, self.device):
@@ -268,8 +261,20 @@ class TRPO:
     def _step(self, batch: Batch) -> dict:
         cfg, laps = self.config, [time.process_time()]
         obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs  # a fast policy's, made once
-        # One forward with graph at theta_old gives pi_old (detached), the surrogate and g.
-        dist = self.policy.distribution(obs)
+        if self.step is None:
+            stats = self._trpo_step(batch, obs, laps, cfg)
+        else:  # the learner's steps 3-6; its time counts as the line search's
+            stats = self.step(self.policy, self.params, obs, batch.actions, batch.advantages, cfg)
+            if not isinstance(stats, dict) or not set(STEP_STATS) <= set(stats):
+                raise TypeError(f"TRPO(step=...) must return a dict with the keys {STEP_STATS}, got {stats!r}")
+            laps += [laps[0]] * 3 + [time.process_time()]
+        self.baseline.fit(batch.features, batch.timesteps, batch.returns)
+        laps.append(time.process_time())
+        self.update_split = {part: float(t) for part, t in zip(UPDATE_PARTS, np.diff(laps))}
+        return {key: stats[key] for key in STEP_STATS}
+
+    def _trpo_step(self, batch: Batch, obs: TensorObs, laps: list[float], cfg: TRPOConfig) -> dict:
+        dist = self.policy.distribution(obs)  # one forward with graph at theta_old: pi_old (detached), surrogate, g
         old = Normal(dist.mean.detach().clone(), dist.stddev.detach().clone())
         old_log_prob = old.log_prob(batch.actions).sum(-1)
 
@@ -299,19 +304,13 @@ class TRPO:
         fraction, improvement, kl = line_search(self.params, full_step, surrogate_and_kl, cfg.max_kl,
                                                 cfg.backtrack_iters, cfg.backtrack_coeff, surrogate.item())
         laps.append(time.process_time())
-        self.baseline.fit(batch.features, batch.timesteps, batch.returns)
-        laps.append(time.process_time())
-        self.update_split = {part: float(t) for part, t in zip(UPDATE_PARTS, np.diff(laps))}
-        return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(),
-                "surrogate_improvement": improvement,
+        return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(), "surrogate_improvement": improvement,
                 "line_search": "rejected" if fraction is None else fraction}
 
     # -- one iteration, the main loop ---------------------------------------------------------------
     def iterate(self) -> dict:
-        """One iteration: collect, update, advance ``iteration_index``. Returns the iteration's log row,
-        also appended to ``rows``; besides the counts and the update's statistics it holds the seconds
-        spent collecting (``collect_s``) and updating (``update_s``), and the run's seconds so far
-        (``wall_time``; these three are :data:`TIMING_COLUMNS`)."""
+        """One iteration: collect, update, advance ``iteration_index``. Returns its log row (also appended to
+        ``rows``): counts, the update's statistics and the :data:`TIMING_COLUMNS` (collecting, updating, run so far)."""
         start = time.perf_counter()
         batch = self.collect()
         collected = time.perf_counter()
@@ -329,10 +328,8 @@ class TRPO:
 
     def run(self, total_steps: int, csv_path: str | os.PathLike | None = None,
             checkpoint_path: str | os.PathLike | None = None, progress: bool = True) -> list[dict]:
-        """Iterate until ``total_steps`` environment steps (counting iterations already done, e.g.
-        before a checkpoint) have been collected. After every iteration the log row is appended to
-        ``csv_path`` and a checkpoint is written to ``checkpoint_path`` (when given). Returns all
-        log rows so far."""
+        """Iterate until ``total_steps`` environment steps (counting iterations before a checkpoint) are collected,
+        appending each log row to ``csv_path`` and checkpointing to ``checkpoint_path`` when given. Returns all rows."""
         total_iters = math.ceil(total_steps / self.config.steps_per_iter)
         with tqdm(total=total_iters, initial=self.iteration_index, disable=not progress, desc="TRPO") as bar:
             while self.iteration_index < total_iters:
@@ -347,8 +344,7 @@ class TRPO:
 
     # -- checkpoints ------------------------------------------------------------------------------
     def checkpoint(self) -> dict:
-        """Policy, baseline, iteration index and log rows: everything a run needs to continue exactly
-        (TRPO draws its resets and action noise from (seed, iteration), so no generator state is needed)."""
+        """Policy, baseline, iteration index, log rows: all a run needs to continue (noise comes from (seed, iteration))."""
         return {"policy": self.policy.state_dict(), "baseline": self.baseline.state_dict(),
                 "iteration": self.iteration_index, "rows": self.rows, "seed": self.seed, "config": asdict(self.config)}
 
@@ -356,8 +352,7 @@ class TRPO:
         """Continue from a :meth:`checkpoint` of a run with the same seed and config."""
         saved_config = {**asdict(TRPOConfig()), **state["config"]}  # a field added since: its old behaviour
         if state["seed"] != self.seed or saved_config != asdict(self.config):
-            raise ValueError("checkpoint was written with a different seed or config; resuming it would "
-                             "not continue the same run")
+            raise ValueError("checkpoint was written with a different seed or config: resuming would not continue the run")
         self.policy.load_state_dict(state["policy"])
         self.baseline.load_state_dict(state["baseline"])
         self.iteration_index = state["iteration"]
