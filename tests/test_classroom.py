@@ -26,16 +26,16 @@ SOLUTION = re.compile(r"### BEGIN SOLUTION\n(.*?)### END SOLUTION", re.S)
 HIDDEN = re.compile(r"### BEGIN HIDDEN TESTS\n(.*?)### END HIDDEN TESTS", re.S)
 # One deliberately wrong answer per chapter: (exercise, text of the teacher's solution, the wrong version).
 WRONG = {
-    "01_environment": ("ch01_reward_eq11", "- distance + C_SUCCESS", "+ distance + C_SUCCESS"),
+    "01_environment": ("ch01_reward_eq11", '"-d_t": -distance,', '"-d_t": distance,'),
     "02_ik_expert": ("ch02_step_towards", "diff * min(1.0, MAX_DELTA / largest)", "diff * MAX_DELTA / largest"),
     "03_demonstrations": ("ch03_noisy_rollout", "labels.append(label)", "labels.append(-label)"),
-    "04_sparse_variational_dropout": ("ch04_kl_approx", "- 0.5 * F.softplus(-log_alpha)", "+ 0.5 * F.softplus(-log_alpha)"),
-    "05_pretraining": ("ch05_elbo_loss", "+ beta * model_kl(policy.mu) / n_train", "- beta * model_kl(policy.mu) / n_train"),
+    "04_sparse_variational_dropout": ("ch04_svdo_layer", "- 0.5 * F.softplus(-self.log_alpha)",
+                                      "+ 0.5 * F.softplus(-self.log_alpha)"),
+    "05_pretraining": ("ch05_elbo_step", "nll + beta * model_kl(policy.mu) / n_train", "nll - beta * model_kl(policy.mu) / n_train"),
     "06a_trpo_pieces": ("ch06_gae", "alive = 1.0 - dones[t]", "alive = 1.0"),
-    "06b_trpo_assembled": ("ch06_accepted_fraction", "if kl <= max_kl and gain > 0:", "if kl <= max_kl:"),
-    "07_finetuning": ("ch07_moving_average", "values[max(0, k - window + 1):k + 1].mean()",
-                      "values[max(0, k - window):k + 1].mean()"),
-    "08_grasping": ("ch08_grasp_success", "abs(float(approach[2]))", "float(approach[2])"),
+    "06b_trpo_assembled": ("ch06_line_search", "if kl <= config.max_kl and gain > 0:", "if kl <= config.max_kl:"),
+    "07_finetuning": ("ch07_prune", "keep = log_alpha <= threshold", "keep = log_alpha > threshold"),
+    "08_grasping": ("ch08_grasp_success", "min(1.0, abs(approach[2]))", "min(1.0, approach[2])"),
     "09_beyond_the_paper": ("ch09_dart_noise", "errors.T @ errors / len(errors)", "errors.T @ errors"),
 }
 
