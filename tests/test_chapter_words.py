@@ -30,8 +30,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 #: A plain decimal such as 75.5 or -4.87, not part of a longer token (a version 2.13.0, 2.81e5, x1.5) nor the
-#: mantissa of a number in scientific notation written in TeX (1.25\mathrm{e}5, 2.81\cdot10^5, 3 \times 10^5).
-DECIMAL = re.compile(r"(?<![\w.])-?\d+\.\d+(?![\w.]|\s*\\(?:mathrm\{e\}|cdot|times))")
+#: mantissa of a number in scientific notation written in TeX (1.25\mathrm{e}5, 2.81\cdot10^5, 3 \times 10^5), nor
+#: an exercise's number (Exercise 10.1).
+DECIMAL = re.compile(r"(?<![\w.])(?<!Exercise )-?\d+\.\d+(?![\w.]|\s*\\(?:mathrm\{e\}|cdot|times))")
 
 
 def _significant_digits(text: str) -> int:
@@ -102,6 +103,7 @@ def test_the_rule_catches_a_typed_result_and_passes_settings():
     # settings and paper constants: too few significant digits, scientific notation, integers, versions
     assert typed_results("sigma 0.05, 3e5 steps, 7.55e1, log alpha > 3, 75 successes, torch 2.75.5", results) == []
     assert typed_results(r"$75.49\mathrm{e}5$, $75.49\cdot10^5$, $75.49 \times 10^5$", results) == []
+    assert typed_results("### Exercise 75.49: a title", results) == []
 
 
 def test_the_shipped_results_have_summaries():
@@ -143,3 +145,18 @@ def test_exercises_are_numbered_in_the_order_they_come(number):
     expected = [(int(number), k) for k in range(1, len(numbers) + 1)]
     parts = ", ".join(nb.name for nb in CHAPTERS[number])
     assert numbers == expected, f"chapter {number} ({parts}): exercises {numbers}"
+
+
+@pytest.mark.parametrize("notebook", NOTEBOOKS, ids=[nb.stem for nb in NOTEBOOKS])
+def test_a_question_in_an_exercise_has_a_model_answer_in_its_solution(notebook):
+    """An exercise's prompt that asks a question ("Why ...?") is answered in the solution, as a comment
+    ``# Why ...`` between the solution markers: the teacher's edition, and the self-learner's ``solutions/``,
+    then hold a model answer, while the student edition shows only the question."""
+    cells = nbformat.read(notebook, as_version=4).cells
+    unanswered = []
+    for prompt, answer in zip(cells, cells[1:]):
+        if prompt.cell_type == "markdown" and re.match(r"#+ Exercise", prompt.source) and "?" in prompt.source:
+            solution = re.search(r"### BEGIN SOLUTION\n(.*?)### END SOLUTION", answer.source, re.S)
+            if not (solution and re.search(r"^\s*# Why\b", solution.group(1), re.M)):
+                unanswered.append(prompt.source.splitlines()[0])
+    assert not unanswered, f"{notebook.name}: questions without a model answer in the solution: {unanswered}"
