@@ -3,7 +3,7 @@ moved by the keyboard.
 
 Each chapter is run from a folder written by ``python -m vdtutorial notebooks DEST`` in quick mode. After Run
 All, the test moves each slider one step and checks that the picture the slider drives is redrawn and that its
-readout changed; throughout, it records every error the kernel reports, in a cell or in a widget's callback (the
+readout changed, and that no text beside a slider runs past its box (a long ``Label`` is cut at the window's edge); throughout, it records every error the kernel reports, in a cell or in a widget's callback (the
 latter reach only JupyterLab's Log Console, never the notebook). Chromium is driven over the DevTools protocol
 as in ``test_book.py``; JupyterLab is started with ``expose_app_in_browser`` so that the page's
 ``window.jupyterapp`` can run the notebook's commands.
@@ -45,7 +45,9 @@ SLIDERS = """[...document.querySelectorAll('.jp-OutputArea .widget-slider')].map
     const box = s.closest('.widget-vbox') || s.parentElement;
     return {readout: (s.querySelector('.widget-readout') || {}).textContent || '',
             pictures: [...box.querySelectorAll('img')].map(i => i.src),
-            labels: [...box.querySelectorAll('.widget-label')].map(l => l.textContent)}; })"""
+            labels: [...box.querySelectorAll('.widget-label')].map(l => l.textContent),
+            cut: [...box.querySelectorAll('.widget-label, .widget-html-content')]
+                .filter(t => t.scrollWidth > t.clientWidth + 1).map(t => t.textContent)}; })"""
 
 
 def _free_port() -> int:
@@ -109,5 +111,7 @@ def test_every_slider_redraws_after_run_all_and_no_error_reaches_the_log(lab, ch
             except AssertionError as timeout:
                 raise AssertionError(f"{timeout}; the kernel reported: {browser.evaluate('window.__errors')}") from None
             browser.wait_for(KERNEL_IDLE, f"{chapter}'s kernel after the slider moved", timeout=300)
+        cut = [text for slider in browser.evaluate(SLIDERS) for text in slider["cut"]]
+        assert cut == [], f"{chapter}: text beside a slider is cut at the window's edge (1280 px): {cut}"
         errors = browser.evaluate("window.__errors")
         assert errors == [], f"{chapter}: the kernel reported errors: {errors}"
