@@ -18,6 +18,7 @@ is narrow on purpose, so that the paper's constants and the library's settings p
 It also checks that each chapter numbers its exercises in the order a learner meets them (across the
 notebooks of a chapter in parts, such as 06a and 06b).
 """
+import ast
 import csv
 import json
 import math
@@ -160,3 +161,37 @@ def test_a_question_in_an_exercise_has_a_model_answer_in_its_solution(notebook):
             if not (solution and re.search(r"^\s*# Why\b", solution.group(1), re.M)):
                 unanswered.append(prompt.source.splitlines()[0])
     assert not unanswered, f"{notebook.name}: questions without a model answer in the solution: {unanswered}"
+
+
+def _exercises():
+    """(notebook, answer cell index, the solution's lines of code) for every graded exercise of the book."""
+    found = []
+    for notebook in NOTEBOOKS:
+        cells = nbformat.read(notebook, as_version=4).cells
+        for k, cell in enumerate(cells):
+            if cell.cell_type == "code" and cell.metadata.get("nbgrader", {}).get("solution"):
+                solution = re.search(r"### BEGIN SOLUTION\n(.*?)### END SOLUTION", cell.source, re.S).group(1)
+                code = [line for line in solution.splitlines() if line.strip() and not line.strip().startswith("#")]
+                found.append((notebook, cells, k, len(code)))
+    return found
+
+
+def test_the_exercises_build_rather_than_transcribe():
+    """Issue 42's measure of an exercise that builds: at least 12 solutions of 5 or more lines of code, and a
+    median of at least 5 (comments and blank lines not counted)."""
+    lengths = sorted(n for *_, n in _exercises())
+    median = (lengths[(len(lengths) - 1) // 2] + lengths[len(lengths) // 2]) / 2
+    assert sum(n >= 5 for n in lengths) >= 12 and median >= 5, lengths
+
+
+def test_later_cells_run_what_the_learner_wrote():
+    """At least 6 exercises define a function or class that a later, ungraded code cell of the same notebook
+    calls, so that the learner's code drives the chapter."""
+    used = []
+    for notebook, cells, k, _ in _exercises():
+        names = {node.name for node in ast.walk(ast.parse(cells[k].source))
+                 if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
+        later = "\n".join(c.source for c in cells[k + 1:] if c.cell_type == "code" and "nbgrader" not in c.metadata)
+        if any(re.search(rf"\b{name}\b", later) for name in names):
+            used.append(f"{notebook.stem}: {sorted(names)}")
+    assert len(used) >= 6, used
