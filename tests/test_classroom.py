@@ -37,6 +37,7 @@ WRONG = {
     "07_finetuning": ("ch07_prune", "keep = log_alpha <= threshold", "keep = log_alpha > threshold"),
     "08_grasping": ("ch08_grasp_success", "min(1.0, abs(approach[2]))", "min(1.0, approach[2])"),
     "09_beyond_the_paper": ("ch09_dart_noise", "errors.T @ errors / len(errors)", "errors.T @ errors"),
+    "10_what_reproduced": ("ch10_welch_verdict", "stats.t.ppf((1 + confidence) / 2, dof)", "stats.t.ppf(confidence, dof)"),
 }
 
 
