@@ -19,7 +19,7 @@ def test_notebooks_writes_every_chapter_and_data_file_and_records_them(tmp_path)
     book = write_notebooks(tmp_path / "book")
     chapters = sorted(p.name for p in (ROOT / "notebooks").glob("*.ipynb"))
     assert sorted(p.name for p in (book.dest / "notebooks").glob("*.ipynb")) == chapters
-    assert book.chapters == len(chapters) and book.data_files == sum(1 for p in shipped_files() if p.parts[0] == "data")
+    assert book.chapters + book.appendices == len(chapters) and book.data_files == sum(1 for p in shipped_files() if p.parts[0] == "data")
     assert (book.dest / "data/results/fig4/fig4.json").read_bytes() == (ROOT / "data/results/fig4/fig4.json").read_bytes()
     record = json.loads((book.dest / BOOK_RECORD).read_text())
     assert set(record["files"]) == {p.as_posix() for p in shipped_files()}

@@ -17,7 +17,8 @@ MODULES = sorted(p for p in PACKAGE.rglob("*.py") if "book" not in p.relative_to
 #: What the grid runner may import from the package: nothing that knows about VD, TRPO or policies.
 RUNNER_MAY_IMPORT = ("vdtutorial.runner", "vdtutorial.settings")
 #: "Taught in chapter 07" / "Taught in chapters 05 and 07" / "Not taught in a chapter: REASON".
-TAUGHT = re.compile(r"Taught in chapters? ((?:\d\d[a-z]?(?:, | and )?)+)|Not taught in a chapter: \S")
+TAUGHT = re.compile(r"Taught in (?:chapters?|appendix) ((?:(?:\d\d[a-z]?|A\d)(?:, | and | and appendix )?)+)"
+                    r"|Not taught in a chapter: \S")
 
 
 def _tree(path: Path) -> ast.Module:
@@ -78,7 +79,7 @@ def test_a_module_docstring_is_short_and_names_the_chapter_that_teaches_it(path)
     chapters = {p.name.split("_")[0]: p for p in (shipped_dir() / "notebooks").glob("*.ipynb")}
     relative = path.relative_to(PACKAGE.parent)
     names = (_dotted(path), str(relative), *([f"{relative.parent}/"] if path.name == "__init__.py" else []))
-    for number in re.findall(r"\d\d[a-z]?", match.group(1)):
+    for number in re.findall(r"\d\d[a-z]?|A\d", match.group(1)):
         assert number in chapters, f"chapter {number} does not exist"
         text = "".join("".join(cell["source"]) for cell in json.loads(chapters[number].read_text())["cells"])
         assert any(re.search(re.escape(name) + r"\b", text) for name in names), \

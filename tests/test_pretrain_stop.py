@@ -87,7 +87,7 @@ def test_the_shipped_comparison_is_its_rows_and_its_verdict_follows_the_rule(shi
     assert {r["epochs_run"] for r in fixed} == {40}  # the figures' checkpoints, found as shipped
 
 
-def test_the_results_page_and_chapter_05_print_what_the_record_gives(shipped):
+def test_the_results_page_and_appendix_a1_print_what_the_record_gives(shipped):
     import json
 
     root = Path(__file__).resolve().parents[1]  # the checkout: docs/ and notebooks/ are not installed with the package
@@ -96,7 +96,7 @@ def test_the_results_page_and_chapter_05_print_what_the_record_gives(shipped):
     block = "\n".join("    " + line for line in ps.format_comparison(record).splitlines())
     assert block in page
     assert ("not material" in block) == (not record["material"])
-    chapter = json.loads((root / "notebooks" / "05_pretraining.ipynb").read_text())
+    chapter = json.loads((root / "notebooks" / "A1_pretraining_in_detail.ipynb").read_text())
     code = "".join("".join(c["source"]) for c in chapter["cells"] if c["cell_type"] == "code")
     assert "format_comparison(json.loads(stop_file.read_text()))" in code and 'with_suffix(".png")' in code
 

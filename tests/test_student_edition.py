@@ -44,6 +44,7 @@ def test_student_edition_keeps_the_learners_answers(tmp_path):
 
     book = write_notebooks(tmp_path, student=True)
     assert book.chapters == book.solutions == len(classroom.chapters())
+    assert book.appendices == len(list((shipped_dir() / "notebooks").glob("A[0-9]_*.ipynb"))) >= 3
     write_notebooks(tmp_path, student=True)   # untouched: written again without a word
     answer = tmp_path / "notebooks" / "01_environment.ipynb"
     answer.write_text(answer.read_text().replace("raise NotImplementedError()", "return 0.0", 1))

@@ -12,7 +12,7 @@ Why it matters
     is a dropout model, it inherently contains information about its own uncertainty. There is potential
     to use this uncertainty information to learn an appropriate SD function."
 
-Taught in chapter 07.
+Taught in chapter 07 and appendix A4.
 """
 from __future__ import annotations
 

@@ -267,7 +267,8 @@ def cmd_notebooks(args) -> None:
     except (EditedFilesError, NoNbgraderError) as exc:
         raise CommandError(str(exc)) from exc
     edition = "the student edition of " if args.student else ""
-    print(f"wrote {edition}{book.chapters} chapters and {book.data_files} data files into {book.dest}; start with "
+    print(f"wrote {edition}{book.chapters} chapters, {book.appendices} appendices and {book.data_files} data files into "
+          f"{book.dest}; start with "
           f"jupyter lab {book.dest / 'notebooks' / '00_start_here.ipynb'}")
     if book.solutions:
         print(f"the {book.solutions} chapters with every exercise solved are in {book.dest / 'solutions'}: "

@@ -40,10 +40,13 @@ class NoNbgraderError(ImportError):
 
 @dataclass(frozen=True)
 class WrittenBook:
+    """What :func:`write_notebooks` wrote: counts of chapters (``NN_*.ipynb``), appendices (``A1_*.ipynb``, no
+    exercises: the same in both editions), data files and, in the student edition, solution notebooks."""
     dest: Path
     chapters: int
     data_files: int
     solutions: int = 0
+    appendices: int = 0
 
 
 #: What an experiment writes beside its results while it runs (its per-run logs, saved states, the checkpoints and
@@ -117,6 +120,8 @@ def write_notebooks(dest: str | Path, force: bool = False, source: Path | None =
             shutil.copyfile(path, dest / name)
     record = {"vdtutorial": vdtutorial.__version__, "files": digests}
     record_path.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
-    return WrittenBook(dest, sum(name.startswith("notebooks/") and name.endswith(".ipynb") for name in digests),
-                       sum(name.startswith("data/") for name in digests), sum(name.startswith("solutions/")
-                                                                              for name in digests))
+    notebooks = [name.split("/", 1)[1] for name in digests if name.startswith("notebooks/") and name.endswith(".ipynb")]
+    return WrittenBook(dest, sum(name[:2].isdigit() for name in notebooks),
+                       sum(name.startswith("data/") for name in digests),
+                       sum(name.startswith("solutions/") for name in digests),
+                       sum(name[0] == "A" and name[1].isdigit() for name in notebooks))

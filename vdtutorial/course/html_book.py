@@ -77,9 +77,10 @@ def _title(notebook) -> str:
 
 def find_chapters(numbers=None, source: Path | None = None) -> list[Chapter]:
     """The chapters under ``source/notebooks`` (default: :func:`~vdtutorial.settings.shipped_dir`) in their
-    order, only those whose number is in ``numbers`` (e.g. ``["00", "04"]``) when given."""
+    order, the appendices (``A1_*.ipynb``, ...) after them, only those whose number is in ``numbers`` (e.g.
+    ``["00", "04", "A1"]``) when given."""
     source = Path(source) if source is not None else shipped_dir()
-    paths = sorted((source / "notebooks").glob("[0-9][0-9]*_*.ipynb"))
+    paths = sorted((source / "notebooks").glob("[0-9][0-9]*_*.ipynb")) + sorted((source / "notebooks").glob("A[0-9]_*.ipynb"))
     wanted = {f"{int(n):02d}" if str(n).isdigit() else str(n) for n in numbers} if numbers else None
     chapters = [Chapter(path, path.name.split("_", 1)[0], _title(nbformat.read(path, as_version=4)))
                 for path in paths if wanted is None or path.name.split("_", 1)[0] in wanted]
@@ -91,11 +92,11 @@ def find_chapters(numbers=None, source: Path | None = None) -> list[Chapter]:
 
 def learning_goals(teaching: Path) -> dict[str, str]:
     """Chapter number -> "after it, a student can ..." from the table under ``## Learning goals`` in
-    TEACHING.md (its rows start ``| 04 sparse VD | ...``)."""
+    TEACHING.md (its rows start ``| 04 sparse VD | ...``, an appendix's ``| A1 ... | ...``)."""
     section = re.search(r"^## Learning goals\n(.*?)(?=^## |\Z)", teaching.read_text(encoding="utf-8"), flags=re.M | re.S)
     if section is None:
         raise ValueError(f"{teaching} has no '## Learning goals' section")
-    rows = re.findall(r"^\|\s*(\d\d[a-z]?)\b[^|]*\|\s*(.+?)\s*\|\s*$", section.group(1), flags=re.M)
+    rows = re.findall(r"^\|\s*(\d\d[a-z]?|A\d)\b[^|]*\|\s*(.+?)\s*\|\s*$", section.group(1), flags=re.M)
     return dict(rows)
 
 

@@ -3,7 +3,8 @@
 (``python -m vdtutorial digits``). It checks the layers of :mod:`vdtutorial.vd` where the answer is known:
 almost the same accuracy with most weights pruned.
 
-Taught in chapter 04.
+Taught in chapter 04 and appendix A3: chapter 04 trains :func:`digits_mlp` and reads its sparsity, appendix A3
+runs :func:`digits_validation`.
 """
 from __future__ import annotations
 

@@ -22,7 +22,7 @@ Verdicts: **confirmed** when the interval lies wholly on the paper's side, **con
 wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds); beside
 each, the Holm-corrected verdict and the seeds a decision would need (:func:`claim_effects`).
 
-Taught in chapter 07.
+Taught in chapter 07 and appendix A5.
 """
 from __future__ import annotations
 

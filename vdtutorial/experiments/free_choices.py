@@ -15,7 +15,7 @@ against L2 at the final level and over the whole run, Holm-corrected over all ro
 A changed row pre-trains into its own checkpoint folder (a checkpoint's name holds neither ``l2`` nor
 ``beta_warmup``).
 
-Taught in chapter 07.
+Taught in appendix A4.
 """
 from __future__ import annotations
 

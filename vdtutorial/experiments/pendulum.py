@@ -1,8 +1,9 @@
 """TRPO on a standard task, ours against a peer's: gymnasium's Pendulum-v1, our TRPO with the paper's
 settings, with sb3-contrib's settings, and sb3-contrib's own TRPO with its defaults and with RL Zoo's tuned
-entry (``python -m vdtutorial bench trpo``; chapter 06b runs it small).
+entry (``python -m vdtutorial bench trpo``).
 
-Taught in chapter 06b.
+Taught in chapter 06b and appendix A2: chapter 06b trains on Pendulum-v1 with :data:`PENDULUM_CONFIG`, appendix
+A2 describes the benchmark.
 """
 from __future__ import annotations
 

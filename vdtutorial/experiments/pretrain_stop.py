@@ -11,7 +11,7 @@ the difference stopped - fixed at the pre-RL level and over the early RL curve, 
 If it is material (:func:`is_material`), ``fig4_rgbd`` is to be made again from the stopped checkpoints; if not,
 this is its control.
 
-Taught in chapter 05.
+Taught in appendix A1.
 """
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ Writes ``sigma_study.csv.gz`` (the TRPO rows of every run, a few columns), ``sig
 settings, the summary per option and method with 95% t-intervals over seeds, the rule's decision) and
 ``sigma_study.png`` into ``out``. Run ``python -m vdtutorial.experiments.sigma_study --help``.
 
-Taught in chapter 07.
+Taught in appendix A4.
 """
 from __future__ import annotations
 

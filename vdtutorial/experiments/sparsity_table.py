@@ -8,7 +8,7 @@ was normalised, so the table is measured both ways: ``per-set`` (1/N with each s
 size, eq. 3 as written, ``PretrainConfig.kl_divisor=None``) and ``fixed`` (1/N_8000 for every set, the
 8000-sample set's nominal training split, so that the rows differ only by their data).
 
-Taught in chapter 05.
+Taught in chapter 05 and appendix A1.
 """
 from __future__ import annotations
 
