@@ -10,6 +10,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 
 import nbformat
 import pytest
@@ -145,6 +146,54 @@ def test_grade_refuses_bad_input_with_one_line(tmp_path, capsys):
         code, last = run_cli(["classroom", "grade", path, "--out", str(tmp_path / "course")], capsys)
         assert code == 2 and last.startswith("error: ") and message in last, (path, last)
     assert not (tmp_path / "course" / "gradebook.db").exists(), "nothing is graded when the input is bad"
+
+
+def _gradebook_scores(course):
+    """(student, chapter, grade cell) -> score, as nbgrader's own gradebook holds them."""
+    from nbgrader.api import Gradebook
+
+    with Gradebook(f"sqlite:///{course / 'gradebook.db'}") as gb:
+        return {(sub.student.id, nb.name, g.name): g.score
+                for sub in gb.assignment_submissions(classroom.ASSIGNMENT) for nb in sub.notebooks for g in nb.grades
+                if g.score is not None}
+
+
+@pytest.mark.parametrize("backend", ["local", "ray"])
+def test_a_class_is_graded_in_parallel_into_one_consistent_gradebook(backend, released, tmp_path):
+    """Four submissions of chapter 01, two at a time (worker processes, or a private local Ray): the same points as
+    one at a time would give (the teacher's full, the released edition's 0, each twice), every one of them in the
+    gradebook as in grades.csv, and a line per submission as it is graded."""
+    if backend == "ray":
+        pytest.importorskip("ray")
+    chapter = "01_environment"
+    for student, source in (("t1", classroom.chapters()[chapter]), ("t2", classroom.chapters()[chapter]),
+                            ("u1", released / f"{chapter}.ipynb"), ("u2", released / f"{chapter}.ipynb")):
+        (tmp_path / "in" / student).mkdir(parents=True)
+        (tmp_path / "in" / student / f"{chapter}.ipynb").write_bytes(source.read_bytes())
+    lines = []
+    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", workers=2, backend=backend,
+                             log=lines.append)
+    totals = {st: sum(s.score for s in scores if s.student == st) for st in ("t1", "t2", "u1", "u2")}
+    possible = sum(s.max_score for s in scores if s.student == "t1")
+    assert possible > 0 and totals == {"t1": possible, "t2": possible, "u1": 0, "u2": 0}
+    assert _gradebook_scores(tmp_path / "course") == {(s.student, s.chapter, s.exercise): s.score for s in scores}
+    assert sorted(line.split("] ", 1)[1] for line in lines) == sorted(
+        f"{st} {chapter}: {totals[st]:g}/{possible:g} points" for st in totals)
+    for st in totals:
+        assert (tmp_path / "course" / "autograded" / st / classroom.ASSIGNMENT / f"{chapter}.ipynb").is_file()
+
+
+def test_an_unreachable_ray_address_fails_grading_within_30_s_in_one_line(released, tmp_path):
+    pytest.importorskip("ray")
+    (tmp_path / "in" / "ann").mkdir(parents=True)
+    (tmp_path / "in" / "ann" / "01_environment.ipynb").write_bytes((released / "01_environment.ipynb").read_bytes())
+    start = time.monotonic()
+    run = subprocess.run([sys.executable, "-m", "vdtutorial", "classroom", "grade", str(tmp_path / "in" / "ann"),
+                          "--out", str(tmp_path / "course"), "--address", "127.0.0.1:1"],
+                         capture_output=True, text=True, timeout=120)
+    assert time.monotonic() - start < 30
+    assert run.returncode == 2
+    assert run.stderr.strip().splitlines()[-1].startswith("error: no Ray cluster answers at 127.0.0.1:1")
 
 
 def test_release_refuses_to_overwrite(released, capsys):

@@ -9,8 +9,10 @@ nbgrader course directory and calls nbgrader's own steps,
 * :func:`release` -- ``generate_assignment``: solutions become ``# YOUR CODE HERE`` stubs, hidden tests
   and outputs are removed, cells are locked and checksummed;
 * :func:`grade` -- ``generate_assignment`` (which records the exercises and their points in the SQLite
-  gradebook) then ``autograde`` per student: each submission runs on a fresh kernel with nbgrader's
-  per-cell timeout, errors in a cell are recorded in that cell, and the points come from the gradebook.
+  gradebook) then ``autograde`` per submission: each runs on a fresh kernel with nbgrader's per-cell
+  timeout, errors in a cell are recorded in that cell. Submissions are graded several at once, each in a
+  course folder of its own (local worker processes, or Ray tasks), and their points are written into the
+  one gradebook by the grading process alone.
 
 Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): a memory and a CPU-time
 cap, a throwaway home that is also its working folder, and on Linux, where the system allows
@@ -60,6 +62,11 @@ class Limits:
 
 class ClassroomError(Exception):
     """A problem the user can fix (bad path, unknown chapter, a notebook of another edition)."""
+
+
+def available_cores() -> int:
+    """The cores this process may run on (a container's or a batch job's share, not the machine's count)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def notebooks_dir() -> Path:
@@ -261,8 +268,9 @@ class Score:
     max_score: float
 
 
-def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_TIMEOUT,
-          quick: bool = True, limits: Limits = Limits()) -> list[Score]:
+def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_TIMEOUT, quick: bool = True,
+          limits: Limits = Limits(), workers: int = 1, backend: str = "local", address: str | None = None,
+          log=None) -> list[Score]:
     """Autograde submissions with nbgrader; returns one :class:`Score` per exercise and student.
 
     ``out`` becomes an nbgrader course directory (``source/``, ``submitted/``, ``autograded/``, the SQLite
@@ -270,41 +278,124 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
     ``limits``; a cell that raises or runs longer than ``timeout`` seconds scores 0 where it is a test and does
     not stop the others. ``quick`` runs the kernels in quick mode (small budgets: the exercises do not depend
     on them); their results go to ``runs/`` in each kernel's throwaway folder.
+
+    The submissions are graded ``workers`` at a time, each in a course folder of its own (:func:`grade_one`) on
+    ``backend`` (:func:`vdtutorial.runner.backends.run_jobs`: local processes, or Ray, ``address`` naming a
+    cluster); this process alone writes their scores into the gradebook, so that it stays consistent however
+    many run at once. ``log`` gets one line per graded submission.
     """
+    from vdtutorial.runner.backends import run_jobs
+
     source = Path(source) if source is not None else notebooks_dir()
     out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
     with tempfile.TemporaryDirectory(prefix="vdtutorial_grade_") as scratch, _quiet():
-        kernel_env = {QUICK_ENV: "1" if quick else "0", "MPLBACKEND": "Agg", "PATH": _path_with_our_scripts(),
-                      "VDTUTORIAL_RUNS": "runs", **_bounded_kernels(Path(scratch), limits)}
-        api = _generate(out, source, sorted({s.chapter for s in subs}), timeout, sockets=Path(scratch) / "runtime")
-        for sub in subs:
-            dest = out / "submitted" / sub.student / ASSIGNMENT / f"{sub.chapter}.ipynb"
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy(sub.path, dest)
-        with _environment(**kernel_env):
-            for student in sorted({s.student for s in subs}):
-                result = api.autograde(ASSIGNMENT, student)
-                if not result["success"]:
-                    print(f"warning: nbgrader could not grade {student}: "
-                          f"{(result.get('error') or '').strip()[-300:]}", file=sys.stderr)
-        return _scores(api, subs, out)
+        api = _generate(out, source, sorted({s.chapter for s in subs}), timeout, sockets=Path(scratch))
+        gradebook = (out / "gradebook.db").read_bytes()
+        jobs = [GradingJob(sub.student, sub.chapter, sub.path.read_bytes(),
+                           (out / "source" / ASSIGNMENT / f"{sub.chapter}.ipynb").read_bytes(), gradebook, timeout,
+                           quick, limits) for sub in subs]
+        results = run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address,
+                           listener=_GradingLog(jobs, log) if log else None)
+        for sub, result in zip(subs, results):
+            for folder, data in (("submitted", sub.path.read_bytes()), ("autograded", result.autograded)):
+                if data is not None:
+                    dest = out / folder / sub.student / ASSIGNMENT / f"{sub.chapter}.ipynb"
+                    dest.parent.mkdir(parents=True, exist_ok=True)
+                    dest.write_bytes(data)
+            if result.error is not None:
+                print(f"warning: nbgrader could not grade {sub.student}: {result.error}", file=sys.stderr)
+        return _record(api, subs, results, out)
 
 
-def _scores(api, subs: list[Submission], out: Path) -> list[Score]:
-    """Every submission's points from the gradebook (0 for the exercises of a notebook nbgrader could not
-    grade at all), also written to ``out/grades.csv``."""
+@dataclass(frozen=True)
+class GradingJob:
+    """One submission to grade, with everything its worker needs (a Ray node needs no shared folder): the
+    notebook, the teacher's chapter and the gradebook that ``generate_assignment`` made of it."""
+
+    student: str
+    chapter: str
+    submission: bytes
+    teacher: bytes
+    gradebook: bytes
+    timeout: int
+    quick: bool
+    limits: Limits
+
+
+@dataclass(frozen=True)
+class Graded:
+    """What :func:`grade_one` returns: ``grades`` as ``(grade cell, score, max score)`` (``None`` when nbgrader
+    could not grade the notebook at all, ``error`` then says why) and the autograded notebook."""
+
+    grades: tuple | None
+    autograded: bytes | None
+    error: str | None
+
+
+def grade_one(job: GradingJob) -> Graded:
+    """nbgrader's autograde of one submission, in a course folder of its own made in a throwaway folder: the
+    worker's part of :func:`grade`."""
     from nbgrader.api import MissingEntry
 
+    with tempfile.TemporaryDirectory(prefix="vdtutorial_grade_") as scratch, _quiet():
+        scratch = Path(scratch)
+        course = scratch / "course"
+        for folder, data in (("source", job.teacher), (f"submitted/{job.student}", job.submission)):
+            (course / folder / ASSIGNMENT).mkdir(parents=True)
+            (course / folder / ASSIGNMENT / f"{job.chapter}.ipynb").write_bytes(data)
+        (course / "gradebook.db").write_bytes(job.gradebook)
+        kernel_env = {QUICK_ENV: "1" if job.quick else "0", "MPLBACKEND": "Agg", "PATH": _path_with_our_scripts(),
+                      "VDTUTORIAL_RUNS": "runs", **_bounded_kernels(scratch, job.limits)}
+        api = _api(course, job.timeout, sockets=scratch / "runtime")
+        with _environment(**kernel_env):
+            result = api.autograde(ASSIGNMENT, job.student)
+        error = None if result["success"] else (result.get("error") or "").strip()[-300:]
+        autograded = course / "autograded" / job.student / ASSIGNMENT / f"{job.chapter}.ipynb"
+        with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
+            try:
+                nb = gb.find_submission_notebook(job.chapter, ASSIGNMENT, job.student)
+                grades = tuple((g.name, float(g.score), float(g.max_score)) for g in nb.grades)
+            except MissingEntry:  # autograding this notebook failed as a whole
+                grades = None
+        return Graded(grades, autograded.read_bytes() if autograded.is_file() else None, error)
+
+
+class _GradingLog:
+    """The listener of :func:`grade`'s jobs: one line per graded submission."""
+
+    def __init__(self, jobs: list[GradingJob], log):
+        self.jobs, self.log, self.done = jobs, log, 0
+
+    def report(self, index, report) -> None:
+        pass
+
+    def tick(self) -> None:
+        pass
+
+    def finished(self, index, result: Graded) -> None:
+        self.done += 1
+        job = self.jobs[index]
+        points = (f"{sum(g[1] for g in result.grades):g}/{sum(g[2] for g in result.grades):g} points"
+                  if result.grades is not None else "not graded")
+        self.log(f"[{self.done}/{len(self.jobs)}] {job.student} {job.chapter}: {points}")
+
+
+def _record(api, subs: list[Submission], results: list[Graded], out: Path) -> list[Score]:
+    """Write every submission's points into the gradebook (0 for the exercises of a notebook nbgrader could not
+    grade at all) and into ``out/grades.csv``; returns them."""
     scores = []
     with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
-        for sub in subs:
-            try:
-                nb = gb.find_submission_notebook(sub.chapter, ASSIGNMENT, sub.student)
-            except MissingEntry:  # autograding this notebook failed as a whole: no points
+        for sub, result in zip(subs, results):
+            grades = result.grades
+            if grades is None:
                 grades = [(g, 0.0, _max_points(gb, sub.chapter, g)) for g in _test_cells(gb, sub.chapter)]
-            else:
-                grades = [(g.name, float(g.score), float(g.max_score)) for g in nb.grades]
+            gb.update_or_create_student(sub.student)
+            gb.update_or_create_submission(ASSIGNMENT, sub.student)
+            for name, score, _ in grades:
+                cell = gb.find_grade(name, sub.chapter, ASSIGNMENT, sub.student)
+                cell.auto_score, cell.needs_manual_grade = score, False
+            gb.db.commit()
             scores += [Score(sub.student, sub.chapter, name, s, m) for name, s, m in sorted(grades)]
     write_csv(scores, out / "grades.csv")
     return scores
@@ -364,7 +455,14 @@ def _cmd_grade(args) -> None:
     if os.name == "posix" and not limits.isolate:
         print(f"warning: this system allows no user namespaces, so the kernels cannot be cut off from the "
               f"network and the files: {SAFETY_NOTE}", file=sys.stderr)
-    scores = grade(args.submissions, args.out, Path(args.source), args.timeout, quick=not args.full, limits=limits)
+    if args.workers < 1:
+        raise ClassroomError("--workers must be at least 1")
+    if args.address is not None and args.backend == "local":
+        raise ClassroomError("--address names a Ray cluster: use it with --backend ray")
+    backend = args.backend or ("ray" if args.address is not None else "local")
+    scores = grade(args.submissions, args.out, Path(args.source), args.timeout, quick=not args.full, limits=limits,
+                   workers=args.workers, backend=backend, address=args.address,
+                   log=lambda line: print(line, file=sys.stderr))
     print(table(scores))
     print(f"\ngradebook {Path(args.out) / 'gradebook.db'}, table {Path(args.out) / 'grades.csv'}")
 
@@ -404,5 +502,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--cpu-minutes", type=float, default=Limits.cpu_minutes, metavar="MIN",
                    help="CPU-time cap of each submission's kernel; past it the kernel is killed (default: %(default)s)")
     g.add_argument("--source", default=str(notebooks_dir()), help="the teacher's notebooks (default: %(default)s)")
+    g.add_argument("--workers", type=int, default=available_cores(), metavar="N",
+                   help="submissions graded at once, each on its own kernel (default: the cores available, %(default)s)")
+    g.add_argument("--backend", choices=("local", "ray"), default=None,
+                   help="where the submissions are graded: local processes (default), or Ray, one task per "
+                        "submission (pip install -e '.[cluster]'); without --address Ray starts locally with --workers CPUs")
+    g.add_argument("--address", default=None,
+                   help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); its nodes need "
+                        "the same install (a submission travels with its job: no shared folder)")
     g.set_defaults(func=_run(_cmd_grade))
     return p
