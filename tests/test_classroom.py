@@ -196,6 +196,47 @@ def test_an_unreachable_ray_address_fails_grading_within_30_s_in_one_line(releas
     assert run.stderr.strip().splitlines()[-1].startswith("error: no Ray cluster answers at 127.0.0.1:1")
 
 
+#: Chapter 04 (Exercises 4.1 and 4.2) as two hostile students hand it in: the teacher's solutions, with one more
+#: answer cell's code in front (issue 43's attacks, tried on chapter 04's exercises).
+HOSTILE = {
+    # the library's own layer, under the student's name: 4.1 scores 0, 4.2 (the teacher's) keeps its points
+    "copier": ("ch04_svdo_layer", "from vdtutorial.vd import LinearSVDO as MyLinearSVDO\n", {"ch04_svdo_layer_tests"}),
+    # the comparison disarmed for every later test: the whole notebook scores 0
+    "patcher": ("ch04_svdo_layer", "import torch\ntorch.testing.assert_close = lambda *args, **kwargs: None\n", None),
+}
+
+
+def test_an_answer_that_calls_the_reference_or_patches_the_tests_is_refused(tmp_path):
+    """Refused before it runs, with the reason in the teacher's table, grades.csv and the gradebook's comment."""
+    teacher = classroom.chapters()["04_sparse_variational_dropout"]
+    for student, (exercise, code, _) in HOSTILE.items():
+        nb = nbformat.read(teacher, as_version=4)
+        answer = next(c for c in nb.cells if nbgrader(c).get("grade_id") == exercise and nbgrader(c).get("solution"))
+        answer.source = code + answer.source
+        (tmp_path / "in" / student).mkdir(parents=True)
+        nbformat.write(nb, tmp_path / "in" / student / teacher.name)
+    lines = []
+    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", workers=2, log=lines.append)
+    tests = {s.exercise for s in scores}
+    for student, (exercise, _, lost) in HOSTILE.items():
+        lost = tests if lost is None else lost
+        got = {s.exercise: s for s in scores if s.student == student}
+        assert {e for e, s in got.items() if s.score == 0} == lost, student
+        assert all(got[e].score == got[e].max_score for e in tests - lost), student
+        assert all(got[e].refused.startswith(exercise + " line ") for e in lost), student
+    assert any(line.startswith("refused patcher") for line in lines), lines
+    printed = classroom.table(scores)
+    assert "0!" in printed and "uses the library's LinearSVDO" in printed and "changes torch.testing" in printed
+    with open(tmp_path / "course" / "grades.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["student"] for r in rows if r["refused"]} == {"copier", "patcher"}
+    from nbgrader.api import Gradebook
+
+    with Gradebook(f"sqlite:///{tmp_path / 'course' / 'gradebook.db'}") as gb:
+        comment = gb.find_comment("ch04_svdo_layer", teacher.stem, classroom.ASSIGNMENT, "copier")
+        assert comment.manual_comment.startswith("refused by the grader: ch04_svdo_layer line 1")
+
+
 def test_release_refuses_to_overwrite(released, capsys):
     code, last = run_cli(["classroom", "release", str(released)], capsys)
     assert code == 2 and "already holds" in last

@@ -12,14 +12,13 @@ nbgrader course directory and calls nbgrader's own steps,
   gradebook) then ``autograde`` per submission: each runs on a fresh kernel with nbgrader's per-cell
   timeout, errors in a cell are recorded in that cell. Submissions are graded several at once, each in a
   course folder of its own (local worker processes, or Ray tasks), and their points are written into the
-  one gradebook by the grading process alone.
+  one gradebook by the grading process alone. Before anything runs, the answer cells are read
+  (:func:`refusals`, :mod:`vdtutorial.course.answer_rules`): an answer that uses the library's piece its
+  exercise rebuilds scores 0 there; one that could change the tests makes the whole notebook score 0.
 
-Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): a memory and a CPU-time
-cap, a throwaway home that is also its working folder, and on Linux, where the system allows
-unprivileged user namespaces, no network and a read-only file system outside that folder. The kernels talk
-to nbgrader over Unix sockets (ZeroMQ's ``ipc`` transport), not TCP. Where namespaces are not allowed the
-submissions still run with the grader's rights to the files and the network: ``classroom grade`` says so
-(:data:`SAFETY_NOTE`), and grading then belongs in a container or a throwaway account.
+Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): memory and CPU-time caps,
+a throwaway home, and on Linux, where user namespaces are allowed, no network and read-only files outside it;
+the kernels talk to nbgrader over Unix sockets. Elsewhere ``classroom grade`` says so (:data:`SAFETY_NOTE`).
 Command line: ``python -m vdtutorial classroom release OUT`` and ``... classroom grade SUBMISSIONS...``.
 
 Not taught in a chapter: the teacher's tool (notebooks/TEACHING.md).
@@ -266,6 +265,7 @@ class Score:
     exercise: str
     score: float
     max_score: float
+    refused: str = ""   # why the grader gave 0 whatever the tests said (vdtutorial.course.answer_rules), or ""
 
 
 def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_TIMEOUT, quick: bool = True,
@@ -289,14 +289,21 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
     source = Path(source) if source is not None else notebooks_dir()
     out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
+    teachers = chapters(source)
+    refused = [refusals(sub.path, teachers[sub.chapter]) for sub in subs]
+    for sub, (whole, _) in zip(subs, refused):
+        if whole and log:
+            log(f"refused {sub.student} {sub.chapter} without running it: {whole}")
     with tempfile.TemporaryDirectory(prefix="vdtutorial_grade_") as scratch, _quiet():
         api = _generate(out, source, sorted({s.chapter for s in subs}), timeout, sockets=Path(scratch))
         gradebook = (out / "gradebook.db").read_bytes()
-        jobs = [GradingJob(sub.student, sub.chapter, sub.path.read_bytes(),
-                           (out / "source" / ASSIGNMENT / f"{sub.chapter}.ipynb").read_bytes(), gradebook, timeout,
-                           quick, limits) for sub in subs]
-        results = run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address,
-                           listener=_GradingLog(jobs, log) if log else None)
+        run = [k for k, (whole, _) in enumerate(refused) if whole is None]
+        jobs = [GradingJob(subs[k].student, subs[k].chapter, subs[k].path.read_bytes(),
+                           (out / "source" / ASSIGNMENT / f"{subs[k].chapter}.ipynb").read_bytes(), gradebook, timeout,
+                           quick, limits) for k in run]
+        graded = dict(zip(run, run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address,
+                                        listener=_GradingLog(jobs, log) if log else None)))
+        results = [graded.get(k, Graded(None, None, None)) for k in range(len(subs))]
         for sub, result in zip(subs, results):
             for folder, data in (("submitted", sub.path.read_bytes()), ("autograded", result.autograded)):
                 if data is not None:
@@ -305,7 +312,44 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
                     dest.write_bytes(data)
             if result.error is not None:
                 print(f"warning: nbgrader could not grade {sub.student}: {result.error}", file=sys.stderr)
-        return _record(api, subs, results, out)
+        return _record(api, subs, results, refused, out)
+
+
+def refusals(path: Path, teacher: Path) -> tuple[str | None, dict[str, str]]:
+    """What the static check (:func:`vdtutorial.course.answer_rules.answer_violations`) finds in the code of a
+    submitted notebook that is the student's: its answer cells, and every other code cell that is not the
+    teacher's chapter (``teacher``) as written (an added cell, or a chapter cell the student changed; nbgrader
+    restores only the locked ones). Returns why the whole notebook scores 0 (tampering anywhere: it could change
+    what every test does), or ``None``; and, per test cell, why that exercise scores 0 (the student's code uses
+    the library's piece that the exercise rebuilds)."""
+    import nbformat
+
+    from vdtutorial.course.answer_rules import FORBIDDEN, answer_violations
+
+    chapter = {cell.get("id"): cell.source for cell in nbformat.read(teacher, as_version=4).cells
+               if cell.cell_type == "code"}
+    every_name = tuple(sorted({name for names in FORBIDDEN.values() for name in names}))
+    whole, each = [], {}
+    for k, cell in enumerate(nbformat.read(path, as_version=4).cells):
+        grading = cell.metadata.get("nbgrader", {})
+        if cell.cell_type != "code" or grading.get("locked") or (grading.get("grade") and not grading.get("solution")):
+            continue  # restored from the teacher's edition before it runs
+        found = answer_violations(cell.source, FORBIDDEN.get(grading.get("grade_id"), every_name))
+        if grading.get("solution"):
+            where = grading["grade_id"]
+        else:   # a chapter cell: only what the student's version adds to the teacher's counts
+            where = f"cell {k + 1} (not an answer cell)"
+            own = {(v.kind, v.text) for v in answer_violations(chapter.get(cell.get("id"), ""), every_name)}
+            found = [v for v in found if (v.kind, v.text) not in own]
+        for violation in found:
+            why = f"{where} {violation}"
+            if violation.kind == "tampering":
+                whole.append(why)
+                continue
+            for exercise, forbidden in FORBIDDEN.items():
+                if violation.name in forbidden and exercise == grading.get("grade_id", exercise):
+                    each.setdefault(f"{exercise}_tests", why)
+    return "; ".join(whole) or None, each
 
 
 @dataclass(frozen=True)
@@ -381,22 +425,28 @@ class _GradingLog:
         self.log(f"[{self.done}/{len(self.jobs)}] {job.student} {job.chapter}: {points}")
 
 
-def _record(api, subs: list[Submission], results: list[Graded], out: Path) -> list[Score]:
+def _record(api, subs: list[Submission], results: list[Graded], refused: list[tuple], out: Path) -> list[Score]:
     """Write every submission's points into the gradebook (0 for the exercises of a notebook nbgrader could not
-    grade at all) and into ``out/grades.csv``; returns them."""
+    grade at all, and for those :func:`refusals` refused, with the reason as the answer cell's comment, which
+    nbgrader's formgrader shows) and into ``out/grades.csv``; returns them."""
     scores = []
     with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
-        for sub, result in zip(subs, results):
+        for sub, result, (whole, each) in zip(subs, results, refused):
             grades = result.grades
             if grades is None:
                 grades = [(g, 0.0, _max_points(gb, sub.chapter, g)) for g in _test_cells(gb, sub.chapter)]
             gb.update_or_create_student(sub.student)
             gb.update_or_create_submission(ASSIGNMENT, sub.student)
-            for name, score, _ in grades:
+            for name, score, top in sorted(grades):
+                why = whole or each.get(name, "")
                 cell = gb.find_grade(name, sub.chapter, ASSIGNMENT, sub.student)
-                cell.auto_score, cell.needs_manual_grade = score, False
+                cell.auto_score, cell.needs_manual_grade = (0.0 if why else score), False
+                if why and name.endswith("_tests"):
+                    with contextlib.suppress(Exception):  # an exercise whose answer cell has another name: no comment
+                        comment = gb.find_comment(name.removesuffix("_tests"), sub.chapter, ASSIGNMENT, sub.student)
+                        comment.manual_comment = f"refused by the grader: {why}"
+                scores.append(Score(sub.student, sub.chapter, name, 0.0 if why else score, top, why))
             gb.db.commit()
-            scores += [Score(sub.student, sub.chapter, name, s, m) for name, s, m in sorted(grades)]
     write_csv(scores, out / "grades.csv")
     return scores
 
@@ -410,12 +460,13 @@ def _max_points(gb, chapter: str, cell: str) -> float:
 
 
 def write_csv(scores: list[Score], path: Path) -> Path:
-    """One row per student and exercise: student, chapter, exercise, score, max_score."""
+    """One row per student and exercise: student, chapter, exercise, score, max_score, refused (why the grader
+    gave 0 whatever the tests said, or empty)."""
     with open(path, "w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow(["student", "chapter", "exercise", "score", "max_score"])
+        writer.writerow(["student", "chapter", "exercise", "score", "max_score", "refused"])
         for s in scores:
-            writer.writerow([s.student, s.chapter, s.exercise, s.score, s.max_score])
+            writer.writerow([s.student, s.chapter, s.exercise, s.score, s.max_score, s.refused])
     return path
 
 
@@ -423,15 +474,19 @@ def table(scores: list[Score]) -> str:
     """Points per exercise (rows) and student (columns), with each student's total."""
     students = sorted({s.student for s in scores})
     rows = sorted({(s.chapter, s.exercise, s.max_score) for s in scores})
-    got = {(s.student, s.chapter, s.exercise): s.score for s in scores}
+    got = {(s.student, s.chapter, s.exercise): f"{s.score:g}!" if s.refused else f"{s.score:g}" for s in scores}
     width = max([len(e) for _, e, _ in rows] + [8])
     lines = [f"{'exercise':<{width}} {'max':>5} " + " ".join(f"{st[:12]:>12}" for st in students)]
     for chapter, exercise, top in rows:
         cells = [got.get((st, chapter, exercise)) for st in students]
-        lines.append(f"{exercise:<{width}} {top:5g} " + " ".join(f"{'-' if c is None else f'{c:g}':>12}" for c in cells))
+        lines.append(f"{exercise:<{width}} {top:5g} " + " ".join(f"{'-' if c is None else c:>12}" for c in cells))
     totals = [sum(s.score for s in scores if s.student == st) for st in students]
     possible = [sum(s.max_score for s in scores if s.student == st) for st in students]
     lines.append(f"{'total':<{width}} {'':>5} " + " ".join(f"{f'{t:g}/{p:g}':>12}" for t, p in zip(totals, possible)))
+    reasons = sorted({(s.student, s.chapter, s.refused) for s in scores if s.refused})
+    if reasons:
+        lines.append("\n0! refused: the grader gave 0 whatever the tests said, because")
+        lines += [f"  {student} {chapter}: {why}" for student, chapter, why in reasons]
     return "\n".join(lines)
 
 
