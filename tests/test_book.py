@@ -67,6 +67,17 @@ def test_links_to_repository_files_point_at_copies_inside_the_book(tmp_path):
     assert not (out / "secret.md").exists()
 
 
+def test_links_between_chapters_point_at_their_pages_in_the_book():
+    notebook = nbformat.v4.new_notebook(cells=[
+        nbformat.v4.new_markdown_cell("see [chapter 05](05_pretraining.ipynb#section-7), [A5](A5_statistics_of_verdicts.ipynb), "
+                                      "[not built](09_beyond_the_paper.ipynb) and [docs](../docs/results.md)"),
+        nbformat.v4.new_code_cell("# [not a link](05_pretraining.ipynb)")])
+    html_book.chapter_links(notebook, {"05_pretraining.html", "A5_statistics_of_verdicts.html"})
+    assert notebook.cells[0].source == ("see [chapter 05](05_pretraining.html#section-7), [A5](A5_statistics_of_verdicts.html), "
+                                        "[not built](09_beyond_the_paper.ipynb) and [docs](../docs/results.md)")
+    assert notebook.cells[1].source == "# [not a link](05_pretraining.ipynb)"
+
+
 def _widget_output(widget):
     return nbformat.v4.new_output("display_data", {html_book.WIDGET_VIEW: {"version_major": 2, "version_minor": 0,
                                                                             "model_id": widget.model_id}})

@@ -16,7 +16,8 @@ Two things an exported notebook cannot do are said on the page instead of being 
 whose controls run Python callbacks (every slider in the chapters redraws a figure in the kernel) keeps
 the picture it was saved with, its controls are greyed out, and a note above it says that moving them
 needs a running kernel; the animation controls draw their icons as inline SVG. A chapter's link to a file
-of the repository (``../docs/results.md``) would point outside the book: the file is copied in and linked there.
+of the repository (``../docs/results.md``) would point outside the book: the file is copied in and linked there;
+a link to another chapter or an appendix (``05_pretraining.ipynb``) points at its page.
 
 Not taught in a chapter: it renders the chapters themselves (README, "As a book that reads offline").
 """
@@ -213,6 +214,22 @@ def repository_links(notebook, source: Path, out: Path) -> list[str]:
     return copied
 
 
+#: A Markdown link from one chapter to another: ``](05_pretraining.ipynb#anchor)``.
+CHAPTER_LINK = re.compile(r"\]\(([\w-]+)\.ipynb(#[^)\s]*)?\)")
+
+
+def chapter_links(notebook, pages: set[str]) -> None:
+    """Point the chapter's links to other chapters and appendices (``05_pretraining.ipynb``) at their pages in the
+    book (``05_pretraining.html``); a link to a notebook the book does not hold stays as it is."""
+    def relink(match):
+        page = f"{match.group(1)}.html"
+        return f"]({page}{match.group(2) or ''})" if page in pages else match.group(0)
+
+    for cell in notebook.cells:
+        if cell.cell_type == "markdown":
+            cell.source = CHAPTER_LINK.sub(relink, cell.source)
+
+
 def _exporter(urls: dict[str, str]):
     from nbconvert import HTMLExporter
 
@@ -270,6 +287,7 @@ def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, sourc
         marked = mark_kernel_controls(notebook)
         offline_outputs(notebook)
         repository_links(notebook, source, out)
+        chapter_links(notebook, {c.page for c in chapters})
         book = {"previous": chapters[k - 1] if k > 0 else None, "next": chapters[k + 1] if k + 1 < len(chapters) else None,
                 "mathjax_settings": MATHJAX_SETTINGS}
         body, _ = exporter.from_notebook_node(notebook, resources={"book": book})
