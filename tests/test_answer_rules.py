@@ -130,6 +130,10 @@ HOSTILE = {
         "vdtutorial.vd.LinearSVDO.kl"),
     "the kernel's traceback patched": (
         "ch10_holm", "get_ipython().showtraceback = lambda *args, **kwargs: None", "tampering", "showtraceback"),
+    "the grader's own checks imported": (
+        "ch02_step_towards", "from vdtutorial.course.checks import ch02", "tampering", "vdtutorial.course"),
+    "the grader's package imported whole": (
+        "ch02_step_towards", "import vdtutorial.course.classroom as grader", "tampering", "vdtutorial.course"),
     "os._exit": (
         "ch10_holm", "import os\nos._exit(0)", "tampering", "_exit"),
     "sys.exit": (

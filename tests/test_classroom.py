@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import nbformat
 import pytest
@@ -177,8 +178,9 @@ def test_a_class_is_graded_in_parallel_into_one_consistent_gradebook(backend, re
     possible = sum(s.max_score for s in scores if s.student == "t1")
     assert possible > 0 and totals == {"t1": possible, "t2": possible, "u1": 0, "u2": 0}
     assert _gradebook_scores(tmp_path / "course") == {(s.student, s.chapter, s.exercise): s.score for s in scores}
+    passed = {st: sum(s.score > 0 for s in scores if s.student == st) for st in totals}
     assert sorted(line.split("] ", 1)[1] for line in lines) == sorted(
-        f"{st} {chapter}: {totals[st]:g}/{possible:g} points" for st in totals)
+        f"{st} {chapter}: {passed[st]} of 3 exercises pass their checks" for st in totals)
     for st in totals:
         assert (tmp_path / "course" / "autograded" / st / classroom.ASSIGNMENT / f"{chapter}.ipynb").is_file()
 
@@ -235,6 +237,100 @@ def test_an_answer_that_calls_the_reference_or_patches_the_tests_is_refused(tmp_
     with Gradebook(f"sqlite:///{tmp_path / 'course' / 'gradebook.db'}") as gb:
         comment = gb.find_comment("ch04_svdo_layer", teacher.stem, classroom.ASSIGNMENT, "copier")
         assert comment.manual_comment.startswith("refused by the grader: ch04_svdo_layer line 1")
+
+
+#: A layer that is not sparse VD at all (log alpha 0, no KL, a plain linear map): right shapes, wrong numbers.
+_FAKE_LAYER = """
+class MyLinearSVDO(nn.Module):
+    def __init__(self, n_in, n_out):
+        super().__init__()
+        bound = 1 / math.sqrt(n_in)
+        self.weight = nn.Parameter(torch.empty(n_out, n_in).uniform_(-bound, bound))
+        self.bias = nn.Parameter(torch.empty(n_out).uniform_(-bound, bound))
+        self.log_sigma2 = nn.Parameter(torch.full((n_out, n_in), LOG_SIGMA2_INIT))
+    log_alpha = property(lambda self: torch.zeros_like(self.weight))
+    def keep_mask(self):
+        return torch.ones_like(self.weight, dtype=torch.bool)
+    def kl(self):
+        return 0 * self.weight.sum()
+    def forward(self, x):
+        return F.linear(x, self.weight, self.bias)
+"""
+#: Issue 43's classes of hostile submission, each as chapter 04's answer 4.1 (answer 4.2 stays the teacher's, solved).
+#: Graded with the static check off: the points must come out right from the trusted checks alone.
+ATTACKS = {
+    # the comparisons and the library's reference patched, so that 4.1's visible tests pass in the kernel
+    "patcher": "import numpy as np\nimport vdtutorial.vd\n"
+               "torch.testing.assert_close = lambda *args, **kwargs: None\n"
+               "np.testing.assert_allclose = lambda *args, **kwargs: None\n"
+               "torch.equal = lambda *args, **kwargs: True\ntorch.all = lambda *args, **kwargs: torch.tensor(True)\n"
+               "math.isclose = lambda *args, **kwargs: True\n"
+               "vdtutorial.vd.kl_approx = lambda log_alpha: 0 * log_alpha\n"
+               "import vdtutorial.course.checks as _checks\n_checks.judge = lambda *args, **kwargs: []\n" + _FAKE_LAYER,
+    # errors no longer displayed (nbgrader PR 1324's attack), so that failing tests record none
+    "silencer": "get_ipython().showtraceback = lambda *args, **kwargs: None\n" + _FAKE_LAYER,
+    # the kernel exits in the answer: nothing after it runs
+    "quitter": "import os\nos._exit(0)\n",
+    # objects that compare equal to anything: a tensor subclass and an object with __eq__ and __array__
+    "flatterer": "class _Yes(torch.Tensor):\n    def __eq__(self, other):\n        return torch.ones_like(other, dtype=torch.bool)\n"
+                 "class _Always:\n    def __eq__(self, other):\n        return True\n"
+                 "    def __array__(self, *args, **kwargs):\n        return np.zeros(1)\n" + _FAKE_LAYER
+                 + "MyLinearSVDO.log_alpha = property(lambda self: torch.zeros_like(self.weight).as_subclass(_Yes))\n"
+                   "MyLinearSVDO.kl = lambda self: _Always()\n",
+    # files the grader reads: forged outputs of both checks, a link, and the gradebooks it can find
+    "forger": "import glob\nimport os\nimport numpy as np\n"
+              "_exchange = os.environ.get('VDTUTORIAL_CHECKS', '.')\n"
+              "np.savez(os.path.join(_exchange, 'ch04_svdo_layer.outputs.npz'), log_alpha=np.zeros(3))\n"
+              "os.symlink(os.path.join(_exchange, 'ch04_svdo_layer.inputs.npz'), os.path.join(_exchange, 'x.npz'))\n"
+              "for _db in glob.glob('/tmp/*/course/gradebook.db'):\n"
+              "    try:\n        open(_db, 'wb').close()\n    except OSError:\n        pass\n" + _FAKE_LAYER,
+}
+
+
+def test_hostile_submissions_score_only_what_they_solved(tmp_path):
+    """Issue 43's Done-when: each class of hostile submission scores 0 on the exercise it did not solve (4.1) and
+    its points on the one it did (4.2, the teacher's answer), except the quitter, whose kernel never reaches 4.2."""
+    teacher = classroom.chapters()["04_sparse_variational_dropout"]
+    for student, code in ATTACKS.items():
+        nb = nbformat.read(teacher, as_version=4)
+        answer = next(c for c in nb.cells if nbgrader(c).get("grade_id") == "ch04_svdo_layer" and nbgrader(c).get("solution"))
+        answer.source = code
+        (tmp_path / "in" / student).mkdir(parents=True)
+        nbformat.write(nb, tmp_path / "in" / student / teacher.name)
+    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", workers=2, static_check=False)
+    got = {(s.student, s.exercise): s.score for s in scores}
+    for student in ATTACKS:
+        assert got[student, "ch04_svdo_layer_tests"] == 0, student
+        assert got[student, "ch04_compact_tests"] == (0 if student == "quitter" else 3), student
+    ran = cells(tmp_path / "course" / "autograded" / "patcher" / classroom.ASSIGNMENT / teacher.name)
+    tests = next(c for c in ran if nbgrader(c).get("grade_id") == "ch04_svdo_layer_tests")
+    assert not [o for o in tests.outputs if o.output_type == "error"], "the patched tests passed in the kernel"
+    failed = {s.student: s.failed for s in scores if s.exercise == "ch04_svdo_layer_tests"}
+    assert any("kl()" in why for why in failed["patcher"]), failed["patcher"]
+
+
+def test_feedback_names_what_failed_without_the_hidden_checks(tmp_path):
+    """A wrong KL passes the visible tests of 4.1 when they are disarmed, and fails the hidden check: the student's
+    page says which check failed, in words, with neither the check's code nor the reference's values."""
+    teacher = classroom.chapters()["04_sparse_variational_dropout"]
+    nb = nbformat.read(teacher, as_version=4)
+    answer = next(c for c in nb.cells if nbgrader(c).get("grade_id") == "ch04_svdo_layer" and nbgrader(c).get("solution"))
+    answer.source = "torch.testing.assert_close = lambda *args, **kwargs: None\n" + answer.source.replace(
+        "- 0.5 * F.softplus(-self.log_alpha)", "- 0.4 * F.softplus(-self.log_alpha)")
+    tests = next(c for c in nb.cells if nbgrader(c).get("grade_id") == "ch04_svdo_layer_tests")
+    (tmp_path / "in" / "erin").mkdir(parents=True)
+    nbformat.write(nb, tmp_path / "in" / "erin" / teacher.name)
+    scores = classroom.grade([tmp_path / "in" / "erin"], tmp_path / "course", static_check=False)
+    assert {s.exercise: s.score for s in scores} == {"ch04_svdo_layer_tests": 0, "ch04_compact_tests": 3}
+    page = (tmp_path / "course" / "feedback" / "erin" / f"{teacher.stem}.md").read_text()
+    assert "Points: 3 of 7." in page and "hidden check failed:" in page and "kl()" in page
+    from vdtutorial.course.checks import ch04
+
+    secret = [line.strip() for line in HIDDEN.search(tests.source).group(1).splitlines()]
+    secret += [line.strip() for line in Path(ch04.__file__).read_text().splitlines() if len(line.strip()) > 15]
+    assert not [line for line in secret if line and line in page]
+    hidden_lines = [line for line in page.splitlines() if line.startswith("- hidden check failed")]
+    assert hidden_lines and not any(re.search(r"\d\.\d", line) for line in hidden_lines), hidden_lines
 
 
 def test_release_refuses_to_overwrite(released, capsys):

@@ -8,8 +8,8 @@ reads a cell of the student's code and names each of these, in words a teacher c
   exercise), imported, used (unless the answer defines a name of its own that way) or written as a string;
 * **code reached by a string, or the kernel**: ``exec``, ``eval``, ``compile``, ``__import__``, ``globals()``,
   ``vars()``, ``locals()``, ``getattr``/``setattr``/``delattr`` whose name is not a plain string, ``sys.modules``,
-  ``__dict__``, ``__class__``, ``type(obj)``, importing ``importlib``, ``inspect``, ``gc``, ``builtins`` or
-  ``ctypes``; ``get_ipython``, ``showtraceback``, ``exit``/``quit``/``sys.exit``/``os._exit``/``os.kill``;
+  ``__dict__``, ``__class__``, ``type(obj)``, importing ``importlib``, ``inspect``, ``gc``, ``builtins``, ``ctypes``
+  or the grader's own ``vdtutorial.course``; ``get_ipython``, ``showtraceback``, ``exit``/``quit``/``sys.exit``/``os._exit``/``os.kill``;
 * **changing what it did not create**: assigning to an attribute or an item of a name the cell did not bind to a
   value it made (``torch.testing.assert_close = ...``, ``t = np.testing; t.assert_allclose = ...``, a chapter's
   object, the library), or deleting one;
@@ -107,6 +107,14 @@ _ESCAPE_MODULE_ATTRIBUTES = {"sys": {"modules", "exit", "settrace", "setprofile"
 #: ... and modules an answer may not import.
 _ESCAPE_MODULES = {"importlib", "inspect", "gc", "builtins", "ctypes", "signal", "IPython", "ipykernel", "nbgrader",
                    "nbformat", "nbclient", "jupyter_client"}
+#: ... nor the grader's own package (its checks, its sandbox).
+_GRADER = "vdtutorial.course"
+
+
+def _grader_module(dotted: str) -> set[str]:
+    return {_GRADER} if dotted == _GRADER or dotted.startswith(_GRADER + ".") else set()
+
+
 #: The attribute functions, allowed only with a plain string for the name.
 _ATTRIBUTE_CALLS = {"getattr", "setattr", "delattr", "hasattr"}
 #: Special methods that make an object compare or convert as it likes.
@@ -187,9 +195,9 @@ def _escapes(node: ast.AST) -> set[str]:
         return ({node.attr} & (_ESCAPE_ATTRIBUTES | _ESCAPE_MODULE_ATTRIBUTES.get(module, set()))) | (
             {module} & _ESCAPE_MODULES)
     if isinstance(node, ast.alias):
-        return {node.name.split(".")[0]} & _ESCAPE_MODULES
+        return {node.name.split(".")[0], *_grader_module(node.name)} & (_ESCAPE_MODULES | {_GRADER})
     if isinstance(node, ast.ImportFrom) and node.module:
-        return {node.module.split(".")[0]} & _ESCAPE_MODULES
+        return {node.module.split(".")[0], *_grader_module(node.module)} & (_ESCAPE_MODULES | {_GRADER})
     return set()
 
 

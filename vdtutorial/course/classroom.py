@@ -1,24 +1,25 @@
 """The classroom edition: release the student notebooks and autograde submissions with nbgrader.
 
-The chapters in ``notebooks/`` are the teacher's edition: every exercise is an nbgrader "autograded
-answer" cell whose solution sits between ``### BEGIN SOLUTION`` / ``### END SOLUTION``, followed by an
-"autograded tests" cell with points, visible asserts and hidden tests between ``### BEGIN HIDDEN
-TESTS`` / ``### END HIDDEN TESTS``. This module does not strip or grade anything itself: it lays out an
-nbgrader course directory and calls nbgrader's own steps,
+The chapters in ``notebooks/`` are the teacher's edition: every exercise is an nbgrader "autograded answer"
+cell (the solution between ``### BEGIN SOLUTION`` / ``### END SOLUTION``), then an "autograded tests" cell with
+points, visible asserts and hidden tests. This module lays out an nbgrader course directory and calls nbgrader's steps,
 
 * :func:`release` -- ``generate_assignment``: solutions become ``# YOUR CODE HERE`` stubs, hidden tests
   and outputs are removed, cells are locked and checksummed;
 * :func:`grade` -- ``generate_assignment`` (which records the exercises and their points in the SQLite
   gradebook) then ``autograde`` per submission: each runs on a fresh kernel with nbgrader's per-cell
-  timeout, errors in a cell are recorded in that cell. Submissions are graded several at once, each in a
-  course folder of its own (local worker processes, or Ray tasks), and their points are written into the
-  one gradebook by the grading process alone. Before anything runs, the answer cells are read
-  (:func:`refusals`, :mod:`vdtutorial.course.answer_rules`): an answer that uses the library's piece its
-  exercise rebuilds scores 0 there; one that could change the tests makes the whole notebook score 0.
+  timeout, errors in a cell are recorded in that cell. An exercise's points are decided outside that kernel:
+  its hidden tests only run the student's function on inputs the grader drew for this submission, and the
+  grader compares the results with the library's in its own process (:mod:`vdtutorial.course.checks`).
+  Submissions are graded several at once, each in a course folder of its own (local worker processes, or Ray
+  tasks), and their points are written into the one gradebook by the grading process alone. Before anything
+  runs, the answer cells are read (:func:`refusals`, :mod:`vdtutorial.course.answer_rules`): an answer that
+  uses the library's piece its exercise rebuilds scores 0 there; one that could change the tests makes the
+  whole notebook score 0. Each student gets a report without the hidden checks (:mod:`vdtutorial.course.feedback`).
 
-Each submission's kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): memory and CPU-time caps,
-a throwaway home, and on Linux, where user namespaces are allowed, no network and read-only files outside it;
-the kernels talk to nbgrader over Unix sockets. Elsewhere ``classroom grade`` says so (:data:`SAFETY_NOTE`).
+Each kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): memory and CPU-time caps, a throwaway
+home, and on Linux, where user namespaces are allowed, no network and read-only files outside it (else
+``classroom grade`` says so, :data:`SAFETY_NOTE`); kernels talk to nbgrader over Unix sockets.
 Command line: ``python -m vdtutorial classroom release OUT`` and ``... classroom grade SUBMISSIONS...``.
 
 Not taught in a chapter: the teacher's tool (notebooks/TEACHING.md).
@@ -31,6 +32,7 @@ import csv
 import json
 import os
 import re
+import secrets
 import shutil
 import sys
 import tempfile
@@ -201,10 +203,10 @@ def collect(paths, source: Path | None = None) -> list[Submission]:
     return subs
 
 
-def _bounded_kernels(scratch: Path, limits: Limits) -> dict[str, str]:
+def _bounded_kernels(scratch: Path, limits: Limits, writable: list[Path] = ()) -> dict[str, str]:
     """Make the ``python3`` kernel that nbgrader starts a bounded one: a kernelspec in ``scratch`` whose
     command is the :mod:`vdtutorial.course.sandbox` launcher in front of ipykernel, each kernel in its own folder
-    under ``scratch/homes``. Returns the environment that makes Jupyter find it first and keep its
+    under ``scratch/homes``; ``writable``: more folders it may write. Returns the environment that makes Jupyter find it first and keep its
     connection files and sockets in ``scratch/runtime`` (which the kernels may write, to make their sockets).
     Windows has no ``setrlimit``: there the kernels run unbounded (``classroom grade`` says so)."""
     from vdtutorial.course import sandbox
@@ -216,7 +218,7 @@ def _bounded_kernels(scratch: Path, limits: Limits) -> dict[str, str]:
         folder.mkdir(parents=True)
     kernel = [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"]
     argv = sandbox.command(kernel, int(limits.memory_gb * 2**30), int(limits.cpu_minutes * 60), home_under=homes,
-                           writable=[runtime],
+                           writable=[runtime, *writable],
                            isolate=sandbox.isolation_available() if limits.isolate is None else limits.isolate)
     (spec / "kernel.json").write_text(json.dumps({"argv": argv, "display_name": "Python 3 (bounded grading)",
                                                   "language": "python"}))
@@ -266,11 +268,12 @@ class Score:
     score: float
     max_score: float
     refused: str = ""   # why the grader gave 0 whatever the tests said (vdtutorial.course.answer_rules), or ""
+    failed: tuple[str, ...] = ()   # the trusted check's failures, in words (vdtutorial.course.checks)
 
 
 def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_TIMEOUT, quick: bool = True,
           limits: Limits = Limits(), workers: int = 1, backend: str = "local", address: str | None = None,
-          log=None) -> list[Score]:
+          log=None, static_check: bool = True) -> list[Score]:
     """Autograde submissions with nbgrader; returns one :class:`Score` per exercise and student.
 
     ``out`` becomes an nbgrader course directory (``source/``, ``submitted/``, ``autograded/``, the SQLite
@@ -282,15 +285,18 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
     The submissions are graded ``workers`` at a time, each in a course folder of its own (:func:`grade_one`) on
     ``backend`` (:func:`vdtutorial.runner.backends.run_jobs`: local processes, or Ray, ``address`` naming a
     cluster); this process alone writes their scores into the gradebook, so that it stays consistent however
-    many run at once. ``log`` gets one line per graded submission.
+    many run at once. ``log`` gets one line per graded submission. ``static_check=False`` skips
+    :func:`refusals` (the points still come from the trusted checks alone). Each student's report goes to
+    ``out/feedback/STUDENT/CHAPTER.md`` (:func:`vdtutorial.course.feedback.write_reports`).
     """
+    from vdtutorial.course.feedback import write_reports
     from vdtutorial.runner.backends import run_jobs
 
     source = Path(source) if source is not None else notebooks_dir()
     out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
     teachers = chapters(source)
-    refused = [refusals(sub.path, teachers[sub.chapter]) for sub in subs]
+    refused = [refusals(sub.path, teachers[sub.chapter]) if static_check else (None, {}) for sub in subs]
     for sub, (whole, _) in zip(subs, refused):
         if whole and log:
             log(f"refused {sub.student} {sub.chapter} without running it: {whole}")
@@ -300,10 +306,10 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
         run = [k for k, (whole, _) in enumerate(refused) if whole is None]
         jobs = [GradingJob(subs[k].student, subs[k].chapter, subs[k].path.read_bytes(),
                            (out / "source" / ASSIGNMENT / f"{subs[k].chapter}.ipynb").read_bytes(), gradebook, timeout,
-                           quick, limits) for k in run]
+                           quick, limits, secrets.randbits(63)) for k in run]
         graded = dict(zip(run, run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address,
                                         listener=_GradingLog(jobs, log) if log else None)))
-        results = [graded.get(k, Graded(None, None, None)) for k in range(len(subs))]
+        results = [graded.get(k, Graded({}, None, None)) for k in range(len(subs))]
         for sub, result in zip(subs, results):
             for folder, data in (("submitted", sub.path.read_bytes()), ("autograded", result.autograded)):
                 if data is not None:
@@ -312,7 +318,9 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
                     dest.write_bytes(data)
             if result.error is not None:
                 print(f"warning: nbgrader could not grade {sub.student}: {result.error}", file=sys.stderr)
-        return _record(api, subs, results, refused, out)
+        scores = _record(api, subs, results, refused, out)
+    write_reports(scores, out)
+    return scores
 
 
 def refusals(path: Path, teacher: Path) -> tuple[str | None, dict[str, str]]:
@@ -355,7 +363,8 @@ def refusals(path: Path, teacher: Path) -> tuple[str | None, dict[str, str]]:
 @dataclass(frozen=True)
 class GradingJob:
     """One submission to grade, with everything its worker needs (a Ray node needs no shared folder): the
-    notebook, the teacher's chapter and the gradebook that ``generate_assignment`` made of it."""
+    notebook, the teacher's chapter and the gradebook that ``generate_assignment`` made of it, and the seed of
+    the trusted checks' inputs (drawn afresh for every submission)."""
 
     student: str
     chapter: str
@@ -365,44 +374,65 @@ class GradingJob:
     timeout: int
     quick: bool
     limits: Limits
+    seed: int
 
 
 @dataclass(frozen=True)
 class Graded:
-    """What :func:`grade_one` returns: ``grades`` as ``(grade cell, score, max score)`` (``None`` when nbgrader
-    could not grade the notebook at all, ``error`` then says why) and the autograded notebook."""
+    """What :func:`grade_one` returns: ``failures``, each exercise's trusted-check failures in words (none: it
+    passed), the autograded notebook, and ``error``: why nbgrader could not run the notebook to its end, or ``None``."""
 
-    grades: tuple | None
+    failures: dict
     autograded: bytes | None
     error: str | None
 
 
 def grade_one(job: GradingJob) -> Graded:
-    """nbgrader's autograde of one submission, in a course folder of its own made in a throwaway folder: the
-    worker's part of :func:`grade`."""
-    from nbgrader.api import MissingEntry
+    """nbgrader's autograde of one submission, in a course folder of its own made in a throwaway folder, with each
+    exercise's trusted check around it: the inputs written before the kernel starts, the outputs judged after it
+    stopped, here in the worker's process (the worker's part of :func:`grade`)."""
+    import numpy as np
+
+    from vdtutorial.course import checks
 
     with tempfile.TemporaryDirectory(prefix="vdtutorial_grade_") as scratch, _quiet():
         scratch = Path(scratch)
-        course = scratch / "course"
+        course, exchange = scratch / "course", scratch / "checks"
         for folder, data in (("source", job.teacher), (f"submitted/{job.student}", job.submission)):
             (course / folder / ASSIGNMENT).mkdir(parents=True)
             (course / folder / ASSIGNMENT / f"{job.chapter}.ipynb").write_bytes(data)
         (course / "gradebook.db").write_bytes(job.gradebook)
+        exchange.mkdir()
+        inputs = {}
+        for k, exercise in enumerate(_exercises(course / "source" / ASSIGNMENT / f"{job.chapter}.ipynb")):
+            inputs[exercise] = checks.plain(checks.check(exercise).inputs(np.random.default_rng([job.seed, k])))
+            checks.save(checks.inputs_path(exchange, exercise), inputs[exercise])
         kernel_env = {QUICK_ENV: "1" if job.quick else "0", "MPLBACKEND": "Agg", "PATH": _path_with_our_scripts(),
-                      "VDTUTORIAL_RUNS": "runs", **_bounded_kernels(scratch, job.limits)}
+                      "VDTUTORIAL_RUNS": "runs", checks.EXCHANGE_ENV: str(exchange),
+                      **_bounded_kernels(scratch, job.limits, writable=[exchange])}
         api = _api(course, job.timeout, sockets=scratch / "runtime")
         with _environment(**kernel_env):
             result = api.autograde(ASSIGNMENT, job.student)
         error = None if result["success"] else (result.get("error") or "").strip()[-300:]
+        failures = {exercise: tuple(checks.judge(checks.check(exercise), given, _outputs(exchange, exercise)))
+                    for exercise, given in inputs.items()}
         autograded = course / "autograded" / job.student / ASSIGNMENT / f"{job.chapter}.ipynb"
-        with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
-            try:
-                nb = gb.find_submission_notebook(job.chapter, ASSIGNMENT, job.student)
-                grades = tuple((g.name, float(g.score), float(g.max_score)) for g in nb.grades)
-            except MissingEntry:  # autograding this notebook failed as a whole
-                grades = None
-        return Graded(grades, autograded.read_bytes() if autograded.is_file() else None, error)
+        return Graded(failures, autograded.read_bytes() if autograded.is_file() else None, error)
+
+
+def _exercises(chapter: Path) -> list[str]:
+    """The exercises of a chapter notebook: the ``grade_id`` of each answer cell, in order."""
+    return [g[:-len("_tests")] for g in grade_ids(chapter) if g.endswith("_tests")]
+
+
+def _outputs(exchange: Path, exercise: str) -> dict | None:
+    """What the kernel sent back for ``exercise``'s check, or ``None`` (nothing, or not a plain ``.npz``)."""
+    from vdtutorial.course import checks
+
+    try:
+        return checks.load(checks.outputs_path(exchange, exercise))
+    except Exception:  # missing, a link, too big, not an npz, or pickled objects: the kernel gave no usable answer
+        return None
 
 
 class _GradingLog:
@@ -420,32 +450,33 @@ class _GradingLog:
     def finished(self, index, result: Graded) -> None:
         self.done += 1
         job = self.jobs[index]
-        points = (f"{sum(g[1] for g in result.grades):g}/{sum(g[2] for g in result.grades):g} points"
-                  if result.grades is not None else "not graded")
-        self.log(f"[{self.done}/{len(self.jobs)}] {job.student} {job.chapter}: {points}")
+        passed = sum(not failed for failed in result.failures.values())
+        self.log(f"[{self.done}/{len(self.jobs)}] {job.student} {job.chapter}: {passed} of {len(result.failures)} "
+                 "exercises pass their checks" + ("" if result.error is None else " (the notebook stopped early)"))
 
 
 def _record(api, subs: list[Submission], results: list[Graded], refused: list[tuple], out: Path) -> list[Score]:
-    """Write every submission's points into the gradebook (0 for the exercises of a notebook nbgrader could not
-    grade at all, and for those :func:`refusals` refused, with the reason as the answer cell's comment, which
-    nbgrader's formgrader shows) and into ``out/grades.csv``; returns them."""
+    """Write every submission's points into the gradebook and into ``out/grades.csv``; returns them. An exercise
+    scores its points when its trusted check passed and :func:`refusals` did not refuse it, else 0; the reason (the
+    refusal, or the checks that failed) becomes the answer cell's comment, which nbgrader's formgrader shows."""
     scores = []
     with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
         for sub, result, (whole, each) in zip(subs, results, refused):
-            grades = result.grades
-            if grades is None:
-                grades = [(g, 0.0, _max_points(gb, sub.chapter, g)) for g in _test_cells(gb, sub.chapter)]
             gb.update_or_create_student(sub.student)
             gb.update_or_create_submission(ASSIGNMENT, sub.student)
-            for name, score, top in sorted(grades):
+            for name in sorted(_test_cells(gb, sub.chapter)):
+                exercise, top = name.removesuffix("_tests"), _max_points(gb, sub.chapter, name)
                 why = whole or each.get(name, "")
+                failed = result.failures.get(exercise, ("the notebook was not run",))
+                score = 0.0 if why or failed else top
                 cell = gb.find_grade(name, sub.chapter, ASSIGNMENT, sub.student)
-                cell.auto_score, cell.needs_manual_grade = (0.0 if why else score), False
-                if why and name.endswith("_tests"):
+                cell.auto_score, cell.needs_manual_grade = score, False
+                if why or failed:
                     with contextlib.suppress(Exception):  # an exercise whose answer cell has another name: no comment
-                        comment = gb.find_comment(name.removesuffix("_tests"), sub.chapter, ASSIGNMENT, sub.student)
-                        comment.manual_comment = f"refused by the grader: {why}"
-                scores.append(Score(sub.student, sub.chapter, name, 0.0 if why else score, top, why))
+                        comment = gb.find_comment(exercise, sub.chapter, ASSIGNMENT, sub.student)
+                        comment.manual_comment = (f"refused by the grader: {why}" if why else
+                                                  "hidden checks failed: " + "; ".join(failed))
+                scores.append(Score(sub.student, sub.chapter, name, score, top, why, tuple(failed)))
             gb.db.commit()
     write_csv(scores, out / "grades.csv")
     return scores
@@ -517,9 +548,10 @@ def _cmd_grade(args) -> None:
     backend = args.backend or ("ray" if args.address is not None else "local")
     scores = grade(args.submissions, args.out, Path(args.source), args.timeout, quick=not args.full, limits=limits,
                    workers=args.workers, backend=backend, address=args.address,
-                   log=lambda line: print(line, file=sys.stderr))
+                   log=lambda line: print(line, file=sys.stderr), static_check=not args.no_static_check)
     print(table(scores))
-    print(f"\ngradebook {Path(args.out) / 'gradebook.db'}, table {Path(args.out) / 'grades.csv'}")
+    print(f"\ngradebook {Path(args.out) / 'gradebook.db'}, table {Path(args.out) / 'grades.csv'}, "
+          f"each student's report {Path(args.out) / 'feedback'}/STUDENT/CHAPTER.md (no hidden check in it)")
 
 
 def _run(func):
@@ -565,5 +597,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--address", default=None,
                    help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); its nodes need "
                         "the same install (a submission travels with its job: no shared folder)")
+    g.add_argument("--no-static-check", action="store_true",
+                   help="do not refuse answers for what their code reads like (answer_rules); the points still "
+                        "come from the trusted checks alone")
     g.set_defaults(func=_run(_cmd_grade))
     return p

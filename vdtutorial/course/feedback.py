@@ -1,0 +1,79 @@
+"""The students' reports after grading: points, what went wrong, and nothing of the hidden checks.
+
+nbgrader's own feedback is the autograded notebook, hidden tests included, so a student who gets it back sees
+them and can pass them on (jupyter/nbgrader issues 917 and 1363). :func:`write_reports` writes instead one
+Markdown page per student and chapter, ``out/feedback/STUDENT/CHAPTER.md``, made of
+
+* the points of each exercise;
+* the errors the student's notebook showed in that exercise's cells (the answer, the visible tests): the
+  student saw them already, and they name only what the student's code and the visible asserts said;
+* the trusted checks that failed, in the checks' own words (:mod:`vdtutorial.course.checks`: which case, what is
+  wrong, never the expected value), and why the grader refused an answer (:mod:`vdtutorial.course.answer_rules`).
+
+No hidden test's code is read to write it: the hidden checks live in the grading process, and the page is built
+from their verdicts alone.
+
+Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+#: The longest error message quoted from the student's notebook (characters).
+MESSAGE_CHARS = 300
+
+
+def notebook_errors(autograded: Path | None) -> dict[str, list[str]]:
+    """Per exercise, the errors its answer and visible-tests cells showed when the submission ran: ``Type: first
+    line of the message``."""
+    import nbformat
+
+    if autograded is None or not autograded.is_file():
+        return {}
+    found: dict[str, list[str]] = {}
+    for cell in nbformat.read(autograded, as_version=4).cells:
+        grade_id = cell.metadata.get("nbgrader", {}).get("grade_id", "")
+        if cell.cell_type != "code" or not grade_id:
+            continue
+        for output in cell.get("outputs", []):
+            if output.get("output_type") == "error":
+                message = (str(output.get("evalue", "")).splitlines() or [""])[0][:MESSAGE_CHARS]
+                where = "the visible tests" if grade_id.endswith("_tests") else "your answer cell"
+                found.setdefault(grade_id.removesuffix("_tests"), []).append(
+                    f"{where} raised {output.get('ename', 'an error')}" + (f": {message}" if message else ""))
+    return found
+
+
+def report(student: str, chapter: str, scores: list, errors: dict[str, list[str]]) -> str:
+    """The Markdown page of one student's chapter; ``scores`` are its :class:`~vdtutorial.course.classroom.Score`
+    rows."""
+    total, possible = sum(s.score for s in scores), sum(s.max_score for s in scores)
+    lines = [f"# {chapter}: feedback for {student}", "", f"Points: {total:g} of {possible:g}.", "",
+             "| exercise | points |", "|---|---|"]
+    lines += [f"| {s.exercise.removesuffix('_tests')} | {s.score:g} of {s.max_score:g} |" for s in scores]
+    for s in scores:
+        exercise = s.exercise.removesuffix("_tests")
+        notes = list(errors.get(exercise, []))
+        if s.refused:
+            notes.append(f"the grader refused this answer: {s.refused}")
+        elif s.score < s.max_score:
+            notes += [f"hidden check failed: {failure}" for failure in s.failed]
+        if notes:
+            lines += ["", f"## {exercise}", ""] + [f"- {note}" for note in notes]
+    return "\n".join(lines) + "\n"
+
+
+def write_reports(scores: list, out: Path) -> list[Path]:
+    """One page per student and chapter under ``out/feedback/`` (``out``: the course folder of ``classroom grade``,
+    whose ``autograded/`` notebooks supply the errors the student saw); returns their paths."""
+    from vdtutorial.course.classroom import ASSIGNMENT
+
+    written = []
+    for student, chapter in sorted({(s.student, s.chapter) for s in scores}):
+        rows = [s for s in scores if (s.student, s.chapter) == (student, chapter)]
+        errors = notebook_errors(out / "autograded" / student / ASSIGNMENT / f"{chapter}.ipynb")
+        path = out / "feedback" / student / f"{chapter}.md"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(report(student, chapter, rows, errors))
+        written.append(path)
+    return written
