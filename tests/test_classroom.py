@@ -264,7 +264,7 @@ ATTACKS = {
                "torch.testing.assert_close = lambda *args, **kwargs: None\n"
                "np.testing.assert_allclose = lambda *args, **kwargs: None\n"
                "torch.equal = lambda *args, **kwargs: True\ntorch.all = lambda *args, **kwargs: torch.tensor(True)\n"
-               "math.isclose = lambda *args, **kwargs: True\n"
+               "math.isclose = lambda *args, **kwargs: True\nimport builtins\nbuiltins.all = lambda *args: True\n"
                "vdtutorial.vd.kl_approx = lambda log_alpha: 0 * log_alpha\n"
                "import vdtutorial.course.checks as _checks\n_checks.judge = lambda *args, **kwargs: []\n" + _FAKE_LAYER,
     # errors no longer displayed (nbgrader PR 1324's attack), so that failing tests record none
