@@ -142,3 +142,29 @@ def test_readme_claims_table_is_generated_from_the_shipped_records():
     assert table.count("\n") - 1 == sum(
         1 for r in records.values() for e in r["summary"]["claims"]
         if e["metric"] == r["metric"] and e["measure"] in ("final", "steps_to_reach"))
+
+
+def _reaching_runs(seeds: int, reach_at: list[int]) -> dict:
+    """``seeds`` runs of 100 iterations of 100 env steps whose metric steps from 0 to 1 at iteration ``reach_at[k]``."""
+    values = np.zeros((seeds, 100))
+    for k, at in enumerate(reach_at):
+        values[k, at:] = 1.0
+    return {"steps": 100.0 * np.arange(1, 101), "values": values}
+
+
+def test_a_steps_to_reach_verdict_on_three_seeds_is_capped():
+    """Three seeds per method, each of VD's far later than the limit: the bootstrap would say "contradicted" with p at
+    its floor; the sign test over the 3 seeds gives p = 0.25, and the verdict stays "not confirmed"."""
+    from vdtutorial.experiments.effects import MIN_BOOTSTRAP_SEEDS, Claim, _claim_effect
+
+    assert MIN_BOOTSTRAP_SEEDS == 5
+    claim = Claim("fig4", "VD reaches L2's final level within 42% of the budget", "steps_to_reach", "VD", "L2",
+                  fraction=0.42)
+    late = {"VD": _reaching_runs(3, [90, 92, 95]), "L2": _reaching_runs(3, [10, 12, 15])}
+    effect = _claim_effect(claim, late, "successes", 1, 0.95)
+    assert effect["test"] == "sign" and effect["seeds_within"] == 0
+    assert effect["p_value"] == pytest.approx(0.25) and effect["verdict"] == "not confirmed"
+    assert "0 of 3 seeds within the limit" in claim_table([{**effect, "holm_verdict": "not confirmed"}])
+    five = {"VD": _reaching_runs(5, [90, 91, 92, 93, 95]), "L2": _reaching_runs(5, [10, 11, 12, 13, 15])}
+    effect = _claim_effect(claim, five, "successes", 1, 0.95)   # enough seeds: the bootstrap decides
+    assert effect["test"] == "bootstrap" and effect["verdict"] == "contradicted"

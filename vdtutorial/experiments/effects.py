@@ -11,12 +11,12 @@ steps to reach
     the first env step at which the first method's seed-mean smoothed curve reaches the second
     method's final level (the paper's "VD overtakes L2's final performance at ~1.25e5 steps").
 
-The first two are differences of means over seeds with Welch's t interval (unequal variances, the
-Welch-Satterthwaite degrees of freedom): seeds are the independent replicates and there are few of
-them, so a t interval is the honest choice. The steps-to-reach estimate has no closed form, so its
+The first two are differences of means over seeds with Welch's t interval (seeds are the independent
+replicates, and few: a t interval is the honest choice). The steps-to-reach estimate has no closed form, so its
 interval is a percentile bootstrap over seeds (each method's seeds resampled with replacement,
-``BOOTSTRAP_SAMPLES`` times, seeded): when a resampled curve never reaches the level, that resample
-counts as "not within the budget" (infinite), which widens the interval upwards as it should.
+``BOOTSTRAP_SAMPLES`` times, seeded; a resample that never reaches the level counts as infinite). Below
+``MIN_BOOTSTRAP_SEEDS`` seeds per method a bootstrap says more than its seeds can: an exact sign test over
+the first method's seeds (each within the limit or not) gives the p-value, and the verdict is capped.
 
 Verdicts: **confirmed** when the interval lies wholly on the paper's side, **contradicted** when it lies
 wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds); beside
@@ -43,6 +43,12 @@ from vdtutorial.runner.rows import read_rows, results_file
 BOOTSTRAP_SAMPLES = 2000
 #: Seed of the bootstrap's generator: the same rows always give the same interval.
 BOOTSTRAP_SEED = 0
+#: Fewest seeds per method for a steps-to-reach verdict from the bootstrap. With n seeds a method has only
+#: C(2n - 1, n) distinct resamples (10 at n = 3, 35 at 4, 126 at 5), so the bootstrap's tail shares, and the p-values
+#: read from them, are artefacts of a handful of resamples: at 3 seeds with every seed late, p prints as "< 0.0005"
+#: where the sign test over the 3 seeds gives 0.25. From 5 seeds on there are over a hundred; below, the sign test
+#: decides, and since it cannot reach p < 0.05 with fewer than 6 seeds, such a verdict is capped at "not confirmed".
+MIN_BOOTSTRAP_SEEDS = 5
 #: Power at which "seeds needed" finds a difference, and the most seeds it looks for.
 POWER, MAX_SEEDS = 0.8, 1000
 
@@ -195,6 +201,13 @@ def steps_to_reach_interval(a: dict, b: dict, window: int, confidence: float = C
     return point, *_percentile_interval(boot, confidence)
 
 
+def seeds_within(a: dict, b: dict, window: int, limit: float, better: int = 1) -> int:
+    """How many of ``a``'s seeds, each on its own smoothed curve, reach ``b``'s final level (seed-mean smoothed end
+    point) by ``limit`` env steps: the count behind the sign test of a steps-to-reach claim with few seeds."""
+    smooth_a, level = moving_average(a["values"], window), moving_average(b["values"], window)[:, -1].mean()
+    return sum(_first_reach(a["steps"], curve, level, better) <= limit for curve in smooth_a)
+
+
 def bootstrap_p_value(boot: np.ndarray, limit: float) -> float:
     """Two-sided p-value of "steps to reach = ``limit``" from the bootstrap resamples ``boot``: twice the
     smaller share of resamples on either side of it (at most 1), the test the percentile interval inverts."""
@@ -257,7 +270,8 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     at 95% each, so by chance alone some would pass: beside each verdict stands the **Holm** verdict, the same
     claims tested with Holm's step-down correction over the table's claims (family-wise error 5%; the p-value of a
     difference of means is Welch's two-sided one, that of steps to reach the bootstrap's two-sided share of
-    resamples on the far side of the limit). **Seeds needed** is the number of seeds per method at which a
+    resamples on the far side of the limit, or with fewer than ``MIN_BOOTSTRAP_SEEDS`` seeds the two-sided sign test
+    of the seeds within the limit, whose verdict is capped at "not confirmed"). **Seeds needed** is the number of seeds per method at which a
     two-sided 5% Welch-type t-test would find the observed difference with 80% power, given the observed spread
     over seeds (against the expert, whose level is measured over many episodes, a one-sample test of the
     method's seeds). The paper prints no number for these differences (its figures show one curve per method,
@@ -286,12 +300,16 @@ def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confide
         estimate, boot = _bootstrap_steps_to_reach(a, b, window, better, BOOTSTRAP_SAMPLES, BOOTSTRAP_SEED)
         low, high = _percentile_interval(boot, confidence)
         limit = claim.fraction * budget_steps
-        # "within the fraction" means fewer steps than the limit: read as a < limit
-        result_verdict = verdict(low - limit, high - limit, -1)
-        p_value = bootstrap_p_value(boot, limit)
-        unit = "env steps"
         extra = {"budget_steps": budget_steps, "limit_steps": limit, "n_a": len(a["values"]),
-                 "n_b": len(b["values"]), "seeds_needed": None}
+                 "n_b": len(b["values"]), "seeds_needed": None, "test": "bootstrap"}
+        if min(extra["n_a"], extra["n_b"]) < MIN_BOOTSTRAP_SEEDS:   # too few seeds: the sign test, a capped verdict
+            within = seeds_within(a, b, window, limit, better)
+            extra.update(test="sign", seeds_within=within)
+            p_value, result_verdict = float(stats.binomtest(within, extra["n_a"]).pvalue), "not confirmed"
+        else:   # "within the fraction" means fewer steps than the limit: read as a < limit
+            result_verdict = verdict(low - limit, high - limit, -1)
+            p_value = bootstrap_p_value(boot, limit)
+        unit = "env steps"
     else:
         sa, sb = run_summaries(a, claim.measure, window), run_summaries(b, claim.measure, window)
         estimate, low, high = welch_interval(sa, sb, confidence)
@@ -331,7 +349,11 @@ def claim_table(effects: list[dict]) -> str:
                  "| claim | measure | effect (95% interval) | p | verdict | Holm | seeds | seeds needed |",
                  "|---|---|---|---|---|---|---|---|"]
         for e in (e for e in effects if e.get("metric", "successes") == measure):
-            if e["measure"] == "steps_to_reach":
+            if e["measure"] == "steps_to_reach" and e.get("test") == "sign":
+                unit = "" if math.isinf(e["estimate"]) else " steps"
+                effect = (f"{_steps(e['estimate'])}{unit}; {e['seeds_within']} of {e['n_a']} seeds within the limit "
+                          f"{_steps(e['limit_steps'])} (sign test: too few seeds for a verdict)")
+            elif e["measure"] == "steps_to_reach":
                 unit = "" if math.isinf(e["estimate"]) else " steps"
                 effect = (f"{_steps(e['estimate'])}{unit} ({_steps(e['low'])} to {_steps(e['high'])}); "
                           f"limit {_steps(e['limit_steps'])}")
