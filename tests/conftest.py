@@ -40,7 +40,7 @@ def require_recorded_numerics(record_path: Path) -> None:
 
 def require_locked(package: str) -> None:
     """Skip, naming both versions, unless ``package`` is the version constraints-py311.txt locks: the shipped
-    statistics (intervals from scipy's t, "seeds needed" from its noncentral t) were computed under it, and
+    statistics (intervals from scipy's t, detectable differences from its noncentral t) were computed under it, and
     another release may round them otherwise (CI's Colab leg has scipy 1.16)."""
     import importlib.metadata as md
 

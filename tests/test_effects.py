@@ -10,7 +10,7 @@ from scipy import stats
 
 from vdtutorial.experiments import read_rows, results_file
 from vdtutorial.experiments.effects import (CLAIMS, claim_effects, claim_table, claims_overview, holm_rejections,
-                                            seeds_needed,
+                                            detectable_difference,
                                             steps_to_reach_interval, verdict, welch_interval, welch_p_value)
 from vdtutorial.settings import data_dir
 from conftest import require_locked
@@ -82,11 +82,27 @@ def test_holm_steps_down_and_stops_at_the_first_kept_hypothesis():
     assert holm_rejections([math.nan, 0.001]) == [False, True]
 
 
-def test_seeds_needed_matches_the_textbook_power_of_a_t_test():
-    # two-sided 5%, 80% power, effect of one standard deviation: 17 per group (two samples), 10 (one sample)
-    assert seeds_needed(1.0, 1.0, 1.0) == 17
-    assert seeds_needed(1.0, 1.0, None) == 10
-    assert seeds_needed(2.0, 1.0, 1.0) < seeds_needed(1.0, 1.0, 1.0) and seeds_needed(0.0, 1.0, 1.0) is None
+def test_the_detectable_difference_is_the_textbook_power_of_a_t_test():
+    # two-sided 5%, 80% power: 2.80 standard errors when the degrees of freedom are many (1.96 + 0.84), more when
+    # they are few or the level is Holm's alpha / m
+    assert detectable_difference(1.0, 1e6, 0.05) == pytest.approx(2.8016, abs=1e-3)
+    assert detectable_difference(2.0, 1e6, 0.05) == pytest.approx(2 * 2.8016, abs=2e-3)
+    assert detectable_difference(1.0, 4, 0.05) > detectable_difference(1.0, 18, 0.05) > 2.8
+    assert detectable_difference(1.0, 18, 0.05 / 7) > detectable_difference(1.0, 18, 0.05)
+    assert math.isnan(detectable_difference(math.nan, 4, 0.05))
+
+
+def test_a_row_whose_interval_lies_within_five_percent_excludes_a_material_effect():
+    rng = np.random.default_rng(4)
+    rows = (_rows("VD", "vd", [100 + rng.normal(0, 0.5, 50) for _ in range(10)])
+            + _rows("L2", "l2", [100 + rng.normal(0, 0.5, 50) for _ in range(10)])
+            + _rows("no pre-training", "none", [20 + rng.normal(0, 0.5, 50) for _ in range(10)]))
+    final = {e["b"]: e for e in claim_effects("fig4", rows, "successes", window=5)
+             if e["measure"] == "final" and e["metric"] == "successes"}
+    assert final["L2"]["no_material_effect"] and not final["no pre-training"]["no_material_effect"]
+    assert final["L2"]["material"] == pytest.approx(0.05 * final["L2"]["mean_b"])
+    assert 0 < final["L2"]["detectable"] < final["L2"]["material"]
+    assert "; no material effect" in claim_table([final["L2"]])
 
 
 def test_claims_are_tested_on_every_measure_in_its_better_direction():

@@ -254,7 +254,7 @@ DERIVED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig
 @pytest.mark.parametrize("folder", DERIVED)
 def test_a_shipped_summary_is_rederived_from_its_rows(folder, tmp_path):
     """``python -m vdtutorial rederive`` on a copy of the folder writes the shipped record again: final points on
-    every measure, the claims with their Holm verdicts and seeds needed, the title; and draws the figure."""
+    every measure, the claims with their Holm verdicts and detectable differences, the title; and draws the figure."""
     copy = tmp_path / folder
     shutil.copytree(RESULTS / folder, copy)
     (copy / f"{record_name(folder)}.png").unlink()

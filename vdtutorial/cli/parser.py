@@ -187,7 +187,7 @@ def _add_experiment_commands(sub) -> None:
     p.set_defaults(func=cmd_claims)
 
     p = sub.add_parser("rederive", help="re-write experiment folders' figures and JSON summaries from their rows "
-                                        "(measures, claims, Holm verdicts, seeds needed), running nothing")
+                                        "(measures, claims, Holm verdicts, detectable differences), running nothing")
     p.add_argument("folders", nargs="+", help="experiment folders (e.g. data/results/fig4)")
     p.add_argument("--add", nargs="+", default=[], metavar="OTHER",
                    help="first add the runs of these folders, the same experiment run with other seeds (e.g. "

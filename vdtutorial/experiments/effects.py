@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
+from scipy import integrate, optimize, stats
 
 from vdtutorial.experiments.curves import (CONFIDENCE, PAPER_BUDGET_STEPS, PAPER_QUARTER, PAPER_REACH_STEPS,
                                            moving_average, record_window, smooth_window)
@@ -49,8 +49,11 @@ BOOTSTRAP_SEED = 0
 #: where the sign test over the 3 seeds gives 0.25. From 5 seeds on there are over a hundred; below, the sign test
 #: decides, and since it cannot reach p < 0.05 with fewer than 6 seeds, such a verdict is capped at "not confirmed".
 MIN_BOOTSTRAP_SEEDS = 5
-#: Power at which "seeds needed" finds a difference, and the most seeds it looks for.
-POWER, MAX_SEEDS = 0.8, 1000
+#: Power at which the detectable difference is found.
+POWER = 0.8
+#: A difference smaller than this share of the level compared against (the second method's, or the expert's)
+#: is immaterial: a row whose whole interval lies within it excludes any material effect either way.
+MATERIALITY = 0.05
 
 
 @dataclass(frozen=True)
@@ -235,24 +238,33 @@ def holm_rejections(p_values: list[float], alpha: float = 1 - CONFIDENCE) -> lis
     return rejected
 
 
-def seeds_needed(difference: float, spread_a: float, spread_b: float | None, power: float = POWER,
-                 confidence: float = CONFIDENCE, most: int = MAX_SEEDS) -> int | None:
-    """Seeds per method at which a two-sided t-test at ``1 - confidence`` finds ``difference`` with ``power``,
-    from the noncentral t distribution: two samples of equal size with the pooled spread of ``spread_a`` and
-    ``spread_b`` (standard deviations over seeds), or, with ``spread_b`` None (a reference level known
-    from many episodes), one sample. None when no number of seeds up to ``most`` suffices (a zero or
-    NaN difference among them)."""
-    if not math.isfinite(difference) or difference == 0:
-        return None
-    spread = spread_a if spread_b is None else math.sqrt((spread_a ** 2 + spread_b ** 2) / 2)
-    if spread == 0:
-        return 2
-    for n in range(2, most + 1):
-        dof, scale = (n - 1, spread / math.sqrt(n)) if spread_b is None else (2 * n - 2, spread * math.sqrt(2 / n))
-        critical, shift = stats.t.ppf((1 + confidence) / 2, dof), abs(difference) / scale
-        if stats.nct.sf(critical, dof, shift) + stats.nct.cdf(-critical, dof, shift) >= power:
-            return n
-    return None
+def _power(shift: float, critical: float, dof: float) -> float:
+    """P(|T| > critical) for T noncentral t with ``dof`` degrees of freedom and noncentrality ``shift``. scipy's
+    ``nct`` returns NaN for the few degrees of freedom and far tails that Holm's small levels reach: there the
+    probability is integrated over the chi-square of the t's denominator instead."""
+    power = stats.nct.sf(critical, dof, shift) + stats.nct.cdf(-critical, dof, shift)
+    if math.isfinite(power):
+        return float(power)
+
+    def density(v: float) -> float:
+        scale = critical * math.sqrt(v / dof)
+        return (stats.norm.sf(scale - shift) + stats.norm.cdf(-scale - shift)) * stats.chi2.pdf(v, dof)
+
+    return float(integrate.quad(density, 0, math.inf, limit=200)[0])
+
+
+def detectable_difference(standard_error: float, dof: float, alpha: float, power: float = POWER) -> float:
+    """The smallest difference that the verdict's own test (two-sided Welch t at level ``alpha``, the difference's
+    ``standard_error`` and Welch-Satterthwaite ``dof`` as the seeds measured them) finds with probability ``power``.
+    NaN when the spread is unknown (fewer than two values on a side)."""
+    if not (math.isfinite(standard_error) and math.isfinite(dof)) or standard_error == 0:
+        return math.nan
+    critical = stats.t.ppf(1 - alpha / 2, dof)
+    high = 1.0
+    while _power(high, critical, dof) < power:
+        high *= 2
+    shift = optimize.brentq(lambda x: _power(x, critical, dof) - power, 0.0, high, xtol=1e-6)
+    return float(shift * standard_error)
 
 
 def verdict(low: float, high: float, direction: int, threshold: float = 0.0) -> str:
@@ -267,11 +279,11 @@ def verdict(low: float, high: float, direction: int, threshold: float = 0.0) -> 
 def claim_effects(name: str, rows: list[dict], metric: str, window: int | None = None,
                   confidence: float = CONFIDENCE, claims: tuple[Claim, ...] | None = None) -> list[dict]:
     """Every claim of experiment ``name`` (``CLAIMS[name]``, or ``claims``: an experiment whose questions depend
-    on its results, like the beyond experiment's "best hand-set Sigma") whose curves are in ``rows``, on every measure of an experiment
-    with paper metric ``metric`` (:func:`~vdtutorial.experiments.measures.measures_of`): estimate,
-    interval, p-value, verdict, Holm verdict (over the claims of one measure) and seeds needed, with curves
-    smoothed over ``window`` iterations (default :func:`~vdtutorial.experiments.curves.smooth_window`).
-    Claims about curves the run did not make (e.g. no expert line) are left out.
+    on its results, like the beyond experiment's "best hand-set Sigma") whose curves are in ``rows``, on every
+    measure of an experiment with paper metric ``metric`` (:func:`~vdtutorial.experiments.measures.measures_of`):
+    estimate, interval, p-value, verdict, Holm verdict and detectable difference, with curves smoothed over
+    ``window`` iterations (default :func:`~vdtutorial.experiments.curves.smooth_window`). Claims about curves the
+    run did not make (e.g. no expert line) are left out.
 
     Every claim is tested on each measure of :mod:`~vdtutorial.experiments.measures` (the paper's metric, the
     success rate, the steps per trajectory), read in the measure's better direction ("VD ends above L2" means
@@ -279,15 +291,14 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     family; the claims on the two other measures, chosen after the paper, are a second family, both measures
     together. Each family tests several claims at 95% each, so by chance alone some would pass: beside each verdict
     stands the **Holm** verdict, the same claims tested with Holm's step-down correction over the family
-    (family-wise error 5%; the p-value of a
-    difference of means is Welch's two-sided one, that of steps to reach the bootstrap's two-sided share of
-    resamples on the far side of the limit, or with fewer than ``MIN_BOOTSTRAP_SEEDS`` seeds the two-sided sign test
-    of the seeds within the limit, whose verdict is capped at "not confirmed"). **Seeds needed** is the number of seeds per method at which a
-    two-sided 5% Welch-type t-test would find the observed difference with 80% power, given the observed spread
-    over seeds (against the expert, whose level is measured over many episodes, a one-sample test of the
-    method's seeds). The paper prints no number for these differences (its figures show one curve per method,
-    without seeds), so there is no "seeds needed for the paper's difference" beyond the steps-to-reach claims,
-    which state the paper's number and are evaluated for both of its readings.
+    (family-wise error 5%; the p-value of a difference of means is Welch's two-sided one, that of steps to reach
+    the bootstrap's two-sided share of resamples on the far side of the limit, or with fewer than
+    ``MIN_BOOTSTRAP_SEEDS`` seeds the two-sided sign test of the seeds within the limit, whose verdict is capped at
+    "not confirmed"). The **detectable difference** is what a reader can use from a "not confirmed": the smallest
+    difference the seeds at hand would find with 80% power under the verdict's own test (Welch, with the measured
+    spreads) at Holm's strictest level, 5% over the family's size (:func:`detectable_difference`). A row whose whole
+    interval lies within ``MATERIALITY`` (5%) of the level compared against says "no material effect": the seeds
+    already exclude any difference worth the name, either way.
     """
     window = smooth_window() if window is None else window
     results = []
@@ -301,6 +312,9 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
         table = [e for e in results if e["family"] == family]
         for effect, rejected in zip(table, holm_rejections([e["p_value"] for e in table], 1 - confidence)):
             effect["holm_verdict"] = effect["verdict"] if rejected else "not confirmed"
+            if effect["measure"] != "steps_to_reach":   # at Holm's strictest level: alpha over the family's size
+                effect["detectable"] = detectable_difference(effect["standard_error"], effect["dof"],
+                                                             (1 - confidence) / len(table))
     return results
 
 
@@ -314,8 +328,7 @@ def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confide
         low, high = _percentile_interval(boot, confidence)
         limit = claim.fraction * budget_steps
         result_verdict, p_value, extra = _reach_test(a, b, window, better, boot, (low, high), limit)
-        extra.update(budget_steps=budget_steps, limit_steps=limit, n_a=len(a["values"]), n_b=len(b["values"]),
-                     seeds_needed=None)
+        extra.update(budget_steps=budget_steps, limit_steps=limit, n_a=len(a["values"]), n_b=len(b["values"]))
         if claim.fraction > PAPER_QUARTER:   # the paper's stricter reading, beside the claim
             quarter = PAPER_QUARTER * budget_steps
             extra.update(quarter_limit_steps=quarter,
@@ -327,12 +340,11 @@ def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confide
         result_verdict = verdict(low, high, claim.direction * better)
         p_value = welch_p_value(sa, sb)
         unit = f"{measure} per iteration ({'last %d iterations' % window if claim.measure == 'final' else 'mean over the run'})"
-        spread_b = None if b["values"].ndim == 1 else (float(sb.std(ddof=1)) if len(sb) > 1 else math.nan)
-        spread_a = float(sa.std(ddof=1)) if len(sa) > 1 else math.nan
-        needed = None if math.isnan(spread_a) or (spread_b is not None and math.isnan(spread_b)) else \
-            seeds_needed(estimate, spread_a, spread_b, confidence=confidence)
+        _, standard_error, dof = _welch(sa, sb)
+        material = MATERIALITY * abs(float(sb.mean()))
         extra = {"mean_a": float(sa.mean()), "mean_b": float(sb.mean()), "n_a": len(sa), "n_b": len(sb),
-                 "n_b_counts": "episodes" if spread_b is None else "seeds", "seeds_needed": needed}
+                 "n_b_counts": "episodes" if b["values"].ndim == 1 else "seeds", "standard_error": standard_error,
+                 "dof": dof, "material": material, "no_material_effect": bool(-material < low and high < material)}
     return {**asdict(claim), "metric": measure, "estimate": estimate, "low": low, "high": high,
             "confidence": confidence, "unit": unit, "p_value": p_value, "verdict": result_verdict, **extra}
 
@@ -375,7 +387,7 @@ def claim_table(effects: list[dict]) -> str:
     blocks = []
     for measure in dict.fromkeys(e.get("metric", "successes") for e in effects):
         lines = [f"*{MEASURES[measure].label}*: {MEASURES[measure].question}", "",
-                 "| claim | measure | effect (95% interval) | p | verdict | Holm | seeds | seeds needed |",
+                 "| claim | measure | effect (95% interval) | p | verdict | Holm | seeds | detectable |",
                  "|---|---|---|---|---|---|---|---|"]
         for e in (e for e in effects if e.get("metric", "successes") == measure):
             if e["measure"] == "steps_to_reach" and e.get("test") == "sign":
@@ -390,8 +402,8 @@ def claim_table(effects: list[dict]) -> str:
                 effect += f"; at a quarter ({_steps(e['quarter_limit_steps'])}): {e['quarter_verdict']}"
             else:
                 effect = f"{e['estimate']:+.3g} ({e['low']:+.3g} to {e['high']:+.3g})"
-            needed = "-" if e["measure"] == "steps_to_reach" else (
-                f"> {MAX_SEEDS}" if e["seeds_needed"] is None else str(e["seeds_needed"]))
+            needed = "-" if e["measure"] == "steps_to_reach" else f"{e['detectable']:.3g}" + (
+                "; no material effect" if e["no_material_effect"] else "")
             bootstrap_floor = e["p_value"] == 0 and e["measure"] == "steps_to_reach"
             p_value = f"< {1 / BOOTSTRAP_SAMPLES:.0g}" if bootstrap_floor else f"{e['p_value']:.2g}"
             lines.append(f"| {_claim_text(e)} | {e['measure']} | {effect} | {p_value} | **{e['verdict']}** | "

@@ -133,7 +133,7 @@ def claims(names) -> tuple[Claim, ...]:
 
 def table(effects: list[dict], names, out_command) -> list[dict]:
     """One entry per row and kind (final, auc), on the paper's metric: the VD - L2 estimate and interval, the
-    verdict and the Holm verdict, the seeds needed, whether the Holm verdict is the default row's, and the
+    verdict and the Holm verdict, the detectable difference, whether the Holm verdict is the default row's, and the
     command that makes the row (``out_command(name)``)."""
     metric = METRIC[TASK]
     by_text = {e["text"]: e for e in effects if e["metric"] == metric}
@@ -147,7 +147,7 @@ def table(effects: list[dict], names, out_command) -> list[dict]:
                          "method": choice.method if choice else None, "value": choice.value if choice else "",
                          "default": choice.default if choice else "", "kind": kind, "estimate": effect["estimate"],
                          "low": effect["low"], "high": effect["high"], "verdict": effect["verdict"],
-                         "holm_verdict": effect["holm_verdict"], "seeds_needed": effect.get("seeds_needed"),
+                         "holm_verdict": effect["holm_verdict"], "detectable": effect["detectable"],
                          "same_as_default": effect["holm_verdict"] == default_verdict[kind],
                          "command": out_command(row)})
     return rows
