@@ -84,6 +84,27 @@ def test_experiment_methods_runs_only_those_and_records_them(tmp_path, capsys):
     assert "--methods expert" in record["command"]
 
 
+def test_a_new_draw_of_the_data_runs_apart_from_the_shipped_one(tmp_path):
+    """Issue 44's second data set: ``--demo-seed 1 --sigmas 0.05 0.25`` makes fig6's VD and L2 runs on those two
+    data sets only, pre-trained on the demonstrations of seed 1. Their runs and checkpoints are named apart from the
+    shipped seed 0's (which keep their names), and the record's command names all three options."""
+    from vdtutorial.experiments.checkpoints import checkpoint_path
+    from vdtutorial.experiments.figures import figure_specs
+    from vdtutorial.experiments.results import experiment_command
+
+    specs = figure_specs("fig6", seeds=(0,), demo_seed=1, sigmas=(0.05, 0.25))
+    assert [(s.method, s.noise, s.demo_seed) for s in specs] == [("vd", 0.05, 1), ("vd", 0.25, 1), ("l2", 0.05, 1),
+                                                                  ("l2", 0.25, 1)]
+    assert specs[0].name == "vd_reach_n8000_sigma0.05_demos1_state_seed0"
+    assert figure_specs("fig6", seeds=(0,), sigmas=(0.05,))[0].name == "vd_reach_n8000_sigma0.05_state_seed0"
+    assert [s.samples for s in figure_specs("fig5", seeds=(0,), samples=(2000,))] == [2000, 2000]
+    meta = {"task": "reach", "samples": 8000, "noise": 0.05}
+    assert checkpoint_path({**meta, "seed": 0}, "vd", "state", 3).name == "reach_n8000_sigma0.05_vd_state_seed3.pt"
+    assert checkpoint_path({**meta, "seed": 1}, "vd", "state", 3).name == "reach_n8000_sigma0.05_demos1_vd_state_seed3.pt"
+    assert "--sigmas 0.05 0.25 --demo-seed 1" in experiment_command("fig6", seeds=(0,), sigmas=("0.05", "0.25"),
+                                                                    demo_seed=1)
+
+
 # -- errors: one line, exit code 2, no traceback ----------------------------------------------------------
 def _one_line_error(capsys, argv) -> str:
     try:
@@ -101,6 +122,13 @@ def _one_line_error(capsys, argv) -> str:
     (["demos", "--samples", "0"], "expected a positive integer"),
     (["experiment", "fig5", "--methods", "none"], "fig5 has no method none: its methods are vd, l2"),
     (["experiment", "table1", "--methods", "vd"], "--methods is an option of the figures"),
+    (["experiment", "table1", "--demo-seed", "1"], "--demo-seed is an option of the figures"),
+    (["experiment", "fig6", "--sigmas", "0.3"], "fig6 has no such data set: its data sets are 8000 demonstrations at "
+                                                "Sigma 0.05"),
+    (["experiment", "fig5", "--samples", "1000"], "fig5 has no such data set"),
+    (["experiment", "fig6", "--demo-seed", "7"], "no demonstrations of seed 7 for 8000 samples at Sigma 0.05: make "
+                                                 "them with python -m vdtutorial demos --task reach --samples 8000 "
+                                                 "--noise 0.05 --seed 7 --out data/demos/reach_n8000_sigma0.05_seed7.npz"),
     (["demos", "--noise", "-0.1"], "--noise: expected a finite number >= 0"),
     (["demos", "--noise", "nan"], "--noise: expected a finite number >= 0"),
     (["demos", "--task", "push"], "invalid choice: 'push'"),

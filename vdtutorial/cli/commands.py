@@ -202,6 +202,33 @@ def _grid_only(args, backend: str) -> None:
     print(format_comparison(record))
 
 
+def _figure_options(args) -> dict:
+    """The options only the figures have (which methods, which data sets, which draw of them), checked before
+    anything runs: a one-line error for another experiment or a method or data set the figure does not have."""
+    from vdtutorial.demos import demo_command, demo_path
+    from vdtutorial.experiments.figures import FIGURES, figure_data_sets, figure_methods
+    from vdtutorial.experiments.paths import recorded_path
+
+    options = {"methods": args.methods, "samples": args.samples, "sigmas": args.sigmas, "demo_seed": args.demo_seed}
+    given = [f"--{key.replace('_', '-')}" for key, value in options.items() if value not in (None, 0)]
+    if args.name not in FIGURES:
+        if given:
+            raise CommandError(f"{' and '.join(given)} {'are options' if len(given) > 1 else 'is an option'} of the figures")
+        return {}
+    try:
+        figure_methods(args.name, args.methods)
+        datasets = figure_data_sets(args.name, args.samples, args.sigmas)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from exc
+    task = FIGURES[args.name][2]
+    missing = [(n, sigma) for n, sigma in datasets if args.demo_seed and not demo_path(task, n, sigma, args.demo_seed).exists()]
+    if missing and set(figure_methods(args.name, args.methods)) & {"vd", "l2"}:
+        n, sigma = missing[0]
+        raise CommandError(f"no demonstrations of seed {args.demo_seed} for {n} samples at Sigma {sigma:g}: make them with "
+                           f"{demo_command(task, n, sigma, args.demo_seed)} --out {recorded_path(demo_path(task, n, sigma, args.demo_seed))}")
+    return options
+
+
 def cmd_experiment(args) -> None:
     import warnings
 
@@ -215,15 +242,7 @@ def cmd_experiment(args) -> None:
         raise CommandError("--kl-weighting is an option of table1 (the figures use the pre-training default)")
     if args.choices is not None and args.name != "free_choices":
         raise CommandError("--choices is an option of free_choices")
-    if args.methods is not None:
-        from vdtutorial.experiments.figures import FIGURES, figure_methods
-
-        if args.name not in FIGURES:
-            raise CommandError("--methods is an option of the figures")
-        try:
-            figure_methods(args.name, args.methods)
-        except ValueError as exc:
-            raise CommandError(str(exc)) from exc
+    figure_options = _figure_options(args)
     if args.name in PRE_RL_ONLY:
         ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
                                             ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),
@@ -252,7 +271,7 @@ def cmd_experiment(args) -> None:
             result = getattr(experiments, args.name)(
                 seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs, out=args.out, workers=args.workers,
                 trpo_config=trpo_config, backend=backend, address=args.address, state_dir=args.state_dir,
-                restart=args.restart, device=args.device, methods=args.methods, **resumable)
+                restart=args.restart, device=args.device, **figure_options, **resumable)
         except experiments.ResumeError as exc:
             raise CommandError(str(exc)) from exc
     _print_summary(result)

@@ -149,6 +149,13 @@ def _add_experiment_commands(sub) -> None:
     p.add_argument("--methods", nargs="+", choices=("vd", "l2", "none", "expert"), default=None,
                    help="figures only: run only these of the figure's methods (default: all; e.g. more seeds of "
                         "vd and l2, merged later with rederive --add)")
+    p.add_argument("--samples", type=positive_int, nargs="+", default=None, metavar="N",
+                   help="figures only: run only the data sets of these sizes (e.g. fig5 --samples 2000)")
+    p.add_argument("--sigmas", type=nonnegative_float, nargs="+", default=None, metavar="SIGMA",
+                   help="figures only: run only the data sets of these expert noises (e.g. fig6 --sigmas 0.05 0.25)")
+    p.add_argument("--demo-seed", type=nonnegative_int, default=0, metavar="K",
+                   help="figures only: pre-train on the demonstrations of seed K (default 0, the shipped ones; "
+                        "make them first with: python -m vdtutorial demos ... --seed K --out data/demos/...)")
     p.add_argument("--choices", nargs="+", default=None, metavar="ROW",
                    help="free_choices only: the rows to run besides the default one (default: all of them)")
     p.add_argument("--steps", type=positive_int, default=None, help="RL env steps per run (default: the paper's 3e5; beyond and free_choices: 1e5)")

@@ -71,13 +71,15 @@ def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, ro
                     data_name: str | None = None, patience: int | None = None) -> Path:
     """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma``, ``kl_divisor``
     or ``patience`` is added to the name (``..._seed0_initsigma-demos.pt``, ``..._seed0_kl7200.pt``,
-    ``..._seed0_stop10.pt``), so that it never replaces the default checkpoint. ``data_name`` names the data set in place of its
+    ``..._seed0_stop10.pt``), so that it never replaces the default checkpoint; so is a data set drawn with another
+    seed than the shipped 0 (``TASK_nSAMPLES_sigmaSIGMA_demos1_...``). ``data_name`` names the data set in place of its
     ``TASK_nSAMPLES_sigmaSIGMA``: a set made in rounds (DART's, DAgger's) has no Sigma to be named by."""
     m = demos_meta
     sigma = "" if initial_sigma == PAPER_SIGMA_OPTION else f"_initsigma-{initial_sigma}"
     kl = "" if kl_divisor is None else f"_kl{kl_divisor}"
     stop = "" if patience is None else f"_stop{patience}"
-    data = data_name or data_set_name(m["task"], m["samples"], m["noise"])
+    draw = f"_demos{m['seed']}" if m.get("seed") else ""
+    data = data_name or data_set_name(m["task"], m["samples"], m["noise"]) + draw
     return Path(root or data_dir()) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
 
 
@@ -93,7 +95,7 @@ def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> 
 
 
 #: The conventional file name of :func:`checkpoint_path`, read back to fill in a make-it hint.
-_NAME = re.compile(DATA_SET_PATTERN + r"_(?P<reg>vd|l2)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
+_NAME = re.compile(DATA_SET_PATTERN + r"(?:_demos(?P<draw>\d+))?_(?P<reg>vd|l2)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
 
 
 def _make_hint(path: Path) -> str:
@@ -101,7 +103,7 @@ def _make_hint(path: Path) -> str:
     match = _NAME.fullmatch(path.name)
     if not match:
         return "Make it with: python -m vdtutorial pretrain --reg {vd,l2} --demos FILE --seed SEED --obs {state,rgbd} --out " + str(path)
-    demos = demo_path(match["task"], int(match["samples"]), float(match["noise"]), 0)
+    demos = demo_path(match["task"], int(match["samples"]), float(match["noise"]), int(match["draw"] or 0))
     return (f"Make it with: {pretrain_command(match['reg'], demos, int(match['seed']), match['obs'])} --out {path}")
 
 

@@ -49,9 +49,9 @@ def needs_pretraining(spec: RunSpec) -> bool:
     """Whether the run must pre-train first: a VD or L2 run without a shipped checkpoint in ``data/``."""
     if spec.method not in ("vd", "l2"):
         return False
-    meta = {"task": spec.task, "samples": spec.samples, "noise": spec.noise, "seed": 0}
+    meta = {"task": spec.task, "samples": spec.samples, "noise": spec.noise, "seed": spec.demo_seed}
     return not checkpoint_path(meta, spec.method, spec.obs_mode, spec.seed).exists() or not demo_path(
-        spec.task, spec.samples, spec.noise, 0).exists()
+        spec.task, spec.samples, spec.noise, spec.demo_seed).exists()
 
 
 def run_seconds(spec: RunSpec, steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_s: float = 0.0,

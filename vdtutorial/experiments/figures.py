@@ -1,6 +1,8 @@
 """Figs. 4-7 as functions: the runs of each figure handed to :func:`run_experiment`. Taught in chapter 07."""
 from __future__ import annotations
 
+import math
+
 from vdtutorial.demos import SHIPPED_NOISE
 from vdtutorial.experiments.curves import vd_reaches_l2_final
 from vdtutorial.experiments.jobs import RunSpec
@@ -34,21 +36,35 @@ def figure_methods(name: str, methods=None) -> tuple[str, ...]:
     return tuple(method for method in all_methods if method in methods)
 
 
+def figure_data_sets(name: str, samples=None, sigmas=None) -> tuple[tuple[int, float], ...]:
+    """Figure ``name``'s data sets (samples, Sigma), only those with one of ``samples`` and one of ``sigmas`` when
+    given (ValueError when none is left)."""
+    datasets = tuple((n, sigma) for n, sigma in FIGURES[name][3]
+                     if (samples is None or n in samples) and (sigmas is None or any(math.isclose(sigma, s) for s in sigmas)))
+    if not datasets:
+        known = ", ".join(f"{n} demonstrations at Sigma {sigma:g}" for n, sigma in FIGURES[name][3])
+        raise ValueError(f"{name} has no such data set: its data sets are {known}")
+    return datasets
+
+
 def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode: str = "state",
-                 methods=None) -> list[RunSpec]:
+                 methods=None, demo_seed: int = 0, samples=None, sigmas=None) -> list[RunSpec]:
     """The runs of a figure: each pre-training method on each data set, the other methods once, every one
     for every seed (defaults: :func:`~vdtutorial.experiments.runs.default_seeds`,
     :func:`~vdtutorial.experiments.runs.default_total_steps`). ``methods`` keeps only those of the figure's
     methods (``"vd"``, ``"l2"``, ``"none"``, ``"expert"``): extra seeds of some curves, merged later with
-    ``rederive --add``."""
-    _, _, task, datasets, label = FIGURES[name]
+    ``rederive --add``. ``samples`` and ``sigmas`` keep only those data sets (:func:`figure_data_sets`), and
+    ``demo_seed`` draws them again: the demonstrations of seed ``demo_seed`` in place of the shipped seed 0, to
+    ask whether an effect survives a new draw of the data."""
+    _, _, task, _, label = FIGURES[name]
     methods = figure_methods(name, methods)
+    datasets = figure_data_sets(name, samples, sigmas)
     seeds = tuple(default_seeds() if seeds is None else seeds)
     total_steps = default_total_steps() if total_steps is None else total_steps
     specs = []
     for method in methods:
         if method in ("vd", "l2"):
-            specs += [RunSpec(method, task, n, sigma, seed, obs_mode, total_steps, label(method, n, sigma))
+            specs += [RunSpec(method, task, n, sigma, seed, obs_mode, total_steps, label(method, n, sigma), demo_seed)
                       for n, sigma in datasets for seed in seeds]
         else:
             specs += [RunSpec(method, task, None, None, seed, obs_mode, total_steps, METHOD_LABELS[method])
@@ -56,9 +72,10 @@ def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode
     return specs
 
 
-def _figure(name: str, seeds, total_steps, obs_mode, out, workers, methods=None, **kwargs) -> ExperimentResult:
+def _figure(name: str, seeds, total_steps, obs_mode, out, workers, methods=None, demo_seed: int = 0, samples=None,
+            sigmas=None, **kwargs) -> ExperimentResult:
     """The runs of figure ``name`` (:func:`figure_specs`) handed to :func:`run_experiment`."""
-    specs = figure_specs(name, seeds, total_steps, obs_mode, methods)
+    specs = figure_specs(name, seeds, total_steps, obs_mode, methods, demo_seed, samples, sigmas)
     trpo_config = kwargs.get("trpo_config")
     fvp_subsample = None  # in the command only when it is not the default
     if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config().fvp_subsample:
@@ -66,7 +83,12 @@ def _figure(name: str, seeds, total_steps, obs_mode, out, workers, methods=None,
     command = experiment_command(name, seeds=tuple(dict.fromkeys(spec.seed for spec in specs)),
                                  steps=specs[0].total_steps, obs=obs_mode, workers=workers, out=out,
                                  fvp_subsample=fvp_subsample,
-                                 methods=None if methods is None else tuple(dict.fromkeys(s.method for s in specs)))
+                                 methods=None if methods is None else tuple(dict.fromkeys(s.method for s in specs)),
+                                 samples=None if samples is None else tuple(dict.fromkeys(
+                                     s.samples for s in specs if s.samples is not None)),
+                                 sigmas=None if sigmas is None else tuple(f"{s:g}" for s in dict.fromkeys(
+                                     s.noise for s in specs if s.noise is not None)),
+                                 demo_seed=demo_seed or None)
     return run_experiment(name, specs, FIGURES[name][0], out, workers, command=command, **kwargs)
 
 

@@ -26,7 +26,8 @@ from vdtutorial.trpo import TRPOConfig
 class RunSpec:
     """What one run is: a method, a data set (``samples``, ``noise``; None for "none" and "expert"), a
     seed. ``label`` names the curve it belongs to. ``total_steps`` None: the RL budget of the mode the spec is
-    made in (:func:`~vdtutorial.experiments.runs.default_total_steps`)."""
+    made in (:func:`~vdtutorial.experiments.runs.default_total_steps`). ``demo_seed``: which draw of the data set
+    (the demonstrations' seed; the shipped sets are seed 0), named in the run's name when it is not 0."""
 
     method: str
     task: str = "reach"
@@ -36,6 +37,7 @@ class RunSpec:
     obs_mode: str = "state"
     total_steps: int | None = None
     label: str = ""
+    demo_seed: int = 0
 
     def __post_init__(self):
         if self.total_steps is None:
@@ -49,7 +51,8 @@ class RunSpec:
     def name(self) -> str:
         if self.method == "expert":
             return f"expert_{self.task}_seed{self.seed}"
-        data = "" if self.method == "none" else f"_n{self.samples}_sigma{self.noise:g}"
+        data = "" if self.method == "none" else f"_n{self.samples}_sigma{self.noise:g}" + (
+            f"_demos{self.demo_seed}" if self.demo_seed else "")
         return f"{self.method}_{self.task}{data}_{self.obs_mode}_seed{self.seed}"
 
 
@@ -82,7 +85,7 @@ class Job:
         if spec.method == "expert":
             return expert_settings(spec.task, spec.seed, default_expert_episodes())
         config = self.pretrain_config or default_config(spec.method if spec.method != "none" else "l2", spec.obs_mode)
-        meta = None if spec.method == "none" else {"samples": spec.samples, "noise": spec.noise, "seed": 0}
+        meta = None if spec.method == "none" else {"samples": spec.samples, "noise": spec.noise, "seed": spec.demo_seed}
         return run_settings(spec.method, spec.task, meta, spec.obs_mode, spec.seed, NUM_ENVS, config, self.trpo_config)
 
     @property
@@ -123,7 +126,8 @@ class Job:
             save_finished_rows(self.state_path, self.settings, rows, time.perf_counter() - start)
             yield {"env_steps": self.env_steps}
             return rows
-        demos = None if spec.method == "none" else demo_path(spec.task, spec.samples, spec.noise, 0, root=self.demos_root)
+        demos = None if spec.method == "none" else demo_path(spec.task, spec.samples, spec.noise, spec.demo_seed,
+                                                                  root=self.demos_root)
         _, rows = yield from finetune_steps(spec.method, spec.task, demos, spec.obs_mode, spec.seed, spec.total_steps,
                                             pretrain_config=self.pretrain_config, trpo_config=self.trpo_config,
                                             checkpoints_root=self.checkpoints_root, state_path=self.state_path,
