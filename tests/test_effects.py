@@ -33,6 +33,16 @@ def test_verdicts(low, high, direction, expected):
     assert verdict(low, high, direction) == expected
 
 
+@pytest.mark.parametrize("low, high, direction, expected", [
+    (0.1, 0.4, 1, "negligible"), (-0.4, -0.1, 1, "negligible"), (-0.4, -0.1, -1, "negligible"),
+    (0.1, 0.6, 1, "confirmed"), (-0.6, -0.1, 1, "contradicted"), (-0.4, 0.4, 1, "not confirmed")])
+def test_a_significant_difference_within_the_material_band_is_negligible(low, high, direction, expected):
+    """Issue 44: "VD ends above the IK expert" was contradicted by a 0.17-point deficit near a 100% ceiling. With a
+    materiality of 0.5 here, an interval on one side of zero but wholly inside (-0.5, 0.5) reads "negligible"; one that
+    reaches past the band keeps its verdict; one that straddles zero stays "not confirmed"."""
+    assert verdict(low, high, direction, material=0.5) == expected
+
+
 def _rows(label, method, values_per_seed, steps=200, episodes=None):
     """Rows of a learning curve; every trajectory succeeds unless ``episodes`` (per iteration) says more ended."""
     return [{"label": label, "method": method, "seed": s, "iteration": i, "env_steps": (i + 1) * steps, "successes": v,
@@ -103,6 +113,19 @@ def test_a_row_whose_interval_lies_within_five_percent_excludes_a_material_effec
     assert final["L2"]["material"] == pytest.approx(0.05 * final["L2"]["mean_b"])
     assert 0 < final["L2"]["detectable"] < final["L2"]["material"]
     assert "; no material effect" in claim_table([final["L2"]])
+
+
+def test_a_claim_with_a_tiny_but_certain_deficit_reads_negligible():
+    """VD a hair below a steady IK expert on every seed (99.8 against 100 successes): the interval excludes zero, so
+    the verdict would be "contradicted" without the materiality threshold; it is "negligible", and so is its Holm
+    verdict, since the difference survives the correction."""
+    rows = (_rows("VD", "vd", [[99.8 + 0.01 * s] * 30 for s in range(5)])
+            + _rows("L2", "l2", [[60.0 + s] * 30 for s in range(5)])
+            + _rows("IK expert", "expert", [[100.0] * 30 for _ in range(5)]))
+    expert = next(e for e in claim_effects("fig4", rows, "successes", window=5)
+                  if e["b"] == "IK expert" and e["metric"] == "successes")
+    assert expert["high"] < 0 and expert["verdict"] == "negligible" and expert["holm_verdict"] == "negligible"
+    assert "**negligible**" in claim_table([expert])
 
 
 def test_claims_are_tested_on_every_measure_in_its_better_direction():

@@ -96,5 +96,8 @@ def test_the_shipped_table_is_rederived_from_its_rows_and_is_on_the_results_page
     derived = fc.table(effects, names, lambda row: "")
     assert [{k: v for k, v in r.items() if k != "command"} for r in derived] == \
         [{k: v for k, v in r.items() if k != "command"} for r in record["table"]]
+    # every measure's claims too, the secondary ones one Holm family (what rederive re-writes)
+    assert json.loads(json.dumps(effects, default=str)) == record["claims"]
+    assert {c["family"] for c in record["claims"]} == {"primary", "secondary"}
     page = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
     assert fc.markdown_table(record) in page

@@ -6,6 +6,7 @@ Not taught in a chapter: the command line's plumbing (chapter 00 shows the comma
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -314,17 +315,26 @@ def cmd_claims(args) -> None:
 
 
 def cmd_rederive(args) -> None:
-    """An experiment's figure and JSON summary re-written from its rows (see experiments.results.rederive)."""
-    from vdtutorial.experiments import format_summary, merge_seeds, rederive
+    """An experiment's figure and JSON summary re-written from its rows (see experiments.results.rederive; the
+    experiments beyond the figures, whose records have a shape of their own, by their own rederive)."""
+    from vdtutorial.experiments import beyond, format_summary, free_choices, merge_seeds, rederive
 
+    own = {"beyond": (beyond.rederive_beyond, beyond.format_summary),
+           "free_choices": (free_choices.rederive_free_choices, free_choices.format_table)}
+    names = {}
     for folder in args.folders + args.add + args.add_other_cpu:
         if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
             raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
+        names[folder] = json.loads(next(Path(folder).glob("*.json")).read_text()).get("experiment")
     if (args.add or args.add_other_cpu) and len(args.folders) != 1:
         raise CommandError("--add merges into one experiment folder: name one")
+    if (args.add or args.add_other_cpu) and set(names.values()) & set(own):
+        raise CommandError(f"--add merges the figures' seeds: {', '.join(sorted(set(names.values()) & set(own)))} "
+                           "takes more seeds by running it again with them")
     for other in args.add:
         merge_seeds(args.folders[0], other)
     for other in args.add_other_cpu:
         merge_seeds(args.folders[0], other, other_cpu=True)
     for folder in args.folders:
-        print(format_summary(rederive(folder)))
+        remake, summary = own.get(names[folder], (rederive, format_summary))
+        print(summary(remake(folder)))

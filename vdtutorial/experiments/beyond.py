@@ -39,7 +39,7 @@ from vdtutorial.beyond.imitation_rounds import cloning_config
 from vdtutorial.demos import Demos, demo_path, generate_demos
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import CONFIDENCE, mean_band, smooth_window
-from vdtutorial.experiments.effects import Claim, per_run, run_summaries, verdict, welch_interval
+from vdtutorial.experiments.effects import MATERIALITY, Claim, per_run, run_summaries, verdict, welch_interval
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.measures import MEASURES, measures_of
 from vdtutorial.experiments.plots import figure_title
@@ -47,7 +47,7 @@ from vdtutorial.experiments.results import default_out, derive, experiment_comma
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_trpo_config,
                                          finetune_steps, pretrained_policy, run_settings)
 from vdtutorial.pretrain import PretrainConfig
-from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
+from vdtutorial.runner import SavedInStateDir, read_rows, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.experiments.paths import recorded_path
 from vdtutorial.settings import budget, is_quick
@@ -64,7 +64,8 @@ DART_STARTS = (0.05, TOO_LARGE)
 PRE_RL, RL = "pre-RL", "RL"
 #: The readings of a comparison's verdict (a against b, in the measure's better direction).
 READINGS = {"confirmed": "a better than b", "contradicted": "a worse than b",
-            "not confirmed": "not distinguishable at this many seeds"}
+            "not confirmed": "not distinguishable at this many seeds",
+            "negligible": f"a and b differ by less than {MATERIALITY:.0%} of b's level"}
 
 
 def samples() -> int:
@@ -322,14 +323,35 @@ def rl_stage(rows: list[dict], seeds, steps: int, configs: dict[str, PretrainCon
     95% Welch intervals, verdicts and Holm-corrected verdicts), each read in words (``reading``, of the Holm
     verdict). ``configs``: the RL runs' pre-training settings per regulariser, for the record."""
     window = smooth_window()
-    title = figure_title("Beyond the paper: TRPO from hand-set Sigma, DART and DAgger (reaching)", "state", steps,
-                         len(seeds))
-    _, figure, summary = derive("beyond", rows, "successes", window, title, rl_claims(rows, window))
-    for effect in summary["claims"]:
-        effect["reading"] = READINGS[effect["holm_verdict"]]
+    figure, summary = _rl_derive(rows, len(seeds), steps, window)
     return figure, {"steps": steps, "window": window, "metric": "successes", "measures": list(measures_of("successes")),
                     "trpo_config": asdict(default_trpo_config()),
                     "pretrain_config": {reg: asdict(config) for reg, config in configs.items()}, **summary}
+
+
+def _rl_derive(rows: list[dict], seeds: int, steps: int, window: int) -> tuple[Figure, dict]:
+    """What the RL rows say (:func:`rl_stage`): the figure, the final points and the claims, each read in words."""
+    title = figure_title("Beyond the paper: TRPO from hand-set Sigma, DART and DAgger (reaching)", "state", steps, seeds)
+    _, figure, summary = derive("beyond", rows, "successes", window, title, rl_claims(rows, window))
+    for effect in summary["claims"]:
+        effect["reading"] = READINGS[effect["holm_verdict"]]
+    return figure, summary
+
+
+def rederive_beyond(folder) -> dict:
+    """Re-write the RL part of a :func:`beyond` record (figure, final points, claims and their readings, what DAgger's
+    work bought) from its rows, without running anything: ``python -m vdtutorial rederive data/results/beyond``
+    after the analysis changed. The pre-RL comparisons and the data sets' costs are kept as recorded."""
+    folder = Path(folder)
+    record = json.loads((folder / "beyond.json").read_text())
+    rows = [row for row in read_rows(results_file(folder, "beyond")) if row["stage"] == RL]
+    rl = record["rl"]
+    figure, summary = _rl_derive(rows, len(record["seeds"]), rl["steps"], rl["window"])
+    figure.savefig(folder / "beyond_rl.png", dpi=110)
+    record["rl"] = {**rl, **summary}
+    record["dagger_cost"] = dagger_cost(record["cost"], record["comparisons"], summary["claims"], rl["steps"])
+    (folder / "beyond.json").write_text(json.dumps(record, indent=1, default=str))
+    return record
 
 
 def dagger_cost(cost: dict, pre: list[dict], rl: list[dict], steps: int) -> list[dict]:

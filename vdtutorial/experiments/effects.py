@@ -19,8 +19,10 @@ interval is a percentile bootstrap over seeds (each method's seeds resampled wit
 the first method's seeds (each within the limit or not) gives the p-value, and the verdict is capped.
 
 Verdicts: **confirmed** when the interval lies wholly on the paper's side, **contradicted** when it lies
-wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds); beside
-each, the Holm-corrected verdict and the seeds a decision would need (:func:`claim_effects`).
+wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds), and
+**negligible** when it excludes zero but lies wholly within ``MATERIALITY`` of the level compared against (a real
+difference too small to matter); beside each, the Holm-corrected verdict and the smallest difference the seeds
+could detect (:func:`claim_effects`).
 
 Taught in chapter 07 and appendix A5.
 """
@@ -51,8 +53,11 @@ BOOTSTRAP_SEED = 0
 MIN_BOOTSTRAP_SEEDS = 5
 #: Power at which the detectable difference is found.
 POWER = 0.8
-#: A difference smaller than this share of the level compared against (the second method's, or the expert's)
-#: is immaterial: a row whose whole interval lies within it excludes any material effect either way.
+#: A difference smaller than this share of the level compared against (the second method's, or the expert's) is
+#: immaterial, on every measure in its own units: a row whose whole interval lies within it excludes any material
+#: effect either way, and when that interval also excludes zero the verdict is "negligible", neither "confirmed" nor
+#: "contradicted". The level compared against, not the expert's, because Figs. 5 and 6 ran no expert; near the
+#: expert (VD, L2) the two are within a few percent of each other.
 MATERIALITY = 0.05
 
 
@@ -267,10 +272,13 @@ def detectable_difference(standard_error: float, dof: float, alpha: float, power
     return float(shift * standard_error)
 
 
-def verdict(low: float, high: float, direction: int, threshold: float = 0.0) -> str:
-    """Where the interval lies relative to ``threshold``, read in the claim's direction."""
+def verdict(low: float, high: float, direction: int, threshold: float = 0.0, material: float = 0.0) -> str:
+    """Where the interval lies relative to ``threshold``, read in the claim's direction: "negligible" when it lies on
+    one side but within ``material`` of the threshold (a difference, if real, too small to matter)."""
     if math.isnan(low) or math.isnan(high):
         return "not confirmed"
+    if (low > threshold or high < threshold) and threshold - material < low and high < threshold + material:
+        return "negligible"
     if direction > 0:
         return "confirmed" if low > threshold else "contradicted" if high < threshold else "not confirmed"
     return "confirmed" if high < threshold else "contradicted" if low > threshold else "not confirmed"
@@ -298,7 +306,8 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     difference the seeds at hand would find with 80% power under the verdict's own test (Welch, with the measured
     spreads) at Holm's strictest level, 5% over the family's size (:func:`detectable_difference`). A row whose whole
     interval lies within ``MATERIALITY`` (5%) of the level compared against says "no material effect": the seeds
-    already exclude any difference worth the name, either way.
+    already exclude any difference worth the name, either way; if that interval also excludes zero, the verdict is
+    "negligible" (significant, but immaterial) rather than "confirmed" or "contradicted".
     """
     window = smooth_window() if window is None else window
     results = []
@@ -337,11 +346,11 @@ def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confide
     else:
         sa, sb = run_summaries(a, claim.measure, window), run_summaries(b, claim.measure, window)
         estimate, low, high = welch_interval(sa, sb, confidence)
-        result_verdict = verdict(low, high, claim.direction * better)
+        material = MATERIALITY * abs(float(sb.mean()))
+        result_verdict = verdict(low, high, claim.direction * better, material=material)
         p_value = welch_p_value(sa, sb)
         unit = f"{measure} per iteration ({'last %d iterations' % window if claim.measure == 'final' else 'mean over the run'})"
         _, standard_error, dof = _welch(sa, sb)
-        material = MATERIALITY * abs(float(sb.mean()))
         extra = {"mean_a": float(sa.mean()), "mean_b": float(sb.mean()), "n_a": len(sa), "n_b": len(sb),
                  "n_b_counts": "episodes" if b["values"].ndim == 1 else "seeds", "standard_error": standard_error,
                  "dof": dof, "material": material, "no_material_effect": bool(-material < low and high < material)}
@@ -382,8 +391,8 @@ def _claim_text(e: dict) -> str:
 
 def claim_table(effects: list[dict]) -> str:
     """The claims as Markdown, one table per measure (the claim tables of docs/results.md are generated by
-    this): effect and 95% interval, two-sided p, verdict, Holm verdict, the seeds behind it and the seeds
-    needed to find the observed difference (see the module's docstring)."""
+    this): effect and 95% interval, two-sided p, verdict, Holm verdict, the seeds behind it and the smallest
+    difference those seeds can detect (see the module's docstring)."""
     blocks = []
     for measure in dict.fromkeys(e.get("metric", "successes") for e in effects):
         lines = [f"*{MEASURES[measure].label}*: {MEASURES[measure].question}", "",

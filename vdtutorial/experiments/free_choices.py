@@ -36,7 +36,7 @@ from vdtutorial.experiments.plots import figure_title
 from vdtutorial.experiments.results import default_out, derive, experiment_command
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METHOD_LABELS, METRIC, NUM_ENVS, default_seeds, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig
-from vdtutorial.runner import results_file, run_grid, write_csv
+from vdtutorial.runner import read_rows, results_file, run_grid, write_csv
 from vdtutorial.settings import budget, data_dir, is_quick
 
 TASK, SAMPLES, NOISE = "reach", 8000, 0.5
@@ -174,10 +174,6 @@ def free_choices(names=CHOICE_NAMES, seeds=None, steps: int | None = None, out=N
     out.mkdir(parents=True, exist_ok=True)
     write_csv(results_file(out, "free_choices"), rows)
     window = smooth_window()
-    title = figure_title("Our free choices: VD and L2 with one pre-training value changed (reaching)", "state", steps,
-                         len(seeds))
-    _, figure, summary = derive("free_choices", rows, METRIC[TASK], window, title, claims(names))
-    figure.savefig(out / "free_choices.png", dpi=110)
     shown_out = out if out != default_out("free_choices") else None
 
     def command(row: str) -> str:
@@ -192,11 +188,32 @@ def free_choices(names=CHOICE_NAMES, seeds=None, steps: int | None = None, out=N
               "choices": [asdict(c) for c in CHOICES if c.name in names],
               "pretrain_config": {m: asdict(default_config(m)) for m in ("vd", "l2")},
               "trpo_config": asdict(default_trpo_config()), "wall_time_s": time.perf_counter() - start,
-              "table": table(summary["claims"], names, command), **summary,
               "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__,
                            "python": sys.version.split()[0]}}
+    return _write_derived(out, record, rows, names, command)
+
+
+def _write_derived(out: Path, record: dict, rows: list[dict], names, command) -> dict:
+    """Add what the rows say to ``record`` (the claims on every measure and the :func:`table`, each row's command
+    ``command(row)``), draw ``free_choices.png`` and write ``free_choices.json`` into ``out``."""
+    title = figure_title("Our free choices: VD and L2 with one pre-training value changed (reaching)", "state",
+                         record["steps"], len(record["seeds"]))
+    _, figure, summary = derive("free_choices", rows, METRIC[TASK], record["window"], title, claims(names))
+    figure.savefig(out / "free_choices.png", dpi=110)
+    record.update(table=table(summary["claims"], names, command), **summary)
     (out / "free_choices.json").write_text(json.dumps(record, indent=1, default=str))
     return record
+
+
+def rederive_free_choices(folder) -> dict:
+    """Re-write a :func:`free_choices` folder's figure, claims and table from its rows, without running anything
+    (``python -m vdtutorial rederive data/results/free_choices`` after the analysis changed); each row keeps the
+    command recorded for it."""
+    folder = Path(folder)
+    record = json.loads((folder / "free_choices.json").read_text())
+    commands = {row["row"]: row["command"] for row in record["table"]}
+    names = [choice["name"] for choice in record["choices"]]
+    return _write_derived(folder, record, read_rows(results_file(folder, "free_choices")), names, commands.__getitem__)
 
 
 def format_table(record: dict) -> str:
