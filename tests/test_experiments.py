@@ -375,7 +375,7 @@ def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):
     demos = generate_demos("reach", 40, 0.3, seed=1, progress=False)
     runs.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
     saved = list(tmp_path.rglob("*.pt"))
-    assert [p.name for p in saved] == ["reach_n40_sigma0.3_l2_state_seed0.pt"]
+    assert [p.name for p in saved] == ["reach_n40_sigma0.3_demos1_l2_state_seed0.pt"]  # demonstrations of seed 1
 
 
 def test_files_written_before_kl_divisor_was_renamed_still_load_and_merge():

@@ -32,6 +32,7 @@ import torch
 from conftest import require_recorded_numerics
 
 from vdtutorial.demos import demo_path
+from vdtutorial.experiments.results import NOT_RECORDED
 from vdtutorial.experiments import (expert_reference, finetune, merge_seeds, read_rows, rederive, results_file,
                                     write_csv)
 from vdtutorial.experiments.checkpoints import checkpoint_path
@@ -286,7 +287,9 @@ def test_seeds_run_apart_merge_into_the_experiment_with_all_of_them(tmp_path):
     assert merged.rows == read_rows(results_file(RESULTS / "fig4_state_fvp0.1", "fig4"))
     assert merged.record["command"] == shipped["command"] and merged.record["summary"] == shipped["summary"]
     assert [run["name"] for run in merged.record["runs"]] == [run["name"] for run in shipped["runs"]]
-    assert len(merged.record["merged"]) == 2
+    assert [e.get("seeds") for e in merged.record["merged"]] == [[0, 2], [1], None]   # the two parts, then the merge
+    assert merged.record["merged"][2]["command"].startswith("python -m vdtutorial rederive ")
+    assert " --add " in merged.record["merged"][2]["command"] and merged.record["argv"] is None
     with pytest.raises(ValueError, match="share seeds"):
         merge_seeds(first, _seeds_of("fig4_state_fvp0.1", (2,), tmp_path / "again"))
     with pytest.raises(ValueError, match="differs in"):
@@ -306,7 +309,9 @@ def test_seeds_run_on_another_cpu_merge_only_when_asked_and_the_record_says_so(t
         merge_seeds(first, later)
     merged = merge_seeds(first, later, other_cpu=True)
     assert merged.record["kernels"] == "mixed" and merged.record["seeds"] == [0, 1, 2]
-    assert [entry["kernels"] for entry in merged.record["merged"]] == [None, {"torch_cpu_capability": "AVX2"}]
+    assert [entry.get("kernels") for entry in merged.record["merged"]] == [NOT_RECORDED, {"torch_cpu_capability": "AVX2"},
+                                                                          None]
+    assert " --add-other-cpu " in merged.record["merged"][2]["command"]
     assert merged.rows == read_rows(results_file(RESULTS / "fig4_state_fvp0.1", "fig4"))
 
 

@@ -15,11 +15,29 @@ from vdtutorial.runner.kernels import kernel_settings, pinned
 from vdtutorial.experiments.paths import runs_dir
 from vdtutorial.settings import data_dir
 
-def cmd_demos(args) -> None:
-    from vdtutorial.demos import SHIPPED_NOISE, demo_path, generate_demos
+def demos_output(args) -> Path:
+    """The file a ``demos`` command writes, before ``--force`` is checked: ``--out``, or the conventional name under
+    ``runs/demos``. (The provenance test reads every recorded command's output with this.)"""
+    from vdtutorial.demos import SHIPPED_NOISE, demo_path
 
     noise = SHIPPED_NOISE[args.task] if args.noise is None else args.noise
-    out = output_path(args.out, demo_path(args.task, args.samples, noise, args.seed, root=runs_dir()), args.force)
+    return Path(args.out) if args.out else demo_path(args.task, args.samples, noise, args.seed, root=runs_dir())
+
+
+def pretrain_output(args, demos_meta: dict) -> Path:
+    """The file a ``pretrain`` command writes from a data set with meta ``demos_meta``: ``--out``, or the
+    conventional name under ``runs/checkpoints``, which names a non-default start sigma and early stop."""
+    from vdtutorial.experiments.checkpoints import checkpoint_path
+
+    return Path(args.out) if args.out else checkpoint_path(demos_meta, args.reg, args.obs, args.seed, root=runs_dir(),
+                                                           initial_sigma=args.sigma, patience=args.patience)
+
+
+def cmd_demos(args) -> None:
+    from vdtutorial.demos import SHIPPED_NOISE, generate_demos
+
+    noise = SHIPPED_NOISE[args.task] if args.noise is None else args.noise
+    out = output_path(args.out, demos_output(args), args.force)
     demos = generate_demos(args.task, args.samples, noise, args.seed, progress=progress_of(args))
     demos.save(out)
     print(f"{len(demos)} samples from {demos.meta['episodes']} noisy expert episodes "
@@ -41,7 +59,7 @@ def cmd_pretrain(args) -> None:
 
     from vdtutorial.demos import Demos
     from vdtutorial.experiments.checkpoints import (checkpoint_path, default_config, load_checkpoint,
-                                                    pretrain_command, save_checkpoint)
+                                                    pretrain_command, save_checkpoint, with_held_out_stop)
     from vdtutorial.analysis.sparsity import sparsity_report
     from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
 
@@ -49,11 +67,12 @@ def cmd_pretrain(args) -> None:
     torch.set_num_threads(1)
     demos = Demos.load(args.demos)
     config = default_config(args.reg, args.obs)
-    if args.epochs:
+    if args.patience:   # --epochs is then the cap; VD's KL warm-up keeps its length in epochs
+        config = with_held_out_stop(config, args.epochs or config.epochs, args.patience)
+    elif args.epochs:
         config = dataclasses.replace(config, epochs=args.epochs)
-    config = dataclasses.replace(config, initial_sigma=args.sigma, patience=args.patience)
-    out = output_path(args.out, checkpoint_path(demos.meta, args.reg, args.obs, args.seed, root=runs_dir(),
-                                                initial_sigma=config.initial_sigma, patience=config.patience), args.force)
+    config = dataclasses.replace(config, initial_sigma=args.sigma)
+    out = output_path(args.out, pretrain_output(args, demos.meta), args.force)
     spread_net = None
     if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
         spread_net = load_checkpoint(checkpoint_path(demos.meta, "vd", args.obs, args.seed), variational=True).mu

@@ -66,7 +66,8 @@ def _add_pipeline_commands(sub) -> None:
     p.add_argument("--epochs", type=positive_int, default=None, help=epochs_help())
     p.add_argument("--patience", type=positive_int, default=None, metavar="P",
                    help="stop when the held-out MSE has not improved for P epochs (after VD's KL warm-up); "
-                        "--epochs is then a cap and mu is the best epoch's (default: run all epochs)")
+                        "--epochs is then a cap, VD's KL warm-up keeps its default length in epochs, and mu is the best "
+                        "epoch's (default: run all epochs)")
     p.add_argument("--sigma", default="0.3",
                    help="sigma the checkpoint starts RL from: a number (fixed; default 0.3, the network's initial "
                         "value, which the paper leaves untouched and the shipped checkpoints hold; the experiments "

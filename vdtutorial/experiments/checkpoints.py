@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -47,6 +48,13 @@ def default_config(reg: str = "vd", obs_mode: str = "state") -> PretrainConfig:
     starting from ``RL_START_SIGMA``."""
     return PretrainConfig(reg=reg, obs_mode=obs_mode, initial_sigma=RL_START_SIGMA,
                           **(rgbd_settings() if obs_mode == "rgbd" else {}))
+
+
+def with_held_out_stop(config: PretrainConfig, cap: int, patience: int) -> PretrainConfig:
+    """``config`` stopped on the held-out loss after ``patience`` epochs without a better one, ``cap`` epochs at most,
+    with VD's KL warm-up kept at ``config``'s length in epochs (so the first epochs see the same beta schedule as
+    the fixed-epoch run): what chapter 05's image comparison and ``pretrain --patience`` use."""
+    return replace(config, epochs=cap, beta_warmup=config.beta_warmup * config.epochs / cap, patience=patience)
 
 
 def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sigma: str = PAPER_SIGMA_OPTION) -> str:

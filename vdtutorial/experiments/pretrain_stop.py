@@ -27,7 +27,7 @@ from matplotlib.figure import Figure
 
 import vdtutorial
 from vdtutorial.demos import Demos, demo_path
-from vdtutorial.experiments.checkpoints import default_config
+from vdtutorial.experiments.checkpoints import default_config, with_held_out_stop
 from vdtutorial.experiments.curves import curves_from_rows
 from vdtutorial.experiments.effects import welch_interval
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
@@ -56,8 +56,7 @@ def stop_config(reg: str) -> PretrainConfig:
     """The figures' image settings with the held-out stop: the cap in place of the fixed epochs, the KL warm-up
     kept at the fixed run's length in epochs (so the first 40 epochs see the same beta schedule)."""
     fixed = default_config(reg, OBS)
-    cap = budget(CAP, 2 * fixed.epochs)
-    return replace(fixed, epochs=cap, beta_warmup=fixed.beta_warmup * fixed.epochs / cap, patience=budget(PATIENCE, 1))
+    return with_held_out_stop(fixed, budget(CAP, 2 * fixed.epochs), budget(PATIENCE, 1))
 
 
 def configs() -> dict[str, dict[str, PretrainConfig]]:

@@ -215,6 +215,8 @@ def rederive(folder: str | Path) -> ExperimentResult:
     return ExperimentResult(name, folder, rows, curves, figure, summary, record)
 
 
+#: A merged part's kernels when its record predates the ``kernels`` entry (runner.kernels): unknown, not the default.
+NOT_RECORDED = "not recorded (the run predates the record's kernels entry)"
 #: What two records must agree on for their rows to be one experiment's (everything that shapes a run but its seed).
 SAME_EXPERIMENT = ("experiment", "metric", "num_envs", "steps_per_iteration", "window", "pretrain_config",
                    "trpo_config", "quick", "versions", "kernels")
@@ -245,8 +247,9 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     of its settings and seed (docs/results.md, "Regenerable results"), so the merged rows are those one command
     with all the seeds would write on a CPU that rounds alike, in its order (each curve's runs by seed), the
     ``wall_time`` column aside; the
-    record's command says so, and ``merged`` keeps each command that ran. Refuses records that differ in anything
-    but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed.
+    record's ``command`` is that one command (never run as such), and ``merged`` lists, in order, each command that
+    ran with its seeds and kernels, then each merge (this function's own command line). Refuses records that differ
+    in anything but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed.
 
     ``other_cpu``: also merge seeds run with other CPU kernels (a ``kernels`` entry that differs, or that one
     record predates). Each seed stays a valid replicate -- kernels change the last bits, which TRPO amplifies,
@@ -274,15 +277,18 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     write_csv(results_file(folder, name), rows)
     runs = records[0]["runs"] + records[1]["runs"]
     order = list(dict.fromkeys((run["label"], run["method"]) for run in runs))
-    merged = [entry for record in records for entry in record.get("merged") or
-              [{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s", "kernels")}]]
+    merged = [entry for record, folder_seeds in zip(records, seeds) for entry in record.get("merged") or
+              [{**{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s")},
+                "seeds": sorted(folder_seeds), "kernels": record.get("kernels") or NOT_RECORDED}]]
+    merged.append({"command": shlex.join(["python", "-m", "vdtutorial", "rederive", recorded_path(folder),
+                                          "--add-other-cpu" if other_cpu else "--add", recorded_path(other)])})
     parts = shlex.split(records[0]["command"])
     start = parts.index("--seeds") + 1
     end = next((i for i in range(start, len(parts)) if parts[i].startswith("--")), len(parts))
     records[0].update(command=shlex.join(parts[:start] + [str(seed) for seed in sorted(seeds[0] | seeds[1])]
                                          + parts[end:]),
                       runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
-                      merged=merged, wall_time_s=sum(entry["wall_time_s"] for entry in merged),
+                      argv=None, merged=merged, wall_time_s=sum(entry.get("wall_time_s", 0.0) for entry in merged),
                       **{key: with_defaults(key, records[0][key], _names(records, key)) for key in CONFIGS
                          if key in records[0]})
     if records[0].get("kernels") != records[1].get("kernels"):

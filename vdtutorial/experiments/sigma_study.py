@@ -38,7 +38,7 @@ from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, curves_from_rows, f
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.plots import draw_band
-from vdtutorial.experiments.paths import runs_dir
+from vdtutorial.experiments.paths import recorded_path, runs_dir
 from vdtutorial.settings import data_dir
 
 #: Candidates of the rule: option (a) at the paper's 0.3 and at the issue's probe value 0.05, (b), (c).
@@ -174,7 +174,7 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
     summary = summarise(rows, pre_rl)
     command = shlex.join(["python", "-m", "vdtutorial.experiments.sigma_study", "--seeds", *map(str, seeds), "--steps",
                           str(steps), "--options", *options, "--none-options", *none_options,
-                          "--workers", str(workers)])
+                          "--workers", str(workers), "--out", recorded_path(out)])
     record = {"command": command, "rule": "data/results/sigma_study/RULE.md", "options": list(options),
               "seeds": list(seeds), "steps": steps, "window": window, "wall_time_s": wall,
               "runs_read_from_earlier_calls": reused, "runs": len(jobs),
@@ -191,7 +191,8 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
     return record
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The study's command line (its record's ``command`` is parsed by it in tests/test_provenance.py)."""
     parser = argparse.ArgumentParser(prog="python -m vdtutorial.experiments.sigma_study", description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
     parser.add_argument("--steps", type=int, default=100_000, help="RL env steps per run")
@@ -199,7 +200,11 @@ def main(argv=None) -> int:
     parser.add_argument("--none-options", nargs="+", default=None, help="options with a no-pre-training run (default: all)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=None, help="default: data/results/sigma_study")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     record = run_study(args.seeds, args.steps, tuple(args.options), args.workers, args.out,
                        none_options=None if args.none_options is None else tuple(args.none_options))
     print(json.dumps(record["summary"]["rule"], indent=1))
