@@ -58,7 +58,7 @@ def cmd_pretrain(args) -> None:
     import torch
 
     from vdtutorial.demos import Demos
-    from vdtutorial.experiments.checkpoints import (checkpoint_path, default_config, load_checkpoint,
+    from vdtutorial.experiments.checkpoints import (CheckpointError, checkpoint_path, default_config, load_checkpoint,
                                                     pretrain_command, save_checkpoint, with_held_out_stop)
     from vdtutorial.analysis.sparsity import sparsity_report
     from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
@@ -75,7 +75,13 @@ def cmd_pretrain(args) -> None:
     out = output_path(args.out, pretrain_output(args, demos.meta), args.force)
     spread_net = None
     if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
-        spread_net = load_checkpoint(checkpoint_path(demos.meta, "vd", args.obs, args.seed), variational=True).mu
+        # the VD checkpoint pre-trained alike (same data, seed and stop), shipped or made by pretrain --reg vd
+        vd = [checkpoint_path(demos.meta, "vd", args.obs, args.seed, root=root, patience=args.patience)
+              for root in (None, runs_dir())]
+        try:
+            spread_net = load_checkpoint(next((p for p in vd if p.exists()), vd[0]), variational=True).mu
+        except CheckpointError as exc:
+            raise CommandError(f"--sigma spread for L2 follows the VD network pre-trained alike: {exc}") from exc
     policy, history = pretrain_with_sigma(demos, config, seed=args.seed, progress=progress_of(args), spread_net=spread_net,
                                           device=device)
     command = (pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
