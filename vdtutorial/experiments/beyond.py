@@ -42,7 +42,7 @@ from vdtutorial.experiments.curves import CONFIDENCE, mean_band, smooth_window
 from vdtutorial.experiments.effects import MATERIALITY, Claim, per_run, run_summaries, verdict, welch_interval
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.measures import MEASURES, measures_of
-from vdtutorial.experiments.plots import figure_title
+from vdtutorial.experiments.plots import figure_title, save_png
 from vdtutorial.experiments.results import default_out, derive, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_trpo_config,
                                          finetune_steps, pretrained_policy, run_settings)
@@ -347,7 +347,7 @@ def rederive_beyond(folder) -> dict:
     rows = [row for row in read_rows(results_file(folder, "beyond")) if row["stage"] == RL]
     rl = record["rl"]
     figure, summary = _rl_derive(rows, len(record["seeds"]), rl["steps"], rl["window"])
-    figure.savefig(folder / "beyond_rl.png", dpi=110)
+    save_png(figure, folder / "beyond_rl.png", 110)
     record["rl"] = {**rl, **summary}
     record["dagger_cost"] = dagger_cost(record["cost"], record["comparisons"], summary["claims"], rl["steps"])
     (folder / "beyond.json").write_text(json.dumps(record, indent=1, default=str))
@@ -438,10 +438,10 @@ def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, pro
     rows = [row for result in results for row in result["rows"]]
     write_csv(results_file(out, "beyond"), rows)
     pre = [row for row in rows if row["stage"] == PRE_RL]
-    plot(pre, made).savefig(out / "beyond.png", dpi=110)
+    save_png(plot(pre, made), out / "beyond.png", 110)
     configs = {job.variant.reg: job.pretrain_config for job in jobs if isinstance(job, RLJob)}
     rl_figure, rl = rl_stage([row for row in rows if row["stage"] == RL], seeds, steps, configs)
-    rl_figure.savefig(out / "beyond_rl.png", dpi=110)
+    save_png(rl_figure, out / "beyond_rl.png", 110)
     per_label = {label: {q: _interval([r[q] for r in pre if r["label"] == label])
                          for q in ("successes", "trajectories", "success_rate")}
                  for label in dict.fromkeys(r["label"] for r in pre)}

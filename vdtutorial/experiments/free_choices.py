@@ -32,7 +32,7 @@ from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import smooth_window
 from vdtutorial.experiments.effects import Claim
 from vdtutorial.experiments.jobs import Job, RunSpec
-from vdtutorial.experiments.plots import figure_title
+from vdtutorial.experiments.plots import figure_title, save_png
 from vdtutorial.experiments.results import default_out, derive, experiment_command
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METHOD_LABELS, METRIC, NUM_ENVS, default_seeds, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig
@@ -199,7 +199,7 @@ def _write_derived(out: Path, record: dict, rows: list[dict], names, command) ->
     title = figure_title("Our free choices: VD and L2 with one pre-training value changed (reaching)", "state",
                          record["steps"], len(record["seeds"]))
     _, figure, summary = derive("free_choices", rows, METRIC[TASK], record["window"], title, claims(names))
-    figure.savefig(out / "free_choices.png", dpi=110)
+    save_png(figure, out / "free_choices.png", 110)
     record.update(table=table(summary["claims"], names, command), **summary)
     (out / "free_choices.json").write_text(json.dumps(record, indent=1, default=str))
     return record

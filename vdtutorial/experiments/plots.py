@@ -1,8 +1,12 @@
 """The learning-curve figure of Figs. 4-7: one panel per measure, each seed thin behind the mean. Taught in chapter 07."""
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import numpy as np
 from matplotlib.figure import Figure
+from PIL import Image
 
 from vdtutorial.experiments.evaluation import EPISODE_STEPS
 from vdtutorial.experiments.curves import CONFIDENCE, Curve, smooth_window
@@ -94,3 +98,16 @@ def plot_measures(curves_by_measure: dict[str, dict[str, Curve]], title: str, wi
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=8)
     fig.suptitle(f"{title}\n{_smoothing_text(window)}", fontsize=10)
     return fig
+
+
+def save_png(figure: Figure, path: str | Path, dpi: int) -> Path:
+    """Write ``figure`` as a PNG of at most 256 colours (the render's pixels, each mapped to the nearest colour of
+    the palette): line plots with light bands need no more, and the file is a fraction of matplotlib's full-colour
+    PNG, which keeps the shipped data small."""
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi)
+    buffer.seek(0)
+    with Image.open(buffer) as image:
+        image.convert("RGB").quantize(colors=256).save(path, format="PNG", optimize=True)
+    return Path(path)
+

@@ -33,7 +33,7 @@ from vdtutorial.experiments.effects import welch_interval
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.measures import measures_of
-from vdtutorial.experiments.plots import figure_title, plot_measures
+from vdtutorial.experiments.plots import figure_title, plot_measures, save_png
 from vdtutorial.experiments.results import default_out, experiment_command
 from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_seeds,
                                          default_trpo_config, pretrained_policy)
@@ -211,7 +211,7 @@ def pretrain_stop(seeds=None, out=None, workers: int = 2, progress: bool | None 
     rows = [row for result in results for row in result["rows"]]
     out.mkdir(parents=True, exist_ok=True)
     write_csv(results_file(out, "pretrain_stop"), rows)
-    plot(rows, seeds).savefig(out / "pretrain_stop.png", dpi=110)
+    save_png(plot(rows, seeds), out / "pretrain_stop.png", 110)
     comparison = compare(rows, seeds)
     shown_out = out if out != default_out("pretrain_stop") else None
     record = {"experiment": "pretrain_stop",

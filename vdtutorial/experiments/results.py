@@ -22,7 +22,7 @@ from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, 
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.measures import measures_of
-from vdtutorial.experiments.plots import figure_title, plot_measures
+from vdtutorial.experiments.plots import figure_title, plot_measures, save_png
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner.grid import run_grid
@@ -147,7 +147,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     title = figure_title(title, specs[0].obs_mode, specs[0].total_steps, len({spec.seed for spec in specs}),
                          trpo_config.fvp_subsample)
     curves, figure, summary = derive(name, rows, metric, window, title)
-    figure.savefig(out / f"{name}.png", dpi=120)
+    save_png(figure, out / f"{name}.png", 120)
     summary.update(summarise(curves) if summarise else {})
     record = {
         "experiment": name, "command": command, "argv": recorded_argv(), "quick": is_quick(), "title": title,
@@ -206,7 +206,7 @@ def rederive(folder: str | Path) -> ExperimentResult:
                          max(run["total_steps"] for run in learners), len(seeds),
                          record["trpo_config"].get("fvp_subsample", 1.0))
     curves, figure, derived = derive(name, rows, record["metric"], window, title)
-    figure.savefig(folder / f"{name}.png", dpi=120)
+    save_png(figure, folder / f"{name}.png", 120)
     summary = {**record.get("summary", {}), **derived}
     if "vd_reaches_l2_final" in summary:
         summary["vd_reaches_l2_final"] = vd_reaches_l2_final(curves)

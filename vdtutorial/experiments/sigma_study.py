@@ -37,7 +37,7 @@ from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, curves_from_rows, f
                                     stored_rows, write_csv)
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
-from vdtutorial.experiments.plots import draw_band
+from vdtutorial.experiments.plots import draw_band, save_png
 from vdtutorial.experiments.paths import recorded_path, runs_dir
 from vdtutorial.settings import data_dir
 
@@ -170,7 +170,7 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
     rows = stored_rows(rows)  # the summary is what the shipped CSV gives back (runner.rows)
     out.mkdir(parents=True, exist_ok=True)
     write_csv(results_file(out, "sigma_study"), rows)
-    plot(rows, window).savefig(out / "sigma_study.png", dpi=110)
+    save_png(plot(rows, window), out / "sigma_study.png", 110)
     summary = summarise(rows, pre_rl)
     command = shlex.join(["python", "-m", "vdtutorial.experiments.sigma_study", "--seeds", *map(str, seeds), "--steps",
                           str(steps), "--options", *options, "--none-options", *none_options,
