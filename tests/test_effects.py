@@ -236,3 +236,29 @@ def test_rows_that_restate_fig4_on_its_own_runs_are_marked():
                       ("fig6", "VD ends above L2 at Sigma = 0.5"), ("fig6", "VD learns faster than L2 at Sigma = 0.5 (AUC)")}
     record = json.loads((data_dir() / "results" / "fig5" / "fig5.json").read_text())
     assert "with 8000 demonstrations (same runs as Fig. 4)" in claims_overview({"Fig. 5, state": record})
+
+
+def test_two_draws_of_the_data_stand_side_by_side():
+    """Issue 44's second data set: the claims both records test are shown per draw of the demonstrations, each with
+    its own interval and Holm verdict; a claim one record lacks (Sigma 0.5, not re-drawn) is left out."""
+    from vdtutorial.experiments.effects import demo_seed_of, draws_table
+
+    rng = np.random.default_rng(3)
+
+    def record(demo_seed, vd_level):
+        rows = []
+        for sigma in ("0.05", "0.25") + (("0.5",) if demo_seed == 0 else ()):
+            rows += _rows(f"VD, Sigma={sigma}", "vd", [vd_level + rng.normal(0, 1, 30) for _ in range(5)])
+            rows += _rows(f"L2, Sigma={sigma}", "l2", [50 + rng.normal(0, 1, 30) for _ in range(5)])
+        runs = [{"method": m, "demo_seed": demo_seed} for m in ("vd", "l2")]
+        return {"metric": "successes", "runs": runs,
+                "summary": {"claims": claim_effects("fig6", rows, "successes", window=5)}}
+
+    first, second = record(0, 70), record(1, 30)
+    assert demo_seed_of(first) == 0 and demo_seed_of({"runs": [{"method": "vd"}]}) == 0   # before runs had one
+    lines = draws_table([first, second]).splitlines()
+    assert "demonstrations seed 0" in lines[0] and "demonstrations seed 1" in lines[0]
+    assert len(lines) == 2 + 4 and not any("Sigma = 0.5" in line for line in lines)
+    ends = next(line for line in lines if line.startswith("| VD ends above L2 at Sigma = 0.05 |"))
+    assert "**confirmed**" in ends and "**contradicted**" in ends and ends.endswith("| 5 / 5 |")
+

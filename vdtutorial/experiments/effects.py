@@ -438,6 +438,31 @@ def claims_overview(records: dict[str, dict], measures: tuple[str, ...] = ("fina
     return "\n".join(lines)
 
 
+def demo_seed_of(record: dict) -> int:
+    """The draw of the demonstrations a figure's record was pre-trained on (its runs' ``demo_seed``; records made
+    before runs had one used the shipped draw, 0)."""
+    seeds = {run.get("demo_seed", 0) for run in record["runs"] if run["method"] in ("vd", "l2")}
+    if len(seeds) != 1:
+        raise ValueError(f"a record pre-trained on {len(seeds)} draws of the data: expected one")
+    return seeds.pop()
+
+
+def draws_table(records: list[dict], measures: tuple[str, ...] = ("final", "auc")) -> str:
+    """The claims that several records of one figure share, each record a draw of the demonstrations
+    (:func:`demo_seed_of`), side by side as Markdown: per claim on the paper's metric, each draw's effect with its
+    95% interval and its Holm verdict (within that record's own family). An effect that holds on one draw only
+    rests on that draw of the data, not on the method."""
+    heads = [f"demonstrations seed {demo_seed_of(r)}: effect (95% interval), Holm" for r in records]
+    by_text = [{e["text"]: e for e in r["summary"]["claims"] if e["metric"] == r["metric"] and e["measure"] in measures}
+               for r in records]
+    lines = ["| claim | " + " | ".join(heads) + " | seeds |", "|---|" + "---|" * len(records) + "---|"]
+    for text in (t for t in by_text[0] if all(t in other for other in by_text[1:])):
+        cells = [f"{e['estimate']:+.3g} ({e['low']:+.3g} to {e['high']:+.3g}), **{e['holm_verdict']}**"
+                 for e in (table[text] for table in by_text)]
+        lines.append(f"| {text} | " + " | ".join(cells) + f" | {' / '.join(_seeds(t[text]) for t in by_text)} |")
+    return "\n".join(lines)
+
+
 def write_claims(folder: str | Path) -> str:
     """Recompute the claims of the experiment in ``folder`` (``NAME.csv.gz`` and ``NAME.json``) from its rows,
     store them in the JSON record's summary, and return them as a Markdown table: docs/results.md quotes
