@@ -65,3 +65,21 @@ def failures(exercise: str, namespace: dict, seed: int) -> list[str]:
     found = checks.judge(item, inputs, checks._probe(item, namespace, inputs))
     assert all(re.search(r"\d\.\d", message) is None for message in found), found
     return found
+
+
+def assert_passes(exercise: str, context: dict, source: str, seeds) -> None:
+    """The answer ``source`` (run after ``context``) passes ``exercise``'s check on every seed of ``seeds``."""
+    namespace = executed(context, source)
+    for seed in seeds:
+        assert failures(exercise, namespace, seed) == [], (exercise, seed)
+
+
+def assert_mistake_fails(exercise: str, context: dict, source: str, mistakes: dict, mistake: str) -> None:
+    """``source`` with the named edit of ``mistakes`` (or "stub": the unsolved cell) fails ``exercise``'s check; the
+    stub with the words for an unsolved exercise."""
+    source = stub(source) if mistake == "stub" else changed(source, *mistakes[mistake])
+    found = failures(exercise, executed(context, source), seed=1)   # no message gives a number away
+    assert found, (exercise, mistake)
+    if mistake == "stub":
+        assert found == UNSOLVED
+

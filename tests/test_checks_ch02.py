@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from check_support import UNSOLVED, answers, changed, executed, failures, stub
+from check_support import answers, assert_mistake_fails, assert_passes, executed
 from vdtutorial.course import checks
 from vdtutorial.course.checks import ch02
 from vdtutorial.envs.base import MAX_DELTA
@@ -44,19 +44,12 @@ MISTAKES = {
 @pytest.mark.parametrize("exercise, seeds", [("ch02_goal_set", range(3)), ("ch02_nearest_goal", range(20)),
                                              ("ch02_step_towards", range(20))])
 def test_the_teachers_answer_passes(exercise, seeds):
-    namespace = executed(CONTEXT, ANSWERS[exercise])
-    for seed in seeds:
-        assert failures(exercise, namespace, seed) == [], (exercise, seed)
+    assert_passes(exercise, CONTEXT, ANSWERS[exercise], seeds)
 
 
 @pytest.mark.parametrize("exercise, mistake", [(e, m) for e, ms in MISTAKES.items() for m in [*ms, "stub"]])
 def test_mistakes_fail_without_giving_numbers_away(exercise, mistake):
-    source = ANSWERS[exercise]
-    source = stub(source) if mistake == "stub" else changed(source, *MISTAKES[exercise][mistake])
-    found = failures(exercise, executed(CONTEXT, source), seed=1)   # no message gives a number away
-    assert found, (exercise, mistake)
-    if mistake == "stub":
-        assert found == UNSOLVED
+    assert_mistake_fails(exercise, CONTEXT, ANSWERS[exercise], MISTAKES[exercise], mistake)
 
 
 def test_the_constructed_cases_are_what_they_claim():

@@ -63,3 +63,34 @@ def test_data_readme_names_every_results_folder():
     readme = (ROOT / "data" / "README.md").read_text()
     folders = sorted(p.name for p in (ROOT / "data" / "results").iterdir() if p.is_dir())
     assert folders and [f for f in folders if f"`results/{f}/" not in readme] == []
+
+
+BEYOND_THE_WHEEL = ("data/results/fig4/state/", "data/results/fig5/state/", "data/results/fig6/state/",
+                    "data/results/fig7/state/", "data/results/fig6_demos1/state/", "data/results/beyond/demos/",
+                    "runs/fig4_rgbd_seeds3-9/")
+
+
+def test_data_readme_says_what_the_repository_holds_beyond_the_wheel():
+    """Every file the repository tracks under data/ or runs/ is shipped, or lies in a folder data/README.md names as
+    held beyond the wheel; and its header states the shipped size as it is."""
+    import subprocess
+
+    from vdtutorial.course.chapters import shipped_files
+
+    tracked = subprocess.run(["git", "ls-files", "data", "runs"], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout.split()
+    if not tracked:
+        pytest.skip("not a git checkout")
+    shipped = {p.as_posix() for p in shipped_files(ROOT)}
+    readme = (ROOT / "data" / "README.md").read_text()
+    section = readme.split("## What the repository holds beyond the wheel", 1)[1].split("\n## ", 1)[0]
+    for named in ("results/{fig4,fig5,fig6,fig7,fig6_demos1}/state/", "results/beyond/demos/", "runs/fig4_rgbd_seeds3-9/"):
+        assert f"`{named}`" in section, named
+    assert [f for f in tracked if f not in shipped and not f.startswith(BEYOND_THE_WHEEL)] == []
+    sizes = {part: sum((ROOT / p).stat().st_size for p in shipped_files(ROOT) if p.parts[0] == "data"
+                       and (part == "all" or p.parts[1] == part)) for part in ("all", "demos", "checkpoints", "results")}
+    header = readme.splitlines()[0]
+    assert f"{sizes['all'] / 1e6:.1f} MB = {sizes['all'] / 2**20:.1f} MiB in all" in header, header
+    for part, word in (("demos", "demonstrations"), ("checkpoints", "checkpoints"), ("results", "results")):
+        assert f"{word} {sizes[part] / 1e6:.1f} MB" in header, (part, header)
+
