@@ -147,7 +147,7 @@ def test_every_figure_has_claims():
     assert set(CLAIMS) == {"fig4", "fig5", "fig6", "fig7"} and all(CLAIMS.values())
 
 
-SHIPPED = ("fig4", "fig5", "fig6", "fig7", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig4_state_fvp0.1")
+SHIPPED = ("fig4", "fig5", "fig6", "fig6_demos1", "fig7", "fig4_rgbd", "fig4_rgbd_fvp0.1", "fig4_state_fvp0.1")
 
 
 @pytest.mark.parametrize("folder", SHIPPED)
@@ -172,6 +172,21 @@ def test_results_page_claim_tables_are_generated_from_the_shipped_rows(folder):
 README_CLAIMS = {"Fig. 4, state": "fig4", "Fig. 4, images": "fig4_rgbd", "Fig. 5, state": "fig5", "Fig. 6, state": "fig6",
                  "Fig. 6, state, 2nd draw": "fig6_demos1",
                  "Fig. 7, state": "fig7"}
+
+
+def test_the_second_draw_of_fig6_is_shown_beside_the_first():
+    """Issue 44: Fig. 6's two hand-set data sets drawn again (demonstrations of seed 1), VD and L2 on the same 10
+    seeds at the paper's budget, and the results page's side-by-side table generated from both records."""
+    from vdtutorial.experiments.effects import demo_seed_of, draws_table
+
+    first, second = (json.loads((data_dir() / "results" / folder / "fig6.json").read_text())
+                     for folder in ("fig6", "fig6_demos1"))
+    assert (demo_seed_of(first), demo_seed_of(second)) == (0, 1) and not second["quick"]
+    assert {(r["method"], r["noise"], r["total_steps"]) for r in second["runs"]} == {
+        (m, s, 300_000) for m in ("vd", "l2") for s in (0.05, 0.25)}
+    assert second["seeds"] == list(range(10)) and len(second["runs"]) == 40
+    page = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
+    assert draws_table([first, second]) in page
 
 
 def test_readme_claims_table_is_generated_from_the_shipped_records():

@@ -17,13 +17,16 @@ _COLOURS = {"vd": "tab:blue", "l2": "tab:orange", "none": "tab:gray", "expert": 
 _LINESTYLES = ("-", "--", ":", "-.", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)), (0, (1, 3)), (0, (8, 3, 2, 3)))
 
 
-def figure_title(base: str, obs_mode: str, total_steps: int, seeds: int, fvp_subsample: float = 1.0) -> str:
+def figure_title(base: str, obs_mode: str, total_steps: int, seeds: int, fvp_subsample: float = 1.0,
+                 demo_seed: int = 0) -> str:
     """A figure's title that tells its variants apart: the paper's figure (``base``), the observation, the
-    budget, the seeds, and, for the control with the subsampled Fisher, that it is that control."""
+    budget, the seeds, a draw of the demonstrations other than the shipped seed 0, and, for the control with the
+    subsampled Fisher, that it is that control."""
     observation = {"state": "state input", "rgbd": "RGBD images"}[obs_mode]
     control = "" if fvp_subsample == 1.0 else f"\ncontrol: Fisher-vector products on {fvp_subsample:.0%} of each batch"
     budget = f"{total_steps:.2g}".replace("e+0", "e")
-    return f"{base}\n{observation}, {budget} env steps per run, {seeds} seeds{control}"
+    draw = f", demonstrations of seed {demo_seed}" if demo_seed else ""
+    return f"{base}\n{observation}, {budget} env steps per run, {seeds} seeds{draw}{control}"
 
 
 def band_limits(low, high, metric: str) -> tuple[np.ndarray, np.ndarray]:

@@ -145,7 +145,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     out.mkdir(parents=True, exist_ok=True)
     write_csv(results_file(out, name), rows)
     title = figure_title(title, specs[0].obs_mode, specs[0].total_steps, len({spec.seed for spec in specs}),
-                         trpo_config.fvp_subsample)
+                         trpo_config.fvp_subsample, max(spec.demo_seed for spec in specs))
     curves, figure, summary = derive(name, rows, metric, window, title)
     save_png(figure, out / f"{name}.png", 120)
     summary.update(summarise(curves) if summarise else {})
@@ -204,7 +204,7 @@ def rederive(folder: str | Path) -> ExperimentResult:
     seeds = sorted({row["seed"] for row in rows})
     title = figure_title(record["title"].split("\n")[0], learners[0]["obs_mode"],
                          max(run["total_steps"] for run in learners), len(seeds),
-                         record["trpo_config"].get("fvp_subsample", 1.0))
+                         record["trpo_config"].get("fvp_subsample", 1.0), max(run.get("demo_seed", 0) for run in learners))
     curves, figure, derived = derive(name, rows, record["metric"], window, title)
     save_png(figure, folder / f"{name}.png", 120)
     summary = {**record.get("summary", {}), **derived}
