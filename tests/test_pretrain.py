@@ -83,7 +83,7 @@ def test_pretrained_policy_acts_in_the_environment(trained):
 def test_checkpoint_round_trip_and_errors(demos, trained, tmp_path):
     policy, _ = trained["vd"]
     path = save_checkpoint(policy, checkpoint_path(demos.meta, "vd", "state", 0, root=tmp_path))
-    assert path.name == "reach_n600_sigma0.3_vd_state_seed0.pt"
+    assert path.name == "reach_n600_sigma0.3_demos2_vd_state_seed0.pt"  # the fixture's demonstrations are seed 2's
     loaded = load_checkpoint(path, kind="state", variational=True, task="reach")
     obs = torch.as_tensor(demos.states[:20])
     torch.testing.assert_close(loaded.distribution(obs).mean, policy.distribution(obs).mean)

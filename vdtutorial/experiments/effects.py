@@ -11,12 +11,10 @@ steps to reach
     the first env step at which the first method's seed-mean smoothed curve reaches the second
     method's final level (the paper's "VD overtakes L2's final performance at ~1.25e5 steps").
 
-The first two are differences of means over seeds with Welch's t interval (seeds are the independent
-replicates, and few: a t interval is the honest choice). The steps-to-reach estimate has no closed form, so its
-interval is a percentile bootstrap over seeds (each method's seeds resampled with replacement,
-``BOOTSTRAP_SAMPLES`` times, seeded; a resample that never reaches the level counts as infinite). Below
-``MIN_BOOTSTRAP_SEEDS`` seeds per method a bootstrap says more than its seeds can: an exact sign test over
-the first method's seeds (each within the limit or not) gives the p-value, and the verdict is capped.
+The first two are differences of means over seeds with Welch's t interval (seeds are the independent, and few,
+replicates). The steps-to-reach estimate has no closed form: its interval is a percentile bootstrap over seeds
+(``BOOTSTRAP_SAMPLES`` seeded resamples; one that never reaches the level counts as infinite), and below
+``MIN_BOOTSTRAP_SEEDS`` seeds per method an exact sign test over the seeds instead, its verdict capped.
 
 Verdicts: **confirmed** when the interval lies wholly on the paper's side, **contradicted** when it lies
 wholly on the other side, **not confirmed** otherwise (the data cannot tell at this many seeds), and
