@@ -77,10 +77,10 @@ def test_data_readme_says_what_the_repository_holds_beyond_the_wheel():
 
     from vdtutorial.course.chapters import shipped_files
 
-    tracked = subprocess.run(["git", "ls-files", "data", "runs"], cwd=ROOT, capture_output=True, text=True,
-                             check=True).stdout.split()
-    if not tracked:
-        pytest.skip("not a git checkout")
+    listing = subprocess.run(["git", "ls-files", "data", "runs"], cwd=ROOT, capture_output=True, text=True)
+    tracked = listing.stdout.split()
+    if listing.returncode != 0 or not tracked:
+        pytest.skip("not a git checkout (CI's Colab and newest-release legs test a copy)")
     shipped = {p.as_posix() for p in shipped_files(ROOT)}
     readme = (ROOT / "data" / "README.md").read_text()
     section = readme.split("## What the repository holds beyond the wheel", 1)[1].split("\n## ", 1)[0]

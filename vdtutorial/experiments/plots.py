@@ -17,10 +17,10 @@ _COLOURS = {"vd": "tab:blue", "l2": "tab:orange", "none": "tab:gray", "expert": 
 _LINESTYLES = ("-", "--", ":", "-.", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)), (0, (1, 3)), (0, (8, 3, 2, 3)))
 
 
-def figure_title(base: str, obs_mode: str, total_steps: int, seeds: int, fvp_subsample: float = 1.0,
+def figure_title(base: str, obs_mode: str, total_steps: int, seeds: int | str, fvp_subsample: float = 1.0,
                  demo_seed: int = 0) -> str:
     """A figure's title that tells its variants apart: the paper's figure (``base``), the observation, the
-    budget, the seeds, a draw of the demonstrations other than the shipped seed 0, and, for the control with the
+    budget, the seeds (a range, "10 to 23", when the curves have different numbers), a draw of the demonstrations other than the shipped seed 0, and, for the control with the
     subsampled Fisher, that it is that control."""
     observation = {"state": "state input", "rgbd": "RGBD images"}[obs_mode]
     control = "" if fvp_subsample == 1.0 else f"\ncontrol: Fisher-vector products on {fvp_subsample:.0%} of each batch"

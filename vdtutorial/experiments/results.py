@@ -202,8 +202,10 @@ def rederive(folder: str | Path) -> ExperimentResult:
     rows = read_rows(results_file(folder, name))
     learners = [run for run in record["runs"] if run["method"] != "expert"]
     seeds = sorted({row["seed"] for row in rows})
+    counts = sorted({sum(r["label"] == run["label"] for r in record["runs"]) for run in record["runs"]})
     title = figure_title(record["title"].split("\n")[0], learners[0]["obs_mode"],
-                         max(run["total_steps"] for run in learners), len(seeds),
+                         max(run["total_steps"] for run in learners),
+                         len(seeds) if len(counts) == 1 else f"{counts[0]} to {counts[-1]}",
                          record["trpo_config"].get("fvp_subsample", 1.0), max(run.get("demo_seed", 0) for run in learners))
     curves, figure, derived = derive(name, rows, record["metric"], window, title)
     save_png(figure, folder / f"{name}.png", 120)
@@ -247,8 +249,9 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     of its settings and seed (docs/results.md, "Regenerable results"), so the merged rows are those one command
     with all the seeds would write on a CPU that rounds alike, in its order (each curve's runs by seed), the
     ``wall_time`` column aside; the
-    record's ``command`` is that one command (never run as such), and ``merged`` lists, in order, each command that
-    ran with its seeds and kernels, then each merge (this function's own command line). Refuses records that differ
+    record's ``command`` is that one command (never run as such; when the parts ran different curves, e.g. more seeds
+    of one data set, no single command makes the rows and the first part's command stays), and ``merged`` lists, in
+    order, each command that ran with its seeds and kernels, then each merge (this function's own command line). Refuses records that differ
     in anything but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed.
 
     ``other_cpu``: also merge seeds run with other CPU kernels (a ``kernels`` entry that differs, or that one
@@ -285,8 +288,11 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     parts = shlex.split(records[0]["command"])
     start = parts.index("--seeds") + 1
     end = next((i for i in range(start, len(parts)) if parts[i].startswith("--")), len(parts))
-    records[0].update(command=shlex.join(parts[:start] + [str(seed) for seed in sorted(seeds[0] | seeds[1])]
-                                         + parts[end:]),
+    per_curve = {tuple(sorted(run["seed"] for run in runs if (run["label"], run["method"]) == curve)) for curve in order}
+    # one command makes all the rows only when every curve has the same seeds; else the first part's stays
+    command = (shlex.join(parts[:start] + [str(seed) for seed in sorted(seeds[0] | seeds[1])] + parts[end:])
+               if len(per_curve) == 1 else records[0]["command"])
+    records[0].update(command=command,
                       runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
                       argv=None, merged=merged, wall_time_s=sum(entry.get("wall_time_s", 0.0) for entry in merged),
                       **{key: with_defaults(key, records[0][key], _names(records, key)) for key in CONFIGS
