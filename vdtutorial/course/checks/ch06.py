@@ -416,7 +416,31 @@ def _update_config(case: dict) -> TRPOConfig:
     return TRPOConfig(**{name: value.item() for name, value in case["config"].items()})
 
 
+def _reference_line_search(params, direction, fvp, surrogate_and_kl, config):
+    """Exercise 6.7's contract met by the library: the step scaled to the trust region's edge, then
+    :func:`~vdtutorial.trust_region.line_search`."""
+    full_step = math.sqrt(2 * config.max_kl / (direction @ fvp(direction)).item()) * direction
+    return line_search(params, full_step, surrogate_and_kl, config.max_kl, config.backtrack_iters,
+                       config.backtrack_coeff)
+
+
 def update_probe(namespace: dict, inputs: dict) -> dict:
+    """The student's update, with the library's line search in place of theirs while it runs: each exercise is
+    judged on its own, so a wrong 6.7 costs 6.7's points only (whether it also spoils an update depends on the
+    drawn batch)."""
+    missing = object()
+    own = namespace.get("my_line_search", missing)
+    namespace["my_line_search"] = _reference_line_search
+    try:
+        return _update_outcomes(namespace, inputs)
+    finally:
+        if own is missing:
+            del namespace["my_line_search"]
+        else:
+            namespace["my_line_search"] = own
+
+
+def _update_outcomes(namespace: dict, inputs: dict) -> dict:
     out = {}
     for key, case in inputs.items():
         policy = _policy(case)
