@@ -266,15 +266,17 @@ def test_a_shipped_summary_is_rederived_from_its_rows(folder, tmp_path):
     assert (copy / f"{record_name(folder)}.png").exists() and len(result.figure.axes) == len(shipped["measures"])
 
 
-def _seeds_of(folder, seeds, dest):
-    """A copy of a shipped experiment folder holding only ``seeds``, as if run with ``--seeds`` those."""
+def _seeds_of(folder, seeds, dest, methods=None):
+    """A copy of a shipped experiment folder holding only ``seeds`` (and only ``methods``, when given), as if run
+    with ``--seeds`` those (and ``--methods``)."""
     record = json.loads((RESULTS / folder / f"{record_name(folder)}.json").read_text())
     rows = read_rows(results_file(RESULTS / folder, record["experiment"]))
+    kept = lambda run: run["seed"] in seeds and (methods is None or run["method"] in methods)
     dest.mkdir()
-    write_csv(results_file(dest, record["experiment"]), [r for r in rows if r["seed"] in seeds])
+    write_csv(results_file(dest, record["experiment"]), [r for r in rows if kept(r)])
     parts = record["command"].split(" --seeds ")
-    rest = parts[1].split(" --", 1)[1]
-    record.update(runs=[run for run in record["runs"] if run["seed"] in seeds],
+    rest = parts[1].split(" --", 1)[1] + ("" if methods is None else " --methods " + " ".join(methods))
+    record.update(runs=[run for run in record["runs"] if kept(run)],
                   command=f"{parts[0]} --seeds {' '.join(map(str, seeds))} --{rest}")
     (dest / f"{record['experiment']}.json").write_text(json.dumps(record))
     return dest
@@ -294,6 +296,22 @@ def test_seeds_run_apart_merge_into_the_experiment_with_all_of_them(tmp_path):
         merge_seeds(first, _seeds_of("fig4_state_fvp0.1", (2,), tmp_path / "again"))
     with pytest.raises(ValueError, match="differs in"):
         merge_seeds(first, _seeds_of("fig4", (7,), tmp_path / "other"))
+
+
+def test_more_seeds_of_some_curves_merge_and_the_record_says_how_many_each_has(tmp_path):
+    """Seeds run for only some methods (``--methods vd l2``, as the image Fig. 4's seeds 3-9) merge into a record
+    of all of them: those curves get the seeds, the others keep theirs, the title gives the range of seeds, and the
+    first part's command stays (no one command makes the rows). A part with a method the record lacks is refused."""
+    first = _seeds_of("fig4_rgbd", (0, 1), tmp_path / "first")
+    later = _seeds_of("fig4_rgbd", (2,), tmp_path / "later", methods=("vd", "l2"))
+    command = json.loads((first / "fig4.json").read_text())["command"]
+    merged = merge_seeds(first, later)
+    per_method = {m: sorted({r["seed"] for r in merged.rows if r["method"] == m}) for m in ("vd", "l2", "none", "expert")}
+    assert per_method == {"vd": [0, 1, 2], "l2": [0, 1, 2], "none": [0, 1], "expert": [0, 1]}
+    assert "2 to 3 seeds" in merged.record["title"] and merged.record["command"] == command
+    assert [e.get("seeds") for e in merged.record["merged"]] == [[0, 1], [2], None]
+    with pytest.raises(ValueError, match="differs in its runs"):
+        merge_seeds(later, _seeds_of("fig4_rgbd", (1,), tmp_path / "all"))
 
 
 def test_seeds_run_on_another_cpu_merge_only_when_asked_and_the_record_says_so(tmp_path):

@@ -252,7 +252,8 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     record's ``command`` is that one command (never run as such; when the parts ran different curves, e.g. more seeds
     of one data set, no single command makes the rows and the first part's command stays), and ``merged`` lists, in
     order, each command that ran with its seeds and kernels, then each merge (this function's own command line). Refuses records that differ
-    in anything but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed.
+    in anything but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed;
+    ``other`` may hold only some of the methods (more seeds of the curves that need them).
 
     ``other_cpu``: also merge seeds run with other CPU kernels (a ``kernels`` entry that differs, or that one
     record predates). Each seed stays a valid replicate -- kernels change the last bits, which TRPO amplifies,
@@ -266,7 +267,7 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
               != with_defaults(key, records[1].get(key), _names(records, key))
               and not (other_cpu and key == "kernels")]
     shape = [{(r["method"], r["obs_mode"], r["total_steps"]) for r in record["runs"]} for record in records]
-    if differ or shape[0] != shape[1]:
+    if differ or not shape[1] <= shape[0]:   # other seeds of all the curves, or of some (``--methods vd l2``)
         hint = " (rows from another CPU: merge them with other_cpu, rederive --add-other-cpu)" if differ == ["kernels"] else ""
         raise ValueError(f"{other} is not {folder}'s experiment with other seeds: it differs in "
                          f"{', '.join(differ) or 'its runs (methods, observations or budgets)'}{hint}")
