@@ -276,6 +276,7 @@ def _seeds_of(folder, seeds, dest, methods=None):
     write_csv(results_file(dest, record["experiment"]), [r for r in rows if kept(r)])
     parts = record["command"].split(" --seeds ")
     rest = parts[1].split(" --", 1)[1] + ("" if methods is None else " --methods " + " ".join(methods))
+    record.pop("merged", None)   # a folder run with those seeds, not the merge that made the shipped one
     record.update(runs=[run for run in record["runs"] if kept(run)],
                   command=f"{parts[0]} --seeds {' '.join(map(str, seeds))} --{rest}")
     (dest / f"{record['experiment']}.json").write_text(json.dumps(record))
