@@ -385,9 +385,7 @@ def line_search_verdict(inputs: dict, outputs: dict) -> list[str]:
         case, config = inputs[key], _search_config(inputs[key])
         theta, surrogate_and_kl, fvp = _toy_problem(case)
         direction = torch.as_tensor(case["direction"], dtype=torch.float64)
-        full_step = math.sqrt(2 * config.max_kl / (direction @ fvp(direction)).item()) * direction
-        want = _search_outcome(*line_search([theta], full_step, surrogate_and_kl, config.max_kl,
-                                            config.backtrack_iters, config.backtrack_coeff), [theta])
+        want = _search_outcome(*_reference_line_search([theta], direction, fvp, surrogate_and_kl, config), [theta])
         _compare_outcome(failures, outputs[key], want, f"problem {key[4:]}",
                          {"stats": (1e-9, 1e-12), "params": (1e-7, 1e-7)})
     return failures
