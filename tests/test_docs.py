@@ -65,9 +65,9 @@ def test_data_readme_names_every_results_folder():
     assert folders and [f for f in folders if f"`results/{f}/" not in readme] == []
 
 
-BEYOND_THE_WHEEL = ("data/results/fig4/state/", "data/results/fig5/state/", "data/results/fig6/state/",
-                    "data/results/fig7/state/", "data/results/fig6_demos1/state/", "data/results/beyond/demos/",
-                    "runs/fig4_rgbd_seeds3-9/")
+BEYOND_THE_WHEEL = ("data/results/fig4/state/", "data/results/fig4_rgbd/state/", "data/results/fig5/state/",
+                    "data/results/fig6/state/", "data/results/fig7/state/", "data/results/fig6_demos1/state/",
+                    "data/results/beyond/demos/")
 
 
 def test_data_readme_says_what_the_repository_holds_beyond_the_wheel():
@@ -84,7 +84,7 @@ def test_data_readme_says_what_the_repository_holds_beyond_the_wheel():
     shipped = {p.as_posix() for p in shipped_files(ROOT)}
     readme = (ROOT / "data" / "README.md").read_text()
     section = readme.split("## What the repository holds beyond the wheel", 1)[1].split("\n## ", 1)[0]
-    for named in ("results/{fig4,fig5,fig6,fig7,fig6_demos1}/state/", "results/beyond/demos/", "runs/fig4_rgbd_seeds3-9/"):
+    for named in ("results/{fig4,fig4_rgbd,fig5,fig6,fig7,fig6_demos1}/state/", "results/beyond/demos/"):
         assert f"`{named}`" in section, named
     assert [f for f in tracked if f not in shipped and not f.startswith(BEYOND_THE_WHEEL)] == []
     sizes = {part: sum((ROOT / p).stat().st_size for p in shipped_files(ROOT) if p.parts[0] == "data"
