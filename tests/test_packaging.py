@@ -19,9 +19,9 @@ def _name(requirement: str) -> str:
 CONDA_NAMES = {"pytorch-cpu": "torch", "meshcat-python": "meshcat", "ray-default": "ray"}
 
 
-def _conda_requirements() -> dict[str, str]:
-    """environment.yml's conda-forge packages, by their PyPI names, with their ranges."""
-    text = (ROOT / "environment.yml").read_text()
+def _conda_requirements(name: str = "environment.yml") -> dict[str, str]:
+    """An environment file's conda-forge packages, by their PyPI names, with their ranges."""
+    text = (ROOT / name).read_text()
     listed = {}
     for line in text[text.index("dependencies:"):].splitlines():
         if m := re.match(r"\s*-\s+([A-Za-z0-9_.\-]+)(\S*)", line):
@@ -29,14 +29,36 @@ def _conda_requirements() -> dict[str, str]:
     return {name: spec for name, spec in listed.items() if name not in ("python", "pip")}
 
 
-def test_environment_yml_matches_pyproject():
-    """Same packages, and the same ranges (pybullet aside: conda-forge numbers it by bullet3's releases, 3.25)."""
+def _pip_step_requirements(name: str) -> dict[str, str]:
+    """The packages an environment file's route installs with its ``pip install --no-deps`` (its header)."""
+    lines = (ROOT / name).read_text().splitlines()
+    line = next(line for line in lines if line.startswith("#") and "pip install" in line)
+    quoted = re.findall(r'"([^"]+)"', line)
+    return {_name(r): r[len(_name(r)):] for r in quoted}
+
+
+def test_environment_files_match_pyproject():
+    """environment.yml holds the dependencies and the lab and book extras: what a learner uses; environment-dev.yml
+    adds the test extra (conda packages, and the ones its pip step installs). Same ranges (pybullet aside: conda-forge
+    numbers it by bullet3's releases, 3.25; sb3-contrib: its pip step asks for the release whose stable-baselines3
+    admits gymnasium 1.3). py-rattler only runs the solver test, which reads the files: it stays a pip test extra."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    wanted = {_name(r): r[len(_name(r)):].split(";")[0].strip()
-              for r in project["dependencies"] + project["optional-dependencies"]["test"]}
+    extras = project["optional-dependencies"]
+
+    def ranges(texts):
+        return {_name(r): r[len(_name(r)):].split(";")[0].strip() for r in texts}
+
+    learner = ranges(project["dependencies"] + extras["lab"] + extras["book"])
     listed = _conda_requirements()
-    assert set(listed) == set(wanted)
-    assert {k: v for k, v in listed.items() if k != "pybullet"} == {k: v for k, v in wanted.items() if k != "pybullet"}
+    assert set(listed) == set(learner)
+    assert {k: v for k, v in listed.items() if k != "pybullet"} == {k: v for k, v in learner.items() if k != "pybullet"}
+
+    dev = {**learner, **ranges(extras["test"])}
+    del dev["py-rattler"]
+    listed = {**_conda_requirements("environment-dev.yml"), **_pip_step_requirements("environment-dev.yml")}
+    assert set(listed) == set(dev) | {"stable-baselines3"}
+    for name in set(dev) - {"pybullet", "sb3-contrib"}:
+        assert listed[name] == dev[name], f"environment-dev.yml: {name}{listed[name]}, pyproject.toml: {dev[name]}"
 
 
 def test_the_lock_pins_every_requirement_within_its_range():

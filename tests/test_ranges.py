@@ -1,4 +1,4 @@
-"""The ranges of pyproject.toml and environment.yml admit what learners have: Google Colab's published runtime,
+"""The ranges of pyproject.toml and the environment files admit what learners have: Google Colab's published runtime,
 the newest releases on PyPI, and what conda-forge builds for each of the five platforms; no upper bound that a
 new release can cross but the reasoned caps. The reference files in tests/reference/ say where and when each
 version was read."""
@@ -102,11 +102,13 @@ def test_only_the_reasoned_caps_bound_a_dependency_from_above(next_release):
     assert capped == {"meshcat", "nbgrader"}
 
 
-def test_environment_yml_admits_what_conda_forge_has_on_every_platform():
-    """Each spec of environment.yml admits a version conda-forge lists for linux-64, linux-aarch64, osx-64,
-    osx-arm64 and win-64 (tests/reference/conda-forge.tsv, which says where each row was read)."""
+@pytest.mark.parametrize("environment", ["environment.yml", "environment-dev.yml"])
+def test_each_conda_spec_admits_what_conda_forge_has_on_every_platform(environment):
+    """Each spec of the environment files, on its own, admits a version conda-forge lists for linux-64,
+    linux-aarch64, osx-64, osx-arm64 and win-64 (tests/reference/conda-forge.tsv, which says where each row was
+    read). Whether the specs fit together is the solver's question: tests/test_conda_solve.py."""
     forge = {row["package"]: row for row in _rows("conda-forge.tsv")}
-    text = (ROOT / "environment.yml").read_text()
+    text = (ROOT / environment).read_text()
     specs = {}
     for line in text[text.index("dependencies:"):].splitlines():
         if m := re.match(r"\s*-\s+([A-Za-z0-9_.\-]+)(\S*)", line):
@@ -121,12 +123,3 @@ def test_environment_yml_admits_what_conda_forge_has_on_every_platform():
             assert version not in ("", "-"), f"{package} has no conda-forge build for {platform}"
             assert SpecifierSet(spec.split(";")[0]).contains(version, prereleases=True), \
                 f"{package}{spec} refuses conda-forge's {version} on {platform}"
-
-
-def test_the_conda_route_installs_the_package_without_its_dependencies():
-    """pip must never replace a conda package (conda-forge's pybullet calls itself 3.2.5): environment.yml has
-    no pip section (a requirements line cannot say --no-deps), and the README installs the package with
-    ``pip install --no-deps``."""
-    assert "- pip:" not in (ROOT / "environment.yml").read_text()
-    readme = (ROOT / "README.md").read_text()
-    assert "conda env create -f environment.yml && conda activate vdtutorial && pip install --no-deps -e ." in readme
