@@ -211,8 +211,8 @@ def test_the_conda_route_never_lets_pip_build_pybullet(environment, tmp_path):
 
 
 def test_the_routes_are_written_the_same_everywhere():
-    """The README, docs/install.md and chapter 00's check give the learner's command as environment.yml's
-    header does; the README and docs/install.md give the dev route as environment-dev.yml's header does."""
+    """The README, docs/install.md and chapter 00's check give the learner's command as environment.yml's header
+    does; docs/install.md gives the dev route as environment-dev.yml's header does, and the README points to it."""
     from vdtutorial.course.install_check import CONDA_ROUTE
 
     learner = "conda env create -f environment.yml && conda activate vdtutorial && pip install --no-deps -e ."
@@ -221,7 +221,7 @@ def test_the_routes_are_written_the_same_everywhere():
     create = "conda env create -f environment-dev.yml && conda activate vdtutorial-dev"
     install = "pip install " + " ".join(pip_step("environment-dev.yml"))
     assert create in dev and install in dev
-    for doc in ("README.md", "docs/install.md"):
-        text = (ROOT / doc).read_text()
-        assert learner in text, f"{doc} lacks the learner's conda command"
-        assert f"{create} && {install}" in text, f"{doc} lacks the dev environment's command"
+    readme, install_page = (ROOT / "README.md").read_text(), (ROOT / "docs" / "install.md").read_text()
+    assert learner in readme and learner in install_page
+    assert f"{create} && {install}" in install_page
+    assert "environment-dev.yml" in readme
