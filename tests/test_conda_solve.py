@@ -146,6 +146,13 @@ def test_the_reference_records_are_a_closed_world_with_sources():
         assert package in real, f"{package} (asked for by an environment file) is a stub"
 
 
+@pytest.mark.parametrize("environment", ENVIRONMENTS)
+def test_each_environment_file_takes_conda_forge_alone(environment):
+    """The solve below knows conda-forge's records only; "nodefaults" keeps conda from adding Anaconda's defaults
+    channel where its configuration lists it (conda's env installer drops defaults when it sees the word)."""
+    assert yaml.safe_load((ROOT / environment).read_text())["channels"] == ["conda-forge", "nodefaults"]
+
+
 @pytest.mark.parametrize("platform", PLATFORMS)
 @pytest.mark.parametrize("environment", ENVIRONMENTS)
 def test_each_environment_file_solves(environment, platform, tmp_path):
