@@ -13,11 +13,11 @@ import re
 from pathlib import Path
 
 import pytest
-import yaml
 from packaging.requirements import Requirement
 from packaging.specifiers import SpecifierSet
 
-rattler = pytest.importorskip("rattler")
+rattler = pytest.importorskip("rattler")  # the test extra's; CI's Colab leg runs without it
+import yaml
 from rattler.exceptions import SolverError
 
 ROOT = Path(__file__).resolve().parent.parent
