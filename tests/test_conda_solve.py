@@ -232,3 +232,17 @@ def test_the_routes_are_written_the_same_everywhere():
     assert learner in readme and learner in install_page
     assert f"{create} && {install}" in install_page
     assert "environment-dev.yml" in readme
+
+
+@pytest.mark.parametrize("conda", [True, False])
+def test_chapter_00_sends_a_conda_learner_back_to_the_environment_file(conda, tmp_path, monkeypatch):
+    """A package missing from a conda environment is fixed from environment.yml; elsewhere from pip."""
+    from vdtutorial.course import install_check
+
+    if conda:
+        (tmp_path / "conda-meta").mkdir()
+    monkeypatch.setattr(install_check.sys, "prefix", str(tmp_path))
+    [(status, _, message)] = install_check.package_checks(names=("no-such-package-vdtutorial",))
+    assert status == "FIX"
+    assert ("conda env update -f environment.yml" in message) == conda
+    assert ("pip install" in message) == (not conda)

@@ -120,15 +120,19 @@ def pybullet_checks() -> list[tuple[str, str, str]]:
 
 
 def package_checks(names=("numpy", "torch", "gymnasium", "meshcat", "matplotlib", "ipywidgets")) -> list[tuple]:
-    """Each package installed and importable, with its version (pybullet: :func:`pybullet_checks`)."""
+    """Each package installed and importable, with its version (pybullet: :func:`pybullet_checks`). In a conda
+    environment a missing package comes from environment.yml, not from pip: pip would fetch it from PyPI beside
+    conda's packages (and, asked for the package's dependencies, try to build pybullet from source)."""
     rows = []
+    in_conda = (Path(sys.prefix) / "conda-meta").is_dir()
     for name in names:
         try:
             version = md.version(name)
             importlib.import_module(name)
         except md.PackageNotFoundError:
-            rows.append(("FIX", name, f"not installed: `pip install vdtutorial` (or `pip install -e .` in a clone) "
-                         f"pulls it in"))
+            source = ("`conda env update -f environment.yml` (in the clone) brings it in" if in_conda else
+                      "`pip install vdtutorial` (or `pip install -e .` in a clone) pulls it in")
+            rows.append(("FIX", name, f"not installed: {source}"))
             continue
         except Exception as exc:  # installed but broken
             rows.append(("FIX", name, f"installed ({version}) but `import {name}` fails: {exc!r}. Reinstall it: "
