@@ -147,7 +147,8 @@ NAMED_SLIPS = {
     "surrogate's sign": ("return (ratio * advantages).mean(), mean_kl(old, dist)",
                          "return -(ratio * advantages).mean(), mean_kl(old, dist)", "the sign of your surrogate"),
     "ratio inverted": ("ratio = torch.exp(dist.log_prob(actions).sum(-1) - old_log_prob)",
-                       "ratio = torch.exp(old_log_prob - dist.log_prob(actions).sum(-1))", "the sign of your surrogate"),
+                       "ratio = torch.exp(old_log_prob - dist.log_prob(actions).sum(-1))",
+                       "the sign of your surrogate"),
     "no damping": ("double_backward_fvp(policy, params, obs, old, config.cg_damping)",
                    "double_backward_fvp(policy, params, obs, old, 0.0)", "without damping"),
 }

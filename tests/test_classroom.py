@@ -496,3 +496,23 @@ def test_feedback_names_the_cause_of_a_wrong_answer(tmp_path):
         said = page.split(f"## {exercise}\n", 1)[1]
         assert words in said and "the visible tests raised AssertionError: " in said, (student, page)
         assert NO_ANSWER not in page, (student, page)
+
+
+def test_feedback_quotes_a_comparisons_own_message_and_says_no_answer_only_when_nothing_else_did():
+    """numpy.testing puts the test's ``err_msg`` after a blank line and a line of tolerances: the page quotes it. The
+    hidden check's "no answer" is left out where the notebook showed why (an error in that exercise's cells)."""
+    import numpy as np
+
+    from vdtutorial.course.checks import NO_ANSWER
+    from vdtutorial.course.feedback import error_message, report
+
+    with pytest.raises(AssertionError) as raised:
+        np.testing.assert_allclose([1.0, 2.0], [1.0, 3.0], err_msg="the gradient of L must be g")
+    said = error_message(str(raised.value))
+    assert said.startswith("the gradient of L must be g (Not equal to tolerance") and "Mismatch" not in said, said
+    assert error_message("\nfirst words\nmore") == "first words" and error_message("") == ""
+    rows = [classroom.Score("ann", "06a", f"{name}_tests", 0.0, 3.0, failed=(NO_ANSWER,))
+            for name in ("shown", "quiet")]
+    page = report("ann", "06a", rows, {"shown": ["the visible tests raised AssertionError: " + said]})
+    shown, quiet = page.split("## shown\n")[1].split("## quiet\n")
+    assert said in shown and NO_ANSWER not in shown and NO_ANSWER in quiet, page
