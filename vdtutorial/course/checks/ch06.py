@@ -10,7 +10,9 @@ each answer: by autograd of log pi (6.1, 6.2), with :func:`~vdtutorial.trust_reg
 :func:`~vdtutorial.trust_region.double_backward_fvp`, :func:`vdtutorial.trpo.gae`,
 :class:`vdtutorial.baselines.LinearFeatureBaseline`, :func:`~vdtutorial.trust_region.line_search` and
 :meth:`vdtutorial.trpo.TRPO.update`. The old hidden tests' Pendulum batches (6.8) became random batches for a
-small policy: the update never looks at where its batch came from, and these cost milliseconds.
+small policy: the update never looks at where its batch came from, and these cost milliseconds. An update that
+lands elsewhere than the library's is also compared with two slips whose numbers say little by themselves, a step
+downhill (the surrogate's sign) and the step solved without damping, so that the failure names the slip.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
