@@ -139,3 +139,37 @@ def test_the_line_search_problems_cover_every_outcome():
     item = checks.check("ch06_trpo_update")
     outputs = checks.nested(checks._probe(item, names, checks.plain(item.inputs(np.random.default_rng(0)))))
     assert outputs["case4"]["rejected"] and outputs["case3"]["fraction"] < 1
+
+
+#: Two slips of 6.8 whose numbers alone (a line-search fraction, a mean KL a little off) do not say what is wrong,
+#: with the words the check must name them by: (text of the teacher's solution, the slip, words of the message).
+NAMED_SLIPS = {
+    "surrogate's sign": ("return (ratio * advantages).mean(), mean_kl(old, dist)",
+                         "return -(ratio * advantages).mean(), mean_kl(old, dist)", "the sign of your surrogate"),
+    "ratio inverted": ("ratio = torch.exp(dist.log_prob(actions).sum(-1) - old_log_prob)",
+                       "ratio = torch.exp(old_log_prob - dist.log_prob(actions).sum(-1))",
+                       "the sign of your surrogate"),
+    "no damping": ("double_backward_fvp(policy, params, obs, old, config.cg_damping)",
+                   "double_backward_fvp(policy, params, obs, old, 0.0)", "without damping"),
+}
+
+
+@pytest.mark.parametrize("slip", sorted(NAMED_SLIPS))
+def test_the_update_check_names_the_slip(slip):
+    """The check says which slip the update made, for every batch whose step was accepted, and says it in words."""
+    text, wrong, words = NAMED_SLIPS[slip]
+    names = namespace("ch06_trpo_update", (text, wrong))
+    for seed in range(3):
+        found = failures("ch06_trpo_update", names, seed)
+        named = [failure for failure in found if words in failure]
+        assert len(named) >= 3 and all("mean KL" not in failure for failure in found), (seed, found)
+
+
+def test_a_right_update_is_named_no_slip():
+    names = namespace("ch06_trpo_update")
+    item = checks.check("ch06_trpo_update")
+    inputs = item.inputs(np.random.default_rng(0))
+    outputs = checks.nested(checks._probe(item, names, checks.plain(inputs)))
+    cases = checks.nested(checks.plain(inputs))
+    assert [ch06._named_slip(cases[key], outputs[key], ch06._library_update(cases[key], ch06._update_config(
+        cases[key]))[1]) for key in sorted(cases)] == [None] * 5

@@ -198,10 +198,10 @@ def test_an_unreachable_ray_address_fails_grading_within_30_s_in_one_line(releas
     assert run.stderr.strip().splitlines()[-1].startswith("error: no Ray cluster answers at 127.0.0.1:1")
 
 
-#: Chapter 04 (Exercises 4.1 and 4.2) as two hostile students hand it in: the teacher's solutions, with one more
+#: Chapter 04 (Exercises 4.2 and 4.3) as two hostile students hand it in: the teacher's solutions, with one more
 #: answer cell's code in front (issue 43's attacks, tried on chapter 04's exercises).
 HOSTILE = {
-    # the library's own layer, under the student's name: 4.1 scores 0, 4.2 (the teacher's) keeps its points
+    # the library's own layer, under the student's name: 4.2 scores 0, 4.3 (the teacher's) keeps its points
     "copier": ("ch04_svdo_layer", "from vdtutorial.vd import LinearSVDO as MyLinearSVDO\n", {"ch04_svdo_layer_tests"}),
     # the comparison disarmed for every later test: the whole notebook scores 0
     "patcher": ("ch04_svdo_layer", "import torch\ntorch.testing.assert_close = lambda *args, **kwargs: None\n", None),
@@ -256,10 +256,10 @@ class MyLinearSVDO(nn.Module):
     def forward(self, x):
         return F.linear(x, self.weight, self.bias)
 """
-#: Issue 43's classes of hostile submission, each as chapter 04's answer 4.1 (answer 4.2 stays the teacher's, solved).
+#: Issue 43's classes of hostile submission, each as chapter 04's answer 4.2 (answer 4.3 stays the teacher's, solved).
 #: Graded with the static check off: the points must come out right from the trusted checks alone.
 ATTACKS = {
-    # the comparisons and the library's reference patched, so that 4.1's visible tests pass in the kernel
+    # the comparisons and the library's reference patched, so that 4.2's visible tests pass in the kernel
     "patcher": "import numpy as np\nimport vdtutorial.vd\n"
                "torch.testing.assert_close = lambda *args, **kwargs: None\n"
                "np.testing.assert_allclose = lambda *args, **kwargs: None\n"
@@ -288,8 +288,8 @@ ATTACKS = {
 
 
 def test_hostile_submissions_score_only_what_they_solved(tmp_path):
-    """Issue 43's Done-when: each class of hostile submission scores 0 on the exercise it did not solve (4.1) and
-    its points on the one it did (4.2, the teacher's answer), except the quitter, whose kernel never reaches 4.2."""
+    """Issue 43's Done-when: each class of hostile submission scores 0 on the exercise it did not solve (4.2) and
+    its points on the one it did (4.3, the teacher's answer), except the quitter, whose kernel never reaches 4.3."""
     teacher = classroom.chapters()["04_sparse_variational_dropout"]
     for student, code in ATTACKS.items():
         nb = nbformat.read(teacher, as_version=4)
@@ -310,7 +310,7 @@ def test_hostile_submissions_score_only_what_they_solved(tmp_path):
 
 
 def test_feedback_names_what_failed_without_the_hidden_checks(tmp_path):
-    """A wrong KL passes the visible tests of 4.1 when they are disarmed, and fails the hidden check: the student's
+    """A wrong KL passes the visible tests of 4.2 when they are disarmed, and fails the hidden check: the student's
     page says which check failed, in words, with neither the check's code nor the reference's values."""
     teacher = classroom.chapters()["04_sparse_variational_dropout"]
     nb = nbformat.read(teacher, as_version=4)
@@ -321,9 +321,10 @@ def test_feedback_names_what_failed_without_the_hidden_checks(tmp_path):
     (tmp_path / "in" / "erin").mkdir(parents=True)
     nbformat.write(nb, tmp_path / "in" / "erin" / teacher.name)
     scores = classroom.grade([tmp_path / "in" / "erin"], tmp_path / "course", static_check=False)
-    assert {s.exercise: s.score for s in scores} == {"ch04_svdo_layer_tests": 0, "ch04_compact_tests": 3}
+    assert {s.exercise: s.score for s in scores} == {"ch04_gaussian_dropout_tests": 2, "ch04_svdo_layer_tests": 0,
+                                                     "ch04_compact_tests": 3}
     page = (tmp_path / "course" / "feedback" / "erin" / f"{teacher.stem}.md").read_text()
-    assert "Points: 3 of 7." in page and "hidden check failed:" in page and "kl()" in page
+    assert "Points: 5 of 9." in page and "hidden check failed:" in page and "kl()" in page
     from vdtutorial.course.checks import ch04
 
     secret = [line.strip() for line in HIDDEN.search(tests.source).group(1).splitlines()]
@@ -458,3 +459,60 @@ def test_the_memory_cap_counts_memory_not_mapped_libraries(tmp_path):
     cmd = sandbox.command([sys.executable, "-c", probe], 1 << 30, 60, home_under=tmp_path)
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert run.stdout.split("\n")[:2] == ["mapped 3", "MemoryError"], (run.stdout, run.stderr[-500:])
+
+
+#: Wrong answers whose feedback page must say the cause in words, by student: (chapter, exercise, text of the
+#: teacher's solution, the wrong version, the words).
+NAMED_CAUSES = {
+    "inverted_ratio": ("06a_trpo_pieces", "ch06_surrogate",
+                       "ratio = torch.exp(log_pi(theta) - log_pi(torch.as_tensor(theta_old)))",
+                       "ratio = torch.exp(log_pi(torch.as_tensor(theta_old)) - log_pi(theta))",
+                       "the gradient of L must be the policy gradient g"),
+    "no_damping": ("06b_trpo_assembled", "ch06_trpo_update",
+                   "Fvp = double_backward_fvp(policy, params, obs, old, config.cg_damping)",
+                   "Fvp = double_backward_fvp(policy, params, obs, old, 0.0)", "without damping"),
+    "sign_error": ("06b_trpo_assembled", "ch06_trpo_update", "return (ratio * advantages).mean(), mean_kl(old, dist)",
+                   "return -(ratio * advantages).mean(), mean_kl(old, dist)", "the sign of your surrogate"),
+}
+
+
+def test_feedback_names_the_cause_of_a_wrong_answer(tmp_path):
+    """The page of a wrong 6.2 carries the visible test's own message; a 6.8 without damping and one with its
+    surrogate's sign flipped are named as such; and no page adds that the hidden check got no answer, which the
+    visible test's failure already explains."""
+    from vdtutorial.course.checks import NO_ANSWER
+
+    for student, (chapter, _, right, wrong, _) in NAMED_CAUSES.items():
+        text = classroom.chapters()[chapter].read_text()
+        assert text.count(json.dumps(right)[1:-1]) == 1, student
+        (tmp_path / "in" / student).mkdir(parents=True)
+        (tmp_path / "in" / student / f"{chapter}.ipynb").write_text(
+            text.replace(json.dumps(right)[1:-1], json.dumps(wrong)[1:-1]))
+    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", workers=2)
+    lost = {(s.student, s.exercise) for s in scores if s.score < s.max_score}
+    assert lost == {(student, f"{exercise}_tests") for student, (_, exercise, *_) in NAMED_CAUSES.items()}, lost
+    for student, (chapter, exercise, _, _, words) in NAMED_CAUSES.items():
+        page = (tmp_path / "course" / "feedback" / student / f"{chapter}.md").read_text()
+        said = page.split(f"## {exercise}\n", 1)[1]
+        assert words in said and "the visible tests raised AssertionError: " in said, (student, page)
+        assert NO_ANSWER not in page, (student, page)
+
+
+def test_feedback_quotes_a_comparisons_own_message_and_says_no_answer_only_when_nothing_else_did():
+    """numpy.testing puts the test's ``err_msg`` after a blank line and a line of tolerances: the page quotes it. The
+    hidden check's "no answer" is left out where the notebook showed why (an error in that exercise's cells)."""
+    import numpy as np
+
+    from vdtutorial.course.checks import NO_ANSWER
+    from vdtutorial.course.feedback import error_message, report
+
+    with pytest.raises(AssertionError) as raised:
+        np.testing.assert_allclose([1.0, 2.0], [1.0, 3.0], err_msg="the gradient of L must be g")
+    said = error_message(str(raised.value))
+    assert said.startswith("the gradient of L must be g (Not equal to tolerance") and "Mismatch" not in said, said
+    assert error_message("\nfirst words\nmore") == "first words" and error_message("") == ""
+    rows = [classroom.Score("ann", "06a", f"{name}_tests", 0.0, 3.0, failed=(NO_ANSWER,))
+            for name in ("shown", "quiet")]
+    page = report("ann", "06a", rows, {"shown": ["the visible tests raised AssertionError: " + said]})
+    shown, quiet = page.split("## shown\n")[1].split("## quiet\n")
+    assert said in shown and NO_ANSWER not in shown and NO_ANSWER in quiet, page

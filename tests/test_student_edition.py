@@ -3,6 +3,7 @@ exercises as ``classroom release`` makes them, and the solutions apart, in ``DES
 import json
 
 import nbformat
+import numpy as np
 import pytest
 
 pytest.importorskip("nbgrader", reason="nbgrader is the classroom extra (Colab's CI leg goes without it)")
@@ -51,3 +52,30 @@ def test_student_edition_keeps_the_learners_answers(tmp_path):
     with pytest.raises(EditedFilesError, match="01_environment.ipynb"):
         write_notebooks(tmp_path, student=True)
     assert "return 0.0" in answer.read_text()
+
+
+def test_06b_two_bugs_are_the_librarys_whatever_the_learners_update():
+    """06b's "two bugs" cell runs each bug in the library's update, so a learner whose own update already has a sign
+    error sees the curves its answer key describes: the sign error falls below the library's run, the reversed KL
+    runs as the library's."""
+    nb = nbformat.read(classroom.chapters()["06b_trpo_assembled"], as_version=4)
+    answer = {c.metadata["nbgrader"]["grade_id"]: c.source for c in nb.cells
+              if c.metadata.get("nbgrader", {}).get("solution")}
+    first = next(c.source for c in nb.cells if "from unittest import mock" in c.source)
+    runs = next(c.source for c in nb.cells if c.source.startswith("def pendulum_trpo("))
+    bugs = next(c.source for c in nb.cells if "bug_returns = {}" in c.source)
+    right = "return (ratio * advantages).mean(), mean_kl(old, dist)"
+    assert answer["ch06_trpo_update"].count(right) == 1
+    learner = answer["ch06_trpo_update"].replace(right, "return -(ratio * advantages).mean(), mean_kl(old, dist)")
+    names: dict = {}
+    for source in (first, runs, answer["ch06_line_search"], learner):
+        exec(source, names)
+    library = names["pendulum_trpo"](seed=0)
+    rows = library.run(8 * names["PENDULUM_CONFIG"].steps_per_iter, progress=False)
+    library.close()
+    names.update(mean_return=np.array([r["mean_return"] for r in rows]), kls=np.array([r["mean_kl"] for r in rows]),
+                 env_steps=np.array([r["env_steps"] for r in rows]))
+    exec(bugs, names)
+    returns = names["bug_returns"]
+    np.testing.assert_allclose(returns["KL reversed"], names["mean_return"], rtol=1e-3)
+    assert returns["sign error"][-1] < min(names["mean_return"][0], returns["sign error"][0]) - 50, returns

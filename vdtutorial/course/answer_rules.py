@@ -52,6 +52,8 @@ FORBIDDEN: dict[str, tuple[str, ...]] = {
     "ch03_noisy_rollout": ("generate_demos",),
     # 03: the data set D of eq. 8 (generate_demos, and collect, its rollout loop with the executed action open)
     "ch03_rollout_demos": ("generate_demos", "collect"),
+    # 04: the sparse VD layers' shared base class, whose forward pass samples the weights' noise
+    "ch04_gaussian_dropout": ("SVDOLayer",),
     # 04: the sparse VD layers, their shared base class, their factories and the KL approximation
     "ch04_svdo_layer": ("LinearSVDO", "SVDOLayer", "Conv2dSVDO", "make_linear", "make_conv2d", "kl_approx"),
     # 04: compaction of a pruned network, its pieces and the dead-unit finder

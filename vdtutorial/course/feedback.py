@@ -19,13 +19,39 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from vdtutorial.course.checks import NO_ANSWER
+
 #: The longest error message quoted from the student's notebook (characters).
 MESSAGE_CHARS = 300
 
 
+#: How numpy.testing's comparisons begin their message, before the test's ``err_msg`` (``Not equal to tolerance
+#: rtol=...``, ``Arrays are not equal``, ...), and how the lines that follow the ``err_msg`` (the numbers) begin.
+_NUMPY_HEADER = ("Not equal to tolerance", "Arrays are not")
+_NUMPY_DETAILS = ("Mismatched elements", "Mismatch at index", "Max absolute difference", "Max relative difference",
+                  "x:", "y:", "ACTUAL:", "DESIRED:", "(shapes", "(mismatch")
+
+
+def error_message(evalue: str) -> str:
+    """The words of an error's message: its first non-blank line, or for a ``numpy.testing`` comparison (whose
+    message starts with a blank line and a line of tolerances) the test's own ``err_msg``, which says what was
+    compared, followed by the tolerances in brackets."""
+    lines = [line.strip() for line in evalue.splitlines() if line.strip()]
+    if not lines:
+        return ""
+    if not lines[0].startswith(_NUMPY_HEADER):
+        return lines[0]
+    said = []
+    for line in lines[1:]:
+        if line.startswith(_NUMPY_DETAILS):
+            break
+        said.append(line)
+    return f"{' '.join(said)} ({lines[0]})" if said else lines[0]
+
+
 def notebook_errors(autograded: Path | None) -> dict[str, list[str]]:
-    """Per exercise, the errors its answer and visible-tests cells showed when the submission ran: ``Type: first
-    line of the message``."""
+    """Per exercise, the errors its answer and visible-tests cells showed when the submission ran: ``Type: the
+    message's words`` (:func:`error_message`)."""
     import nbformat
 
     if autograded is None or not autograded.is_file():
@@ -37,7 +63,7 @@ def notebook_errors(autograded: Path | None) -> dict[str, list[str]]:
             continue
         for output in cell.get("outputs", []):
             if output.get("output_type") == "error":
-                message = (str(output.get("evalue", "")).splitlines() or [""])[0][:MESSAGE_CHARS]
+                message = error_message(str(output.get("evalue", "")))[:MESSAGE_CHARS]
                 where = "the visible tests" if grade_id.endswith("_tests") else "your answer cell"
                 found.setdefault(grade_id.removesuffix("_tests"), []).append(
                     f"{where} raised {output.get('ename', 'an error')}" + (f": {message}" if message else ""))
@@ -56,8 +82,9 @@ def report(student: str, chapter: str, scores: list, errors: dict[str, list[str]
         notes = list(errors.get(exercise, []))
         if s.refused:
             notes.append(f"the grader refused this answer: {s.refused}")
-        elif s.score < s.max_score:
-            notes += [f"hidden check failed: {failure}" for failure in s.failed]
+        elif s.score < s.max_score:   # an error shown above already says why the hidden check got no answer
+            notes += [f"hidden check failed: {failure}" for failure in s.failed
+                      if not (failure == NO_ANSWER and errors.get(exercise))]
         if notes:
             lines += ["", f"## {exercise}", ""] + [f"- {note}" for note in notes]
     return "\n".join(lines) + "\n"

@@ -42,6 +42,8 @@ SELF_CHECK_SEED = 0
 MAX_OUTPUTS_BYTES = 256 << 20
 #: The key under which a probe's outputs say that the student's code raised (the exception's type name).
 RAISED = "__raised__"
+#: The failure of a check whose tests cell sent nothing back: the cell raised before the hidden check ran.
+NO_ANSWER = "the hidden check got no answer from your code (a cell before it failed, or the kernel stopped)"
 _CHAPTERS = ("ch01", "ch02", "ch03", "ch04", "ch05", "ch06", "ch07", "ch08", "ch09", "ch10")
 
 
@@ -146,7 +148,7 @@ def run_check(exercise: str, namespace: dict) -> None:
 def judge(item: Check, inputs: dict, outputs: dict | None) -> list[str]:
     """The failures of ``outputs`` (``None``: none arrived) against ``inputs``, in words for the student."""
     if outputs is None:
-        return ["the hidden check got no answer from your code (a cell before it failed, or the kernel stopped)"]
+        return [NO_ANSWER]
     if RAISED in outputs:
         return [f"your code raised {outputs[RAISED]} on the hidden check's inputs"]
     try:

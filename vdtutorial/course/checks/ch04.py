@@ -1,8 +1,10 @@
-"""Trusted checks of chapter 04's exercises: the sparse VD layer (4.1) and compaction (4.2).
+"""Trusted checks of chapter 04's exercises: Gaussian dropout on a linear layer's weights (4.1), the sparse VD layer
+(4.2) and compaction (4.3).
 
-Each layer or network is made from arrays the grader drew; the kernel returns the student's numbers (log alpha,
-masks, KL, forward passes, gradients, the compacted network's weights) and the grader recomputes them with
-:class:`vdtutorial.vd.LinearSVDO` and :func:`vdtutorial.analysis.compact.compact`.
+Each layer or network is made from arrays the grader drew; the kernel returns the student's numbers (outputs under
+the drawn noise, log alpha, masks, KL, forward passes, gradients, the compacted network's weights) and the grader
+recomputes them: eq. 4 by autograd, then with :class:`vdtutorial.vd.LinearSVDO` and
+:func:`vdtutorial.analysis.compact.compact`.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
@@ -21,6 +23,61 @@ from vdtutorial.vd import LOG_ALPHA_MAX, LOG_ALPHA_MIN, LOG_SIGMA2_INIT, LinearS
 #: Samples of the training-mode forward pass per input: the mean and variance are checked to a few standard errors.
 REPEATS = 20000
 _PARAMETERS = ("weight", "bias", "log_sigma2")
+
+
+def dropout_inputs(rng: np.random.Generator) -> dict:
+    """Three mini-batches through random layers, log alpha from almost no noise to far past the threshold, with the
+    standard normal noise of eq. 4 drawn for every example and weight."""
+    cases = {}
+    for k in range(3):
+        n, n_in, n_out = int(rng.integers(1, 9)), int(rng.integers(1, 9)), int(rng.integers(1, 6))
+        cases[f"case{k}"] = {"x": rng.normal(size=(n, n_in)), "weight": rng.normal(0, 0.5, (n_out, n_in)),
+                             "bias": rng.normal(size=n_out), "log_alpha": rng.uniform(-8, 6, (n_out, n_in)),
+                             "eps": rng.normal(size=(n, n_out, n_in)), "cotangent": rng.normal(size=(n, n_out))}
+    return cases
+
+
+#: The parameters of 4.1's layer whose gradients the check compares (reparameterised: they flow through the noise).
+_TRAINED = ("weight", "bias", "log_alpha")
+
+
+def _dropout_tensors(case: dict) -> dict:
+    return {name: torch.tensor(np.asarray(case[name]), dtype=torch.float64, requires_grad=name in _TRAINED)
+            for name in ("x", "weight", "bias", "log_alpha", "eps")}
+
+
+def dropout_probe(namespace: dict, inputs: dict) -> dict:
+    out = {}
+    for key, case in inputs.items():
+        given = _dropout_tensors(case)
+        y = namespace["gaussian_dropout_linear"](*given.values())
+        got = {"y": y}
+        if torch.is_tensor(y) and y.requires_grad and y.shape == np.shape(case["cotangent"]):
+            grads = torch.autograd.grad(y, [given[name] for name in _TRAINED], torch.as_tensor(case["cotangent"]),
+                                        allow_unused=True)
+            got["grads"] = {name: torch.zeros_like(given[name]) if g is None else g for name, g in zip(_TRAINED, grads)}
+        out[key] = got
+    return out
+
+
+def dropout_verdict(inputs: dict, outputs: dict) -> list[str]:
+    failures = Failures()
+    for key in sorted(inputs):
+        case, got, where = inputs[key], outputs[key], f"mini-batch {key[4:]}"
+        given = _dropout_tensors(case)
+        weights = given["weight"] * (1 + torch.exp(given["log_alpha"] / 2) * given["eps"])   # eq. 4, per example
+        want = torch.einsum("mi,moi->mo", given["x"], weights) + given["bias"]
+        if not failures.close(got["y"], want.detach().numpy(), f"{where}: the outputs, each example through its own "
+                              "weights sampled by eq. 4 with its noise eps[m]", 1e-9, 1e-12):
+            continue
+        if not failures.true("grads" in got, f"{where}: autograd must differentiate the outputs with respect to "
+                             "weight, bias and log_alpha (keep them in the graph)"):
+            continue
+        grads = torch.autograd.grad(want, [given[name] for name in _TRAINED], torch.as_tensor(case["cotangent"]))
+        for name, grad in zip(_TRAINED, grads):
+            failures.close(got["grads"][name], grad.numpy(), f"{where}: the gradient with respect to {name}", 1e-9,
+                           1e-12)
+    return failures
 
 
 def _layer_arrays(rng, n_in, n_out):
@@ -190,5 +247,6 @@ def compact_verdict(inputs: dict, outputs: dict) -> list[str]:
     return failures
 
 
-CHECKS = [Check("ch04_svdo_layer", layer_inputs, layer_probe, layer_verdict),
+CHECKS = [Check("ch04_gaussian_dropout", dropout_inputs, dropout_probe, dropout_verdict),
+          Check("ch04_svdo_layer", layer_inputs, layer_probe, layer_verdict),
           Check("ch04_compact", compact_inputs, compact_probe, compact_verdict)]

@@ -10,12 +10,15 @@ each answer: by autograd of log pi (6.1, 6.2), with :func:`~vdtutorial.trust_reg
 :func:`~vdtutorial.trust_region.double_backward_fvp`, :func:`vdtutorial.trpo.gae`,
 :class:`vdtutorial.baselines.LinearFeatureBaseline`, :func:`~vdtutorial.trust_region.line_search` and
 :meth:`vdtutorial.trpo.TRPO.update`. The old hidden tests' Pendulum batches (6.8) became random batches for a
-small policy: the update never looks at where its batch came from, and these cost milliseconds.
+small policy: the update never looks at where its batch came from, and these cost milliseconds. An update that
+lands elsewhere than the library's is also compared with two slips whose numbers say little by themselves, a step
+downhill (the surrogate's sign) and the step solved without damping, so that the failure names the slip.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 
@@ -461,21 +464,48 @@ def _env():
     return make_vec_env("Pendulum-v1", 1)
 
 
+def _library_update(case: dict, config: TRPOConfig, sign: float = 1.0) -> tuple[dict, dict]:
+    """:meth:`vdtutorial.trpo.TRPO.update` under ``config`` on the case's batch, its advantages times ``sign``, from
+    the case's policy: its statistics and its outcome (:func:`_search_outcome`)."""
+    algo = TRPO(_policy(case), _env(), config)
+    n = len(case["advantages"])
+    stats = algo.update(Batch(torch.as_tensor(case["obs"]), torch.as_tensor(case["actions"]),
+                              sign * torch.as_tensor(case["advantages"]), features=np.zeros((n, 1)),
+                              timesteps=np.zeros(n), returns=np.zeros(n), episode_returns=[], successes=0))
+    fraction = None if stats["line_search"] == "rejected" else stats["line_search"]
+    return stats, _search_outcome(fraction, stats["surrogate_improvement"], stats["mean_kl"], algo.params)
+
+
+def _named_slip(case: dict, got: dict, want: dict) -> str | None:
+    """What an update that left the parameters elsewhere than the library's did, when it is one of the two slips
+    whose numbers alone say little (a line-search fraction, a mean KL slightly off): a step downhill on the
+    surrogate (its sign), or the library's step solved without damping. ``None``: neither, or no slip."""
+    tolerance = {"rtol": 1e-4, "atol": 1e-6}
+    if np.allclose(got["params"], want["params"], **tolerance):
+        return None
+    start = torch.cat([p.detach().reshape(-1) for p in _policy(case).parameters() if p.requires_grad]).numpy()
+    if float((np.asarray(got["params"]) - start) @ (np.asarray(want["params"]) - start)) < 0:
+        return ("the step went downhill on the surrogate, the opposite way to the library's: check the sign of your "
+                "surrogate, L = mean(pi_theta / pi_old * A), which the update maximises")
+    undamped = _library_update(case, dataclasses.replace(_update_config(case), cg_damping=0.0))[1]
+    if np.allclose(got["params"], undamped["params"], **tolerance):
+        return ("the step is the one solved without damping: the Fisher-vector products of the direction's solve "
+                "must be (F + config.cg_damping I) v")
+    return None
+
+
 def update_verdict(inputs: dict, outputs: dict) -> list[str]:
     failures = Failures()
     for key in _cases(inputs):
         case, got, where = inputs[key], outputs[key], f"batch {key[4:]}"
         if not failures.true(got["keys"], f"{where}: return a dict with the keys {', '.join(STEP_STATS)}"):
             continue
-        policy = _policy(case)
-        algo = TRPO(policy, _env(), _update_config(case))
-        n = len(case["advantages"])
-        stats = algo.update(Batch(*(torch.as_tensor(case[name]) for name in ("obs", "actions", "advantages")),
-                                  features=np.zeros((n, 1)), timesteps=np.zeros(n), returns=np.zeros(n),
-                                  episode_returns=[], successes=0))
-        fraction = None if stats["line_search"] == "rejected" else stats["line_search"]
-        want = _search_outcome(fraction, stats["surrogate_improvement"], stats["mean_kl"], algo.params)
-        if fraction is None:
+        stats, want = _library_update(case, _update_config(case))
+        slip = _named_slip(case, got, want)
+        if slip:
+            failures.append(f"{where}: {slip}")
+            continue
+        if want["rejected"]:
             failures.true(str(got["label"]) == "rejected", f"{where}: a rejected step's line_search is \"rejected\"")
         failures.close(got["entropy"], stats["entropy"], f"{where}: the entropy of pi_old", 1e-4, 1e-7)
         _compare_outcome(failures, got, want, where, {"stats": (1e-4, 1e-7), "params": (1e-4, 1e-6)})
