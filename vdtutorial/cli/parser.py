@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 
 from vdtutorial.cli.arguments import (OneLineParser, add_exact_kernels, add_force, add_progress, epochs_help, fraction,
+                                      help_when_shown,
                                       nonnegative_float, nonnegative_int, positive_int)
 from vdtutorial.cli.commands import (GRID_ONLY, STATE_ONLY, cmd_bench, cmd_book, cmd_claims, cmd_demos, cmd_digits,
                                      cmd_evaluate, cmd_experiment, cmd_expert, cmd_notebooks, cmd_pretrain, cmd_rederive,
@@ -63,7 +64,7 @@ def _add_pipeline_commands(sub) -> None:
                    help="seeds the initialisation, the held-out split and the batches (default 0)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state",
                    help="policy input: joint angles + cup position, or the paper's RGBD image + joints (default state)")
-    p.add_argument("--epochs", type=positive_int, default=None, help=epochs_help())
+    p.add_argument("--epochs", type=positive_int, default=None, action=help_when_shown(epochs_help))
     p.add_argument("--patience", type=positive_int, default=None, metavar="P",
                    help="stop when the held-out MSE has not improved for P epochs (after VD's KL warm-up); "
                         "--epochs is then a cap, VD's KL warm-up keeps its default length in epochs, and mu is the best "
