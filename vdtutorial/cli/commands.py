@@ -160,7 +160,7 @@ def cmd_reproduce(args) -> None:
     """The package's main job: the whole pipeline at small scale (see experiments.reproduce_quick)."""
     from vdtutorial.experiments import reproduce_quick
 
-    _print_summary(reproduce_quick(out=args.out, workers=args.workers))
+    _print_summary(reproduce_quick(out=args.out, workers=args.workers, quick=args.quick))
 
 
 def _print_summary(result) -> None:

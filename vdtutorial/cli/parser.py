@@ -207,8 +207,11 @@ def _add_experiment_commands(sub) -> None:
     p.set_defaults(func=cmd_rederive)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")
-    p.add_argument("--quick", action="store_true", help="accepted for clarity; reproduce always runs small")
+    p.add_argument("--quick", action="store_true",
+                   help="quick mode, as VDTUTORIAL_QUICK=1: the same steps at tiny budgets, about a minute "
+                        "(default: the small scale, a few minutes)")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
-    p.add_argument("--out", default=None, help="output folder (default: runs/reproduce_quick)")
+    p.add_argument("--out", default=None,
+                   help="output folder (default: runs/reproduce_quick; in quick mode runs/quick/reproduce_quick)")
     add_exact_kernels(p)
     p.set_defaults(func=cmd_reproduce)
