@@ -60,7 +60,8 @@ def _from_the_folder_of_a_clone(tmp_path, argv, pythonpath=()):
     (site / "sitecustomize.py").write_text(EDITABLE_LIKE)
     env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
     env.update(PYTHONPATH=os.pathsep.join([*map(str, pythonpath), str(site)]), VDTUTORIAL_QUICK="1")
-    return subprocess.run([sys.executable, "-m", "vdtutorial", *argv], cwd=home, env=env, capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "vdtutorial", *argv], cwd=home, env=env, capture_output=True,
+                          text=True)
 
 
 def test_notebooks_from_the_folder_that_holds_a_clone(tmp_path):

@@ -12,7 +12,7 @@ from vdtutorial.cli.arguments import (OneLineParser, add_exact_kernels, add_forc
 from vdtutorial.cli.commands import (GRID_ONLY, STATE_ONLY, cmd_bench, cmd_book, cmd_claims, cmd_demos, cmd_digits,
                                      cmd_evaluate, cmd_experiment, cmd_expert, cmd_notebooks, cmd_pretrain, cmd_rederive,
                                      cmd_reproduce)
-from vdtutorial.settings import data_dir
+from vdtutorial.settings import QUICK_ENV, data_dir
 
 #: What ``python -m vdtutorial --help`` says first.
 DESCRIPTION = """The command line of vdtutorial: python -m vdtutorial COMMAND ... (COMMAND --help for its options).
@@ -208,7 +208,7 @@ def _add_experiment_commands(sub) -> None:
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")
     p.add_argument("--quick", action="store_true",
-                   help="quick mode, as VDTUTORIAL_QUICK=1: the same steps at tiny budgets, about a minute "
+                   help=f"quick mode, as {QUICK_ENV}=1: the same steps at tiny budgets, about a minute "
                         "(default: the small scale, a few minutes)")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
     p.add_argument("--out", default=None,

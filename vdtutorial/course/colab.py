@@ -54,7 +54,7 @@ if "google.colab" in sys.modules and not os.path.isfile(f"{{BOOK}}/vdtutorial-bo
         pip("wheel", "--no-deps", "--no-build-isolation", "--no-cache-dir", "-w", kept[2], kept[3], check=True)
         pip("install", *kept, check=True)
     pip("install", SOURCE, check=True)
-    subprocess.run([sys.executable, "-m", "vdtutorial", "notebooks", BOOK], check=True)
+    subprocess.run([sys.executable, "-m", "vdtutorial", "notebooks", BOOK], stdout=subprocess.DEVNULL, check=True)
     print(f"ready in {{time.time() - start:.0f}} s")
 if "google.colab" in sys.modules:
     os.chdir(BOOK)  # the chapters read data/ and write runs/ there
