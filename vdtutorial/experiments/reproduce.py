@@ -30,8 +30,8 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
     defaults further (default ``out``: ``runs/quick/reproduce_quick``, so that the two never resume each other's
     runs); ``quick=True`` turns it on for this call, workers included, as the quick switch of
     :mod:`vdtutorial.settings` does, and the record says which mode ran. Like every grid it is resumable: run it
-    again to continue an interrupted one. ``progress``: see :mod:`~vdtutorial.runner.progress` (each step and each finished run prints a
-    line unless it is False)."""
+    again to continue an interrupted one. ``progress``: see :mod:`~vdtutorial.runner.progress` (each step and each
+    finished run prints a line unless it is False)."""
     if quick:
         before = os.environ.get(QUICK_ENV)
         use_quick(True)
