@@ -1,15 +1,41 @@
-"""Print the README's Colab cell (the ```python block after the colab-cell marker) as an IPython script,
-with its SOURCE and BOOK set to the given wheel and folder: CI runs it as Colab would run the cell.
+"""CI's Colab leg (.ci/run, leg 2): a chapter opened by itself, run from its own first cell as Colab would run it.
 
-Usage: python .ci/colab_cell.py README.md WHEEL BOOK > cell.ipy && ipython cell.ipy
+    python .ci/colab_cell.py pretend-colab IPYTHONDIR   # kernels started with this IPYTHONDIR see Colab's marker
+    python .ci/colab_cell.py run NOTEBOOK               # run it in its folder; print what its first cell printed
+
+The first cell (vdtutorial/course/colab.py, the README's Colab cell) acts only where ``google.colab`` is loaded, as
+Colab's kernel loads it at start; an IPython start-up file stands in for that, and nothing else of Colab is faked.
 """
-import re
 import sys
 from pathlib import Path
 
-readme, wheel, book = sys.argv[1:4]
-text = Path(readme).read_text()
-cell = re.search(r"<!-- colab-cell.*?-->\n```python\n(.*?)```", text, re.S)[1]
-first, *rest = cell.splitlines()
-assert first.startswith("SOURCE, BOOK = "), first
-print("\n".join([f"SOURCE, BOOK = {wheel!r}, {book!r}", *rest]))
+MARKER = ("import sys, types  # Colab's kernel has google.colab loaded; a stand-in module marks this one as such\n"
+          "sys.modules.setdefault('google.colab', types.ModuleType('google.colab'))\n")
+
+
+def pretend_colab(ipython_dir: str) -> None:
+    startup = Path(ipython_dir) / "profile_default" / "startup"
+    startup.mkdir(parents=True, exist_ok=True)
+    (startup / "00-google-colab.py").write_text(MARKER)
+
+
+def run(notebook: str) -> None:
+    import nbclient
+    import nbformat
+
+    path = Path(notebook).resolve()
+    book = nbformat.read(path, as_version=4)
+    client = nbclient.NotebookClient(book, timeout=None, kernel_name="python3",
+                                     resources={"metadata": {"path": str(path.parent)}})
+    try:
+        client.execute()
+    finally:
+        first = next(cell for cell in book.cells if cell.cell_type == "code")
+        for output in first.get("outputs", []):
+            print(output.get("text", "") or output.get("evalue", ""), end="")
+    print(f"ran {path.name}: {sum(cell.cell_type == 'code' for cell in book.cells)} code cells")
+
+
+if __name__ == "__main__":
+    command, argument = sys.argv[1:3]
+    {"pretend-colab": pretend_colab, "run": run}[command](argument)

@@ -84,7 +84,8 @@ def test_a_chapter_closes_with_a_self_check_whose_answers_are_folded(path):
 def test_a_chapter_states_the_run_times_that_teaching_md_measured(path):
     """The first code cell's comment gives the chapter's (or appendix's) run time in both modes: the numbers of
     TEACHING.md's "Time per chapter" table, so that the two never disagree."""
-    comment = next(cell.source for cell in nbformat.read(path, as_version=4).cells if cell.cell_type == "code")
+    comment = next(cell.source for cell in nbformat.read(path, as_version=4).cells
+                   if cell.cell_type == "code" and cell.get("id") != "colab-setup")  # the Colab cell comes first
     quick = re.search(r"\(this (?:chapter|appendix): ([\d.]+ (?:s|min)) on a quiet 2-core machine\)", comment).group(1)
     full = re.search(r"\(this (?:chapter|appendix): ([\d.]+ (?:s|min)) on the same machine;", comment).group(1)
     teaching = (ROOT / "notebooks" / "TEACHING.md").read_text()

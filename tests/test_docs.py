@@ -15,8 +15,9 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "data
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)")
 
 
-def test_readme_is_at_most_220_lines():
-    assert len((ROOT / "README.md").read_text().splitlines()) <= 220
+def test_readme_is_at_most_250_lines():
+    """220 lines of prose and commands, and the Colab cell a learner may paste (the chapters' first cell, verbatim)."""
+    assert len((ROOT / "README.md").read_text().splitlines()) <= 250
 
 
 def test_readme_links_every_page():

@@ -3,7 +3,8 @@ paper's experiments, the benchmarks, the chapters written out and the classroom.
 
 Modules, one idea each: :mod:`~vdtutorial.cli.parser` (the commands and their options),
 :mod:`~vdtutorial.cli.commands` (what each command does), :mod:`~vdtutorial.cli.arguments` (argument types
-and shared options) and :mod:`~vdtutorial.cli.bench` (the benchmarks). :func:`main` runs one command and
+and shared options), :mod:`~vdtutorial.cli.bench` (the benchmarks) and :mod:`~vdtutorial.cli.shadowing` (a clone's
+folder taken for the package). Commands import the library when they run, so ``--help`` loads no torch. :func:`main` runs one command and
 turns an error the user can fix into one line and exit code 2.
 
 Taught in chapter 00.
@@ -15,7 +16,6 @@ import sys
 
 from vdtutorial.cli.arguments import TRACEBACK_VARIABLE, CommandError
 from vdtutorial.cli.parser import build_parser
-from vdtutorial.runner.kernels import can_pin, pin_vector_kernels, pinned
 from vdtutorial.settings import is_quick
 
 __all__ = ["CommandError", "build_parser", "main"]
@@ -25,6 +25,8 @@ def _exact_kernels(args, argv) -> None:
     """``--exact-kernels``: start this command again with the AVX2 pins of :mod:`vdtutorial.runner.kernels` in its
     environment. numpy is already loaded when the arguments are parsed, and its OpenBLAS chose its kernels then, so
     setting the variables here would reach torch but not numpy: only a new process gets both."""
+    from vdtutorial.runner.kernels import can_pin, pin_vector_kernels, pinned
+
     if not getattr(args, "exact_kernels", False) or pinned():
         return
     if not can_pin():

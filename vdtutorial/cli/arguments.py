@@ -76,6 +76,16 @@ def progress_of(args) -> bool:
 
 
 # -- options several commands share ----------------------------------------------------------------------
+def help_when_shown(text_of):
+    """An argparse action that stores its value as the default action does and whose help is ``text_of()``, called
+    only when help is shown: a help text computed from the library (which loads torch) then costs nothing to a
+    command, to a usage error or to the top-level ``--help``."""
+    class StoreWithLateHelp(argparse._StoreAction):
+        help = property(lambda self: text_of(), lambda self, value: None)
+
+    return StoreWithLateHelp
+
+
 def epochs_help() -> str:
     from vdtutorial.experiments.checkpoints import default_config
 

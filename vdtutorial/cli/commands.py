@@ -11,14 +11,13 @@ import time
 from pathlib import Path
 
 from vdtutorial.cli.arguments import CommandError, device_of, output_path, progress_of
-from vdtutorial.runner.kernels import kernel_settings, pinned
-from vdtutorial.experiments.paths import runs_dir
 from vdtutorial.settings import data_dir
 
 def demos_output(args) -> Path:
     """The file a ``demos`` command writes, before ``--force`` is checked: ``--out``, or the conventional name under
     ``runs/demos``. (The provenance test reads every recorded command's output with this.)"""
     from vdtutorial.demos import SHIPPED_NOISE, demo_path
+    from vdtutorial.experiments.paths import runs_dir
 
     noise = SHIPPED_NOISE[args.task] if args.noise is None else args.noise
     return Path(args.out) if args.out else demo_path(args.task, args.samples, noise, args.seed, root=runs_dir())
@@ -28,6 +27,7 @@ def pretrain_output(args, demos_meta: dict) -> Path:
     """The file a ``pretrain`` command writes from a data set with meta ``demos_meta``: ``--out``, or the
     conventional name under ``runs/checkpoints``, which names a non-default start sigma and early stop."""
     from vdtutorial.experiments.checkpoints import checkpoint_path
+    from vdtutorial.experiments.paths import runs_dir
 
     return Path(args.out) if args.out else checkpoint_path(demos_meta, args.reg, args.obs, args.seed, root=runs_dir(),
                                                            initial_sigma=args.sigma, patience=args.patience)
@@ -62,6 +62,7 @@ def cmd_pretrain(args) -> None:
                                                     pretrain_command, save_checkpoint, with_held_out_stop)
     from vdtutorial.analysis.sparsity import sparsity_report
     from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
+    from vdtutorial.experiments.paths import runs_dir
 
     device = device_of(args)  # before any work
     torch.set_num_threads(1)
@@ -141,6 +142,7 @@ def cmd_digits(args) -> None:
 def cmd_bench(args) -> None:
     from vdtutorial.cli import bench
     from vdtutorial.experiments.pendulum import bench_trpo_pendulum
+    from vdtutorial.runner.kernels import kernel_settings, pinned
 
     if args.what != "finetune" and (args.profile or args.device != "cpu"):
         raise CommandError(f"{'--profile' if args.profile else '--device'} is an option of bench finetune only")
@@ -158,7 +160,7 @@ def cmd_reproduce(args) -> None:
     """The package's main job: the whole pipeline at small scale (see experiments.reproduce_quick)."""
     from vdtutorial.experiments import reproduce_quick
 
-    _print_summary(reproduce_quick(out=args.out, workers=args.workers))
+    _print_summary(reproduce_quick(out=args.out, workers=args.workers, quick=args.quick))
 
 
 def _print_summary(result) -> None:

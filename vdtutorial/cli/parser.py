@@ -7,11 +7,12 @@ from __future__ import annotations
 import argparse
 
 from vdtutorial.cli.arguments import (OneLineParser, add_exact_kernels, add_force, add_progress, epochs_help, fraction,
+                                      help_when_shown,
                                       nonnegative_float, nonnegative_int, positive_int)
 from vdtutorial.cli.commands import (GRID_ONLY, STATE_ONLY, cmd_bench, cmd_book, cmd_claims, cmd_demos, cmd_digits,
                                      cmd_evaluate, cmd_experiment, cmd_expert, cmd_notebooks, cmd_pretrain, cmd_rederive,
                                      cmd_reproduce)
-from vdtutorial.settings import data_dir
+from vdtutorial.settings import QUICK_ENV, data_dir
 
 #: What ``python -m vdtutorial --help`` says first.
 DESCRIPTION = """The command line of vdtutorial: python -m vdtutorial COMMAND ... (COMMAND --help for its options).
@@ -63,7 +64,7 @@ def _add_pipeline_commands(sub) -> None:
                    help="seeds the initialisation, the held-out split and the batches (default 0)")
     p.add_argument("--obs", choices=("state", "rgbd"), default="state",
                    help="policy input: joint angles + cup position, or the paper's RGBD image + joints (default state)")
-    p.add_argument("--epochs", type=positive_int, default=None, help=epochs_help())
+    p.add_argument("--epochs", type=positive_int, default=None, action=help_when_shown(epochs_help))
     p.add_argument("--patience", type=positive_int, default=None, metavar="P",
                    help="stop when the held-out MSE has not improved for P epochs (after VD's KL warm-up); "
                         "--epochs is then a cap, VD's KL warm-up keeps its default length in epochs, and mu is the best "
@@ -206,8 +207,11 @@ def _add_experiment_commands(sub) -> None:
     p.set_defaults(func=cmd_rederive)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")
-    p.add_argument("--quick", action="store_true", help="accepted for clarity; reproduce always runs small")
+    p.add_argument("--quick", action="store_true",
+                   help=f"quick mode, as {QUICK_ENV}=1: the same steps at tiny budgets, about a minute "
+                        "(default: the small scale, a few minutes)")
     p.add_argument("--workers", type=positive_int, default=2, help="runs in parallel, one per core (default 2)")
-    p.add_argument("--out", default=None, help="output folder (default: runs/reproduce_quick)")
+    p.add_argument("--out", default=None,
+                   help="output folder (default: runs/reproduce_quick; in quick mode runs/quick/reproduce_quick)")
     add_exact_kernels(p)
     p.set_defaults(func=cmd_reproduce)

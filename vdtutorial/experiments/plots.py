@@ -59,7 +59,8 @@ def _draw_panel(ax, curves: dict[str, Curve], metric: str, legend: bool) -> None
         ax.plot(curve.steps, curve.mean, color=colour, linestyle=style, label=f"{curve.label} (n={curve.seeds})")
         if np.isfinite(curve.low).any():
             draw_band(ax, curve.steps, curve.low, curve.high, metric, colour)
-    ax.set_ylabel(METRIC_LABELS[metric], fontsize=9)
+    lower = "\n(lower is better)" if MEASURES[metric].better < 0 else ""
+    ax.set_ylabel(METRIC_LABELS[metric] + lower, fontsize=9)
     ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
     ax.grid(alpha=0.3)
     if legend:

@@ -22,7 +22,7 @@ from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, 
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.measures import measures_of
-from vdtutorial.experiments.plots import figure_title, plot_measures, save_png
+from vdtutorial.experiments.plots import band_limits, figure_title, plot_measures, save_png
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_trpo_config
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner.grid import run_grid
@@ -305,13 +305,16 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
 
 
 def format_summary(result: ExperimentResult) -> str:
-    """The final level of every curve with its band (or, with one seed, the words that there is none),
-    the fig4-style "VD reaches L2" line if any, and where the files went."""
+    """The final level of every curve with its band as the figure draws it (clipped to the values the measure can
+    take; with one seed, the words that there is none), the fig4-style "VD reaches L2" line if any, and where the
+    files went."""
     lines = []
     for label, final in result.summary["final"].items():
         seeds = f"{final['seeds']} seed{'s' if final['seeds'] != 1 else ''}"
         if math.isfinite(final["low"]):
-            band = f"{CONFIDENCE:.0%} band {final['low']:.2f} to {final['high']:.2f}, {seeds}"
+            low, high = band_limits(final["low"], final["high"], result.metric)  # as the figure draws it
+            clipped = ", clipped to possible values" if (low, high) != (final["low"], final["high"]) else ""
+            band = f"{CONFIDENCE:.0%} band {low:.2f} to {high:.2f}{clipped}, {seeds}"
         else:
             band = f"{seeds}: no band from a single sample"
         lines.append(f"{label:>32}: final {final['mean']:.2f} ({band})")

@@ -135,10 +135,12 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
             reason = f"seed={policy.pretrain_info.get('seed')!r}, expected {seed!r}"
         except CheckpointError as exc:
             reason = exc.difference or str(exc)
-        # expected whenever a budget differs from the checkpoint's (a quick run beside a shipped checkpoint):
-        # one plain line, not a warning
-        action = "pre-training again to replace it" if candidate == path else f"pre-training under {recorded_path(root)}"
-        print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): {action}", flush=True)
+        if candidate == path:
+            print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): pre-training again to "
+                  "replace it", flush=True)
+        else:  # the usual case of a run at a budget of its own beside the shipped checkpoint: progress, no warning
+            print(f"pre-training {reg.upper()}, seed {seed}, into {recorded_path(root)} (the shipped "
+                  f"{recorded_path(candidate)} has other settings: {reason})", flush=True)
     made_from = Path(source) if data_name else demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
     if cfg.initial_sigma != PAPER_SIGMA_OPTION:
         base = replace(cfg, initial_sigma=PAPER_SIGMA_OPTION)
