@@ -423,11 +423,13 @@ def _seeds(e: dict) -> str:
 
 
 def _claim_text(e: dict) -> str:
-    """A claim's words, the figure whose runs it shares (such rows are one comparison), and how seeds added after
-    a look were used (:mod:`~vdtutorial.experiments.looks`)."""
+    """A claim's words, the figure whose runs it shares (such rows are one comparison), how seeds added after
+    a look were used (:mod:`~vdtutorial.experiments.looks`), and whether its curves come from different batches of
+    seeds (:mod:`~vdtutorial.experiments.batches`)."""
     looks = e.get("looks")
     return (e["text"] + (f" (same runs as {e['same_runs']})" if e.get("same_runs") else "")
-            + (" (2 looks: sequential rule)" if isinstance(looks, dict) else f" ({looks})" if looks else ""))
+            + (" (2 looks: sequential rule)" if isinstance(looks, dict) else f" ({looks})" if looks else "")
+            + (" (across batches of seeds)" if e.get("across_batches") else ""))
 
 
 def claim_table(effects: list[dict]) -> str:
@@ -512,8 +514,9 @@ def write_claims(folder: str | Path) -> str:
     record_path = next(folder.glob("*.json"))
     record = json.loads(record_path.read_text())
     rows = read_rows(results_file(folder, record['experiment']))
-    effects = claim_effects(record["experiment"], rows, record["metric"], record_window(record),
-                            looks=looks_of(record))
+    from vdtutorial.experiments.batches import mark_batches   # batches builds on this module
+    effects = mark_batches(claim_effects(record["experiment"], rows, record["metric"], record_window(record),
+                                         looks=looks_of(record)), record)
     record.setdefault("summary", {})["claims"] = effects
     record_path.write_text(json.dumps(record, indent=1, default=str))
     return claim_table(effects)

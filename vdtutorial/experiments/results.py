@@ -16,6 +16,7 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
+from vdtutorial.experiments.batches import mark_batches
 from vdtutorial.experiments.checkpoints import current_field_names, default_config
 from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, final_point, record_window,
                                            smooth_window, vd_reaches_l2_final)
@@ -212,6 +213,7 @@ def rederive(folder: str | Path) -> ExperimentResult:
     curves, figure, derived = derive(name, rows, record["metric"], window, title, looks=looks_of(record))
     save_png(figure, folder / f"{name}.png", 120)
     summary = {**record.get("summary", {}), **derived}
+    summary["claims"] = mark_batches(summary["claims"], record)   # a merged record: claims that cross its batches
     if "vd_reaches_l2_final" in summary:
         summary["vd_reaches_l2_final"] = vd_reaches_l2_final(curves)
     record.update(title=title, measures=list(measures_of(record["metric"])), seeds=seeds, summary=summary)

@@ -1,0 +1,103 @@
+"""Batches of seeds: the separate commands whose runs a merged record holds, and the comparisons that cross them.
+
+A record merged with ``rederive --add`` holds runs of several commands (``merged``): a first batch of seeds, then
+more, perhaps on another CPU's kernels, from another checkout, with checkpoints pre-trained in another folder. A
+run is a pure function of its settings and seed, so seeds from two batches are meant to be replicates of one
+experiment; that is an assumption, and this module is where it is checked:
+
+* a claim whose two curves draw their seeds from different sets of batches (one curve run only in the first, say)
+  **crosses batches**: any difference between the batches is then part of its effect. The record marks it
+  (``across_batches``) and the tables say so;
+* for each curve run in two batches, the difference between them (final level and area under the curve, Welch)
+  says whether the batches behaved as replicates (:func:`batch_differences`), beside what the record says differed
+  between them (:func:`batch_settings`).
+
+Taught in appendix A5.
+"""
+from __future__ import annotations
+
+from vdtutorial.experiments.effects import per_run, run_summaries, welch_interval, welch_p_value
+
+
+def batches_of(record: dict) -> list[dict]:
+    """The commands a record's runs came from, in order: each with its ``seeds``, ``kernels``, ``command`` and
+    ``state_dir`` (one batch, the record itself, when nothing was merged into it)."""
+    parts = [entry for entry in record.get("merged") or [] if "seeds" in entry]
+    if not parts:
+        return [{"seeds": record["seeds"], **{key: record.get(key) for key in ("kernels", "command", "state_dir")}}]
+    return parts
+
+
+def batch_indices(record: dict, seeds) -> list[int]:
+    """The batches (indices into :func:`batches_of`) that ``seeds`` come from."""
+    return sorted({k for k, batch in enumerate(batches_of(record)) for seed in seeds if seed in batch["seeds"]})
+
+
+def _claim_seeds(record: dict, label: str, effect: dict) -> list[int]:
+    """The seeds of curve ``label`` a claim used: the first look's when it was judged there, else all the curve's."""
+    if isinstance(effect.get("looks"), str):
+        return record["looks"][0]["seeds"][label]
+    return sorted({run["seed"] for run in record["runs"] if run["label"] == label})
+
+
+def mark_batches(effects: list[dict], record: dict) -> list[dict]:
+    """``effects`` with, on each claim between two learning curves, the batches each curve's seeds came from
+    (``batches``) and whether they differ (``across_batches``); claims against the expert's episodes, and every
+    claim of a record made by one command, as they are."""
+    if len(batches_of(record)) == 1:
+        return effects
+    marked = []
+    for effect in effects:
+        if effect.get("n_b_counts") == "episodes" or "a" not in effect:
+            marked.append(effect)
+            continue
+        used = [batch_indices(record, _claim_seeds(record, effect[key], effect)) for key in ("a", "b")]
+        marked.append({**effect, "batches": used, "across_batches": used[0] != used[1]})
+    return marked
+
+
+def batch_settings(record: dict) -> str:
+    """What each batch of a record ran with, as Markdown: seeds, CPU kernels, the command (its ``--out``, where
+    checkpoints are pre-trained when the shipped ones do not match), and the state folder."""
+    lines = ["| batch | seeds | kernels | command | states |", "|---|---|---|---|---|"]
+    for k, batch in enumerate(batches_of(record), 1):
+        kernels = batch["kernels"]
+        kernels = kernels.get("torch_cpu_capability", "?") if isinstance(kernels, dict) else str(kernels)
+        seeds = batch["seeds"]
+        span = f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else ", ".join(map(str, seeds))
+        lines.append(f"| {k} | {span} | {kernels} | `{batch['command']}` | `{batch['state_dir']}` |")
+    return "\n".join(lines)
+
+
+def batch_differences(record: dict, rows: list[dict], measures: tuple[str, ...] = ("final", "auc")) -> list[dict]:
+    """For every curve with seeds in two or more batches, each later batch against the first on the paper's metric:
+    the difference of means (later minus first) with Welch's 95% interval and two-sided p, per measure."""
+    groups = per_run(rows, record["metric"])
+    batches = batches_of(record)
+    out = []
+    for label, group in groups.items():
+        if group["values"].ndim == 1:
+            continue
+        by_batch = [[i for i, seed in enumerate(group["seeds"]) if seed in batch["seeds"]] for batch in batches]
+        present = [k for k, index in enumerate(by_batch) if index]
+        for later in present[1:]:
+            for measure in measures:
+                values = run_summaries(group, measure, int(record["window"]))
+                first, other = values[by_batch[present[0]]], values[by_batch[later]]
+                estimate, low, high = welch_interval(other, first)
+                out.append({"label": label, "measure": measure, "batches": [present[0] + 1, later + 1],
+                            "seeds": [len(first), len(other)], "mean_first": float(first.mean()),
+                            "mean_later": float(other.mean()), "estimate": estimate, "low": low, "high": high,
+                            "p_value": welch_p_value(other, first)})
+    return out
+
+
+def batch_difference_table(differences: list[dict]) -> str:
+    """:func:`batch_differences` as Markdown, one row per curve, measure and later batch."""
+    lines = ["| curve | measure | batches | seeds | first batch | later batch | later - first (95% interval) | p |",
+             "|---|---|---|---|---|---|---|---|"]
+    for d in differences:
+        lines.append(f"| {d['label']} | {d['measure']} | {d['batches'][0]} / {d['batches'][1]} | "
+                     f"{d['seeds'][0]} / {d['seeds'][1]} | {d['mean_first']:.3g} | {d['mean_later']:.3g} | "
+                     f"{d['estimate']:+.3g} ({d['low']:+.3g} to {d['high']:+.3g}) | {d['p_value']:.2g} |")
+    return "\n".join(lines)
