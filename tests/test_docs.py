@@ -15,8 +15,8 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "data
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)")
 
 
-def test_readme_is_at_most_220_lines():
-    assert len((ROOT / "README.md").read_text().splitlines()) <= 220
+def test_readme_is_at_most_240_lines():
+    assert len((ROOT / "README.md").read_text().splitlines()) <= 240
 
 
 def test_readme_links_every_page():

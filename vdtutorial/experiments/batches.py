@@ -16,7 +16,7 @@ Taught in appendix A5.
 """
 from __future__ import annotations
 
-from vdtutorial.experiments.effects import per_run, run_summaries, welch_interval, welch_p_value
+from vdtutorial.experiments.effects import of_seeds, per_run, run_summaries, welch_interval, welch_p_value
 
 
 def batches_of(record: dict) -> list[dict]:
@@ -40,19 +40,33 @@ def _claim_seeds(record: dict, label: str, effect: dict) -> list[int]:
     return sorted({run["seed"] for run in record["runs"] if run["label"] == label})
 
 
-def mark_batches(effects: list[dict], record: dict) -> list[dict]:
+def mark_batches(effects: list[dict], record: dict, rows: list[dict] | None = None) -> list[dict]:
     """``effects`` with, on each claim between two learning curves, the batches each curve's seeds came from
     (``batches``) and whether they differ (``across_batches``); claims against the expert's episodes, and every
-    claim of a record made by one command, as they are."""
+    claim of a record made by one command, as they are. With the record's ``rows``, a difference of means that
+    crosses batches also gets the same comparison on the seeds of the batches both curves ran in
+    (``within_shared_batches``: estimate, 95% interval, two-sided p and seeds)."""
     if len(batches_of(record)) == 1:
         return effects
-    marked = []
+    marked, groups = [], {}
     for effect in effects:
         if effect.get("n_b_counts") == "episodes" or "a" not in effect:
             marked.append(effect)
             continue
         used = [batch_indices(record, _claim_seeds(record, effect[key], effect)) for key in ("a", "b")]
-        marked.append({**effect, "batches": used, "across_batches": used[0] != used[1]})
+        extra = {"batches": used, "across_batches": used[0] != used[1]}
+        shared = sorted(set(used[0]) & set(used[1]))
+        if extra["across_batches"] and shared and rows is not None and effect["measure"] != "steps_to_reach":
+            if effect["metric"] not in groups:
+                groups[effect["metric"]] = per_run(rows, effect["metric"])
+            seeds = [s for k in shared for s in batches_of(record)[k]["seeds"]]
+            values = [run_summaries(of_seeds(groups[effect["metric"]][effect[key]],
+                                             [s for s in groups[effect["metric"]][effect[key]]["seeds"] if s in seeds]),
+                                    effect["measure"], int(record["window"])) for key in ("a", "b")]
+            estimate, low, high = welch_interval(*values)
+            extra["within_shared_batches"] = {"estimate": estimate, "low": low, "high": high,
+                                              "p_value": welch_p_value(*values), "seeds": [len(v) for v in values]}
+        marked.append({**effect, **extra})
     return marked
 
 

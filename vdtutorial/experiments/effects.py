@@ -516,7 +516,7 @@ def write_claims(folder: str | Path) -> str:
     rows = read_rows(results_file(folder, record['experiment']))
     from vdtutorial.experiments.batches import mark_batches   # batches builds on this module
     effects = mark_batches(claim_effects(record["experiment"], rows, record["metric"], record_window(record),
-                                         looks=looks_of(record)), record)
+                                         looks=looks_of(record)), record, rows)
     record.setdefault("summary", {})["claims"] = effects
     record_path.write_text(json.dumps(record, indent=1, default=str))
     return claim_table(effects)

@@ -213,7 +213,7 @@ def rederive(folder: str | Path) -> ExperimentResult:
     curves, figure, derived = derive(name, rows, record["metric"], window, title, looks=looks_of(record))
     save_png(figure, folder / f"{name}.png", 120)
     summary = {**record.get("summary", {}), **derived}
-    summary["claims"] = mark_batches(summary["claims"], record)   # a merged record: claims that cross its batches
+    summary["claims"] = mark_batches(summary["claims"], record, rows)   # a merged record: claims crossing batches
     if "vd_reaches_l2_final" in summary:
         summary["vd_reaches_l2_final"] = vd_reaches_l2_final(curves)
     record.update(title=title, measures=list(measures_of(record["metric"])), seeds=seeds, summary=summary)
