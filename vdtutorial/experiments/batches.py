@@ -16,7 +16,8 @@ Taught in appendix A5.
 """
 from __future__ import annotations
 
-from vdtutorial.experiments.effects import of_seeds, per_run, run_summaries, welch_interval, welch_p_value
+from vdtutorial.experiments.effects import (holm_rejections, of_seeds, per_run, run_summaries, welch_interval,
+                                            welch_p_value)
 
 
 def batches_of(record: dict) -> list[dict]:
@@ -115,3 +116,43 @@ def batch_difference_table(differences: list[dict]) -> str:
                      f"{d['seeds'][0]} / {d['seeds'][1]} | {d['mean_first']:.3g} | {d['mean_later']:.3g} | "
                      f"{d['estimate']:+.3g} ({d['low']:+.3g} to {d['high']:+.3g}) | {d['p_value']:.2g} |")
     return "\n".join(lines)
+
+
+def batches_report(records: dict[str, tuple[dict, list[dict]]]) -> str:
+    """The results page's "Batches of seeds" tables: for each record of two or more batches (``records``:
+    ``{heading: (record, rows)}``), what each batch ran with and each curve's difference between its batches, and
+    the claims that cross batches with their comparison within the shared batches."""
+    count, smallest, rejected = smallest_batch_p(records)
+    blocks = [f"Over the {count} distinct between-batch differences below, the smallest two-sided p is {smallest:.2g}; "
+              f"Holm's procedure over all of them {'rejects' if rejected else 'does not reject'} it at 5%."]
+    for heading, (record, rows) in records.items():
+        if len(batches_of(record)) < 2:
+            continue
+        block = [f"**{heading}**", "", batch_settings(record), "", batch_difference_table(batch_differences(record, rows))]
+        crossing = [e for e in record["summary"]["claims"] if e.get("across_batches") and e["metric"] == record["metric"]]
+        for e in crossing:
+            within = e.get("within_shared_batches")
+            block += ["", f"Across batches: {e['text']} ({e['measure']}), seeds from batches "
+                          f"{', '.join(str(k + 1) for k in e['batches'][0])} against "
+                          f"{', '.join(str(k + 1) for k in e['batches'][1])}: {e['estimate']:+.3g} "
+                          f"({e['low']:+.3g} to {e['high']:+.3g}), Holm {e['holm_verdict']}"
+                          + (f"; within the shared batches {within['estimate']:+.3g} ({within['low']:+.3g} to "
+                             f"{within['high']:+.3g}), p = {within['p_value']:.2g}, seeds {within['seeds'][0]} / "
+                             f"{within['seeds'][1]}" if within else "") + "."]
+        blocks.append("\n".join(block))
+    return "\n\n".join(blocks)
+
+
+def smallest_batch_p(records: dict[str, tuple[dict, list[dict]]]) -> tuple[int, float, bool]:
+    """Over every between-batch difference of ``records`` (distinct curves only: a curve shared by two records, as
+    Fig. 4's runs are by Figs. 5 and 6, counts once): how many there are, the smallest p-value, and whether Holm's
+    procedure over all of them rejects it (True: the batches differ beyond chance somewhere)."""
+    seen, p_values = set(), []
+    for record, rows in records.values():
+        for d in batch_differences(record, rows):
+            key = (round(d["mean_first"], 9), round(d["mean_later"], 9), d["measure"])
+            if key not in seen:
+                seen.add(key)
+                p_values.append(d["p_value"])
+    smallest = min(range(len(p_values)), key=p_values.__getitem__)
+    return len(p_values), p_values[smallest], holm_rejections(p_values)[smallest]
