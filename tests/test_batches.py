@@ -87,3 +87,21 @@ def test_the_results_page_carries_the_generated_batch_and_look_tables():
     page = (ROOT / "docs" / "results.md").read_text()
     assert batches_report({heading: _load(folder) for heading, folder in BATCH_RECORDS.items()}) in page
     assert looks_table(_load("fig5")[0]["summary"]["claims"]) in page
+
+
+def test_commands_on_the_same_kernels_are_one_batch():
+    """No pre-training's seeds 3-9 run later by their own command, on the kernels of VD's seeds 3-9: the claim no
+    longer crosses batches. A command whose kernels were not recorded stays a batch of its own."""
+    avx512 = {"torch_cpu_capability": "AVX512", "ATEN_CPU_CAPABILITY": ""}
+    record = {"seeds": list(range(10)), "runs": [{"label": label, "seed": s} for label in ("VD", "no pre-training")
+                                                  for s in range(10)],
+              "merged": [{"seeds": [0, 1, 2], "kernels": {"torch_cpu_capability": "AVX2"}, "command": "a"},
+                         {"seeds": list(range(3, 10)), "kernels": avx512, "command": "b"}, {"command": "merge"},
+                         {"seeds": [10], "kernels": "not recorded", "command": "c"},
+                         {"seeds": [11], "kernels": {"torch_cpu_capability": "AVX512"}, "command": "d"}]}
+    from vdtutorial.experiments.batches import batches_of
+    batches = batches_of(record)
+    assert [b["seeds"] for b in batches] == [[0, 1, 2], [3, 4, 5, 6, 7, 8, 9, 11], [10]]
+    assert batches[1]["commands"] == ["b", "d"]
+    effect = {"a": "VD", "b": "no pre-training", "measure": "final", "metric": "successes"}
+    assert not mark_batches([effect], record)[0]["across_batches"]

@@ -5,6 +5,7 @@ more, perhaps on another CPU's kernels, from another checkout, with checkpoints 
 run is a pure function of its settings and seed, so seeds from two batches are meant to be replicates of one
 experiment; that is an assumption, and this module is where it is checked:
 
+* a batch is the runs of one command, or of several that recorded the same CPU kernels (:func:`batches_of`);
 * a claim whose two curves draw their seeds from different sets of batches (one curve run only in the first, say)
   **crosses batches**: any difference between the batches is then part of its effect. The record marks it
   (``across_batches``) and the tables say so;
@@ -20,13 +21,32 @@ from vdtutorial.experiments.effects import (holm_rejections, of_seeds, per_run, 
                                             welch_p_value)
 
 
+def _kernels_key(kernels):
+    """What identifies a command's CPU kernels: the recorded settings that are set (None: not recorded)."""
+    if not isinstance(kernels, dict):
+        return None
+    return tuple(sorted((key, value) for key, value in kernels.items() if value))
+
+
 def batches_of(record: dict) -> list[dict]:
-    """The commands a record's runs came from, in order: each with its ``seeds``, ``kernels``, ``command`` and
-    ``state_dir`` (one batch, the record itself, when nothing was merged into it)."""
-    parts = [entry for entry in record.get("merged") or [] if "seeds" in entry]
-    if not parts:
-        return [{"seeds": record["seeds"], **{key: record.get(key) for key in ("kernels", "command", "state_dir")}}]
-    return parts
+    """The batches of a record's runs, in order: the runs of one command, or of several commands that recorded the
+    same CPU kernels (the records hold no code commit, so commands on the same kernels count as one batch; a
+    command whose kernels were not recorded is a batch of its own). Each with its ``seeds``, ``kernels``,
+    ``commands`` and ``state_dirs`` (one batch, the record itself, when nothing was merged into it)."""
+    parts = [entry for entry in record.get("merged") or [] if "seeds" in entry] or [
+        {"seeds": record["seeds"], **{key: record.get(key) for key in ("kernels", "command", "state_dir")}}]
+    batches: list[dict] = []
+    for part in parts:
+        key = _kernels_key(part.get("kernels"))
+        same = next((b for b in batches if key is not None and _kernels_key(b["kernels"]) == key), None)
+        if same is None:
+            batches.append({"seeds": list(part["seeds"]), "kernels": part.get("kernels"), "commands": [part["command"]],
+                            "state_dirs": [part.get("state_dir")]})
+        else:
+            same["seeds"] = sorted(same["seeds"] + list(part["seeds"]))
+            same["commands"].append(part["command"])
+            same["state_dirs"].append(part.get("state_dir"))
+    return batches
 
 
 def batch_indices(record: dict, seeds) -> list[int]:
@@ -72,15 +92,16 @@ def mark_batches(effects: list[dict], record: dict, rows: list[dict] | None = No
 
 
 def batch_settings(record: dict) -> str:
-    """What each batch of a record ran with, as Markdown: seeds, CPU kernels, the command (its ``--out``, where
-    checkpoints are pre-trained when the shipped ones do not match), and the state folder."""
-    lines = ["| batch | seeds | kernels | command | states |", "|---|---|---|---|---|"]
+    """What each batch of a record ran with, as Markdown: seeds, CPU kernels, the commands (their ``--out``, where
+    checkpoints are pre-trained when the shipped ones do not match), and the state folders."""
+    lines = ["| batch | seeds | kernels | commands | states |", "|---|---|---|---|---|"]
     for k, batch in enumerate(batches_of(record), 1):
         kernels = batch["kernels"]
         kernels = kernels.get("torch_cpu_capability", "?") if isinstance(kernels, dict) else str(kernels)
         seeds = batch["seeds"]
         span = f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else ", ".join(map(str, seeds))
-        lines.append(f"| {k} | {span} | {kernels} | `{batch['command']}` | `{batch['state_dir']}` |")
+        commands = "; ".join(f"`{command}`" for command in batch["commands"])
+        lines.append(f"| {k} | {span} | {kernels} | {commands} | {'; '.join(f'`{d}`' for d in batch['state_dirs'])} |")
     return "\n".join(lines)
 
 
