@@ -7,7 +7,11 @@ import pytest
 from scipy import stats
 
 from vdtutorial.experiments import read_rows, results_file
-from vdtutorial.experiments.batches import batch_differences, batches_report, mark_batches
+from vdtutorial.experiments.batches import (
+    batch_differences,
+    batches_report,
+    mark_batches,
+)
 from vdtutorial.experiments.effects import claim_effects, claim_table
 from vdtutorial.experiments.looks import looks_table
 from vdtutorial.settings import data_dir
@@ -37,8 +41,8 @@ def test_a_claim_whose_curves_ran_in_different_batches_is_marked_with_its_within
     scratch = {s: 5 + rng.normal() for s in range(3)}
     rows = _rows("VD", "vd", vd) + _rows("L2", "l2", l2) + _rows("no pre-training", "none", scratch)
     record = {"seeds": list(range(10)), "window": 5, "metric": "successes",
-              "runs": [{"label": label, "seed": s} for label, seeds in (("VD", vd), ("L2", l2), ("no pre-training",
-                                                                                               scratch)) for s in seeds],
+              "runs": [{"label": label, "seed": s}
+                       for label, seeds in (("VD", vd), ("L2", l2), ("no pre-training", scratch)) for s in seeds],
               "merged": [{"seeds": [0, 1, 2], "kernels": "a", "command": "first", "state_dir": "x"},
                          {"command": "merge"}, {"seeds": list(range(3, 10)), "kernels": "b", "command": "second",
                                                 "state_dir": "y"}]}
@@ -60,7 +64,7 @@ def test_a_claim_whose_curves_ran_in_different_batches_is_marked_with_its_within
 
 def test_the_image_fig4_above_no_pretraining_is_flagged_until_no_pretraining_has_seeds_3_to_9():
     """No pre-training ran seeds 0-2 only; within them VD's final level is +71.3 (+19.1 to +123.5), p = 0.028."""
-    record, rows = _load("fig4_rgbd")
+    record, _ = _load("fig4_rgbd")
     claim = next(e for e in record["summary"]["claims"]
                  if e["text"] == "VD ends above no pre-training" and e["metric"] == "successes")
     scratch_seeds = sorted({r["seed"] for r in record["runs"] if r["label"] == "no pre-training"})

@@ -7,7 +7,12 @@ import pytest
 from scipy import integrate, stats
 
 from vdtutorial.experiments import read_rows, results_file
-from vdtutorial.experiments.effects import claim_effects, claim_table, per_run, run_summaries
+from vdtutorial.experiments.effects import (
+    claim_effects,
+    claim_table,
+    per_run,
+    run_summaries,
+)
 from vdtutorial.experiments.looks import looks_of, max_score_p_value, pocock_boundary
 from vdtutorial.settings import data_dir
 
@@ -46,7 +51,8 @@ def test_a_two_look_record_is_judged_by_the_combination_of_its_stages():
     rows = _rows("VD, 2000 demos", "vd", vd) + _rows("L2, 2000 demos", "l2", l2) + _rows("L2, 8000 demos", "l2", other)
     looks = looks_of({"looks": [{"seeds": {label: list(range(6)) for label in ("VD, 2000 demos", "L2, 2000 demos",
                                                                                  "L2, 8000 demos")}},
-                                {"seeds": {"VD, 2000 demos": list(range(6, 14)), "L2, 2000 demos": list(range(6, 14))}}]})
+                                {"seeds": {label: list(range(6, 14))
+                                           for label in ("VD, 2000 demos", "L2, 2000 demos")}}]})
     effects = {e["text"]: e for e in claim_effects("fig5", rows, "successes", window=5, looks=looks)
                if e["metric"] == "successes" and e["measure"] == "final"}
 

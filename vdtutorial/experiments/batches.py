@@ -17,8 +17,14 @@ Taught in appendix A5.
 """
 from __future__ import annotations
 
-from vdtutorial.experiments.effects import (holm_rejections, of_seeds, per_run, run_summaries, welch_interval,
-                                            welch_p_value)
+from vdtutorial.experiments.effects import (
+    holm_rejections,
+    of_seeds,
+    per_run,
+    run_summaries,
+    welch_interval,
+    welch_p_value,
+)
 
 
 def _kernels_key(kernels):
@@ -99,7 +105,8 @@ def batch_settings(record: dict) -> str:
         kernels = batch["kernels"]
         kernels = kernels.get("torch_cpu_capability", "?") if isinstance(kernels, dict) else str(kernels)
         seeds = batch["seeds"]
-        span = f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else ", ".join(map(str, seeds))
+        consecutive = seeds == list(range(seeds[0], seeds[-1] + 1))
+        span = f"{seeds[0]}-{seeds[-1]}" if consecutive else ", ".join(map(str, seeds))
         commands = "; ".join(f"`{command}`" for command in batch["commands"])
         lines.append(f"| {k} | {span} | {kernels} | {commands} | {'; '.join(f'`{d}`' for d in batch['state_dirs'])} |")
     return "\n".join(lines)
@@ -144,13 +151,16 @@ def batches_report(records: dict[str, tuple[dict, list[dict]]]) -> str:
     ``{heading: (record, rows)}``), what each batch ran with and each curve's difference between its batches, and
     the claims that cross batches with their comparison within the shared batches."""
     count, smallest, rejected = smallest_batch_p(records)
-    blocks = [f"Over the {count} distinct between-batch differences below, the smallest two-sided p is {smallest:.2g}; "
-              f"Holm's procedure over all of them {'rejects' if rejected else 'does not reject'} it at 5%."]
+    verdict = "rejects" if rejected else "does not reject"
+    blocks = [(f"Over the {count} distinct between-batch differences below, the smallest two-sided p is "
+               f"{smallest:.2g}; Holm's procedure over all of them {verdict} it at 5%.")]
     for heading, (record, rows) in records.items():
         if len(batches_of(record)) < 2:
             continue
-        block = [f"**{heading}**", "", batch_settings(record), "", batch_difference_table(batch_differences(record, rows))]
-        crossing = [e for e in record["summary"]["claims"] if e.get("across_batches") and e["metric"] == record["metric"]]
+        differences = batch_difference_table(batch_differences(record, rows))
+        block = [f"**{heading}**", "", batch_settings(record), "", differences]
+        crossing = [e for e in record["summary"]["claims"]
+                    if e.get("across_batches") and e["metric"] == record["metric"]]
         for e in crossing:
             within = e.get("within_shared_batches")
             block += ["", f"Across batches: {e['text']} ({e['measure']}), seeds from batches "

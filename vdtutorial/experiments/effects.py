@@ -346,12 +346,13 @@ def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confide
     rule of :mod:`~vdtutorial.experiments.looks` (or on the first look's seeds where it has no second stage)."""
     a, b = groups[claim.a], groups[claim.b]
     kind, seeds = stages(claim.a, claim.b, looks)
+    why = "no independent second stage"
     if kind == "two" and claim.measure == "steps_to_reach":
-        kind, seeds = "first", seeds[:1]
+        kind, seeds, why = "first", seeds[:1], "no stage-wise p-value for steps to reach"
     if kind == "first":
         effect = _claim_effect(claim, {claim.a: of_seeds(a, seeds[0][0]), claim.b: of_seeds(b, seeds[0][1])},
                                measure, window, confidence)
-        return {**effect, "looks": "first look's seeds: no independent second stage"}
+        return {**effect, "looks": f"first look's seeds: {why}"}
     effect = _plain_claim_effect(claim, a, b, measure, window, confidence)
     if kind == "all":
         return effect

@@ -47,7 +47,8 @@ def _state_vd_against_l2(records: dict[str, dict]) -> dict[str, list[str]]:
         record = records[folder]
         for e in record["summary"]["claims"]:
             if (e["metric"] == record["metric"] and e["measure"] == "final" and e["a"].startswith("VD")
-                    and e["b"].startswith("L2") and e["text"].startswith("VD ends above L2") and not e.get("same_runs")):
+                    and e["b"].startswith("L2") and e["text"].startswith("VD ends above L2")
+                    and not e.get("same_runs")):
                 by_verdict[e["holm_verdict"]].append(f"{_setting(e['text'], folder)} ({e['estimate']:+.1f})")
     return by_verdict
 
