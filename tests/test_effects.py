@@ -12,6 +12,8 @@ from vdtutorial.experiments import read_rows, results_file
 from vdtutorial.experiments.effects import (CLAIMS, claim_effects, claim_table, claims_overview, holm_rejections,
                                             detectable_difference,
                                             steps_to_reach_interval, verdict, welch_interval, welch_p_value)
+from vdtutorial.experiments.batches import mark_batches
+from vdtutorial.experiments.looks import looks_of
 from vdtutorial.settings import data_dir
 from conftest import require_locked
 
@@ -156,7 +158,8 @@ def test_results_page_claim_tables_are_generated_from_the_shipped_rows(folder):
     record = json.loads((data_dir() / "results" / folder / f"{folder.split('_')[0]}.json").read_text())
     rows = read_rows(results_file(data_dir() / "results" / folder, record['experiment']))
     window = int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
-    effects = claim_effects(record["experiment"], rows, record["metric"], window)
+    effects = mark_batches(claim_effects(record["experiment"], rows, record["metric"], window,
+                                         looks=looks_of(record)), record)
     page = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
     claims = page[page.index("## The paper's claims on the shipped curves"):]
     heading_end = claims.index(f"(`data/results/{folder}`):\n")

@@ -288,7 +288,12 @@ def test_seeds_run_apart_merge_into_the_experiment_with_all_of_them(tmp_path):
     first = _seeds_of("fig4_state_fvp0.1", (0, 2), tmp_path / "first")
     merged = merge_seeds(first, _seeds_of("fig4_state_fvp0.1", (1,), tmp_path / "second"))
     assert merged.rows == read_rows(results_file(RESULTS / "fig4_state_fvp0.1", "fig4"))
-    assert merged.record["command"] == shipped["command"] and merged.record["summary"] == shipped["summary"]
+    # two batches now: every claim says it compares curves of the same batches, and is otherwise the shipped one
+    claims = merged.record["summary"]["claims"]
+    assert all(e["batches"] == [[0, 1], [0, 1]] and not e["across_batches"] for e in claims if "batches" in e)
+    unmarked = [{k: v for k, v in e.items() if k not in ("batches", "across_batches")} for e in claims]
+    assert merged.record["command"] == shipped["command"] and {**merged.record["summary"], "claims": unmarked} == \
+        shipped["summary"]
     assert [run["name"] for run in merged.record["runs"]] == [run["name"] for run in shipped["runs"]]
     assert [e.get("seeds") for e in merged.record["merged"]] == [[0, 2], [1], None]   # the two parts, then the merge
     assert merged.record["merged"][2]["command"].startswith("python -m vdtutorial rederive ")

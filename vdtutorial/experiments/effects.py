@@ -36,6 +36,7 @@ from scipy import integrate, optimize, stats
 
 from vdtutorial.experiments.curves import (CONFIDENCE, PAPER_BUDGET_STEPS, PAPER_QUARTER, PAPER_REACH_STEPS,
                                            moving_average, record_window, smooth_window)
+from vdtutorial.experiments.looks import looks_of, stages, two_look_test
 from vdtutorial.experiments.measures import MEASURES, measures_of, value
 from vdtutorial.runner.rows import read_rows, results_file
 
@@ -132,8 +133,17 @@ def per_run(rows: list[dict], metric: str) -> dict[str, dict]:
         runs = [sorted(run, key=lambda r: r["iteration"]) for run in group["runs"].values()]
         length = min(len(run) for run in runs)
         out[label] = {"steps": np.array([r["env_steps"] for r in runs[0][:length]], dtype=float),
-                      "values": np.array([[value(r, metric) for r in run[:length]] for run in runs], dtype=float)}
+                      "values": np.array([[value(r, metric) for r in run[:length]] for run in runs], dtype=float),
+                      "seeds": list(group["runs"])}
     return out
+
+
+def of_seeds(group: dict, seeds) -> dict:
+    """A learning-curve group of :func:`per_run` cut to the runs of ``seeds`` (an expert's group as it is)."""
+    if group["values"].ndim == 1:
+        return group
+    keep = [group["seeds"].index(seed) for seed in seeds]
+    return {**group, "values": group["values"][keep], "seeds": list(seeds)}
 
 
 def run_summaries(group: dict, measure: str, window: int) -> np.ndarray:
@@ -283,7 +293,8 @@ def verdict(low: float, high: float, direction: int, threshold: float = 0.0, mat
 
 
 def claim_effects(name: str, rows: list[dict], metric: str, window: int | None = None,
-                  confidence: float = CONFIDENCE, claims: tuple[Claim, ...] | None = None) -> list[dict]:
+                  confidence: float = CONFIDENCE, claims: tuple[Claim, ...] | None = None,
+                  looks: list[dict] | None = None) -> list[dict]:
     """Every claim of experiment ``name`` (``CLAIMS[name]``, or ``claims``: an experiment whose questions depend
     on its results, like the beyond experiment's "best hand-set Sigma") whose curves are in ``rows``, on every
     measure of an experiment with paper metric ``metric`` (:func:`~vdtutorial.experiments.measures.measures_of`):
@@ -306,12 +317,16 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     interval lies within ``MATERIALITY`` (5%) of the level compared against says "no material effect": the seeds
     already exclude any difference worth the name, either way; if that interval also excludes zero, the verdict is
     "negligible" (significant, but immaterial) rather than "confirmed" or "contradicted".
+
+    ``looks``: the seeds each look added per curve, for an experiment extended after its result was seen
+    (:func:`~vdtutorial.experiments.looks.looks_of`); a claim on extended curves is then judged by the sequential
+    rule of :mod:`~vdtutorial.experiments.looks`.
     """
     window = smooth_window() if window is None else window
     results = []
     for measure in measures_of(metric):
         groups = per_run(rows, measure)
-        results += [{**_claim_effect(claim, groups, measure, window, confidence),
+        results += [{**_claim_effect(claim, groups, measure, window, confidence, looks),
                      "family": "primary" if measure == metric else "secondary"}
                     for claim in (CLAIMS.get(name, ()) if claims is None else claims)
                     if claim.a in groups and claim.b in groups]
@@ -325,9 +340,32 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     return results
 
 
-def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confidence: float) -> dict:
-    """One claim on one measure (see :func:`claim_effects`)."""
+def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confidence: float,
+                  looks: list[dict] | None = None) -> dict:
+    """One claim on one measure (see :func:`claim_effects`); on curves extended after a look, with the sequential
+    rule of :mod:`~vdtutorial.experiments.looks` (or on the first look's seeds where it has no second stage)."""
     a, b = groups[claim.a], groups[claim.b]
+    kind, seeds = stages(claim.a, claim.b, looks)
+    why = "no independent second stage"
+    if kind == "two" and claim.measure == "steps_to_reach":
+        kind, seeds, why = "first", seeds[:1], "no stage-wise p-value for steps to reach"
+    if kind == "first":
+        effect = _claim_effect(claim, {claim.a: of_seeds(a, seeds[0][0]), claim.b: of_seeds(b, seeds[0][1])},
+                               measure, window, confidence)
+        return {**effect, "looks": f"first look's seeds: {why}"}
+    effect = _plain_claim_effect(claim, a, b, measure, window, confidence)
+    if kind == "all":
+        return effect
+    staged = [[run_summaries(of_seeds(group, stage[k]), claim.measure, window) for stage in seeds]
+              for k, group in ((0, a), (1, b))]
+    test = two_look_test(staged[0], staged[1], claim.direction * MEASURES[measure].better)
+    passed = test["p_value"] < 1 - confidence
+    return {**effect, "p_value_all_seeds_at_once": effect["p_value"], "p_value": test["p_value"],
+            "verdict": effect["verdict"] if passed else "not confirmed", "looks": test}
+
+
+def _plain_claim_effect(claim: Claim, a: dict, b: dict, measure: str, window: int, confidence: float) -> dict:
+    """One claim on one measure, every seed of the two groups tested at once."""
     better = MEASURES[measure].better
     if claim.measure == "steps_to_reach":
         budget_steps = float(a["steps"][-1])
@@ -379,12 +417,20 @@ def _seeds(e: dict) -> str:
     measured episodes named as such ("5 / 125 episodes")."""
     if e.get("n_b_counts") == "episodes":
         return f"{e['n_a']} / {e['n_b']} episodes"
+    if isinstance(e.get("looks"), dict):   # two looks: the seeds of each, "10 + 13"
+        per_look = [f"{a}" if a == b else f"{a} / {b}" for a, b in e["looks"]["stage_seeds"]]
+        return " + ".join(per_look)
     return str(e["n_a"]) if e["n_a"] == e["n_b"] else f"{e['n_a']} / {e['n_b']}"
 
 
 def _claim_text(e: dict) -> str:
-    """A claim's words, and the figure whose runs it shares (such rows are one comparison)."""
-    return e["text"] + (f" (same runs as {e['same_runs']})" if e.get("same_runs") else "")
+    """A claim's words, the figure whose runs it shares (such rows are one comparison), how seeds added after
+    a look were used (:mod:`~vdtutorial.experiments.looks`), and whether its curves come from different batches of
+    seeds (:mod:`~vdtutorial.experiments.batches`)."""
+    looks = e.get("looks")
+    return (e["text"] + (f" (same runs as {e['same_runs']})" if e.get("same_runs") else "")
+            + (" (2 looks: sequential rule)" if isinstance(looks, dict) else f" ({looks})" if looks else "")
+            + (" (across batches of seeds)" if e.get("across_batches") else ""))
 
 
 def claim_table(effects: list[dict]) -> str:
@@ -469,7 +515,9 @@ def write_claims(folder: str | Path) -> str:
     record_path = next(folder.glob("*.json"))
     record = json.loads(record_path.read_text())
     rows = read_rows(results_file(folder, record['experiment']))
-    effects = claim_effects(record["experiment"], rows, record["metric"], record_window(record))
+    from vdtutorial.experiments.batches import mark_batches   # batches builds on this module
+    effects = mark_batches(claim_effects(record["experiment"], rows, record["metric"], record_window(record),
+                                         looks=looks_of(record)), record, rows)
     record.setdefault("summary", {})["claims"] = effects
     record_path.write_text(json.dumps(record, indent=1, default=str))
     return claim_table(effects)

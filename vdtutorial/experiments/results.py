@@ -16,11 +16,13 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
+from vdtutorial.experiments.batches import mark_batches
 from vdtutorial.experiments.checkpoints import current_field_names, default_config
 from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, final_point, record_window,
                                            smooth_window, vd_reaches_l2_final)
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.jobs import Job, RunSpec
+from vdtutorial.experiments.looks import looks_of
 from vdtutorial.experiments.measures import measures_of
 from vdtutorial.experiments.plots import band_limits, figure_title, plot_measures, save_png
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_trpo_config
@@ -175,17 +177,18 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
 
 
 def derive(name: str, rows: list[dict], metric: str, window: int, title: str,
-           claims=None) -> tuple[dict[str, Curve], Figure, dict]:
+           claims=None, looks=None) -> tuple[dict[str, Curve], Figure, dict]:
     """What an experiment's rows say, all of it re-derivable from them: the curves of the paper's ``metric``,
     the figure (one panel per measure, :func:`~vdtutorial.experiments.measures.measures_of`), and the summary:
     each curve's final point on the paper's metric (``final``) and on every measure (``final_by_measure``),
     and the claims on every measure (:func:`~vdtutorial.experiments.effects.claim_effects`; ``claims``: other
-    claims than the experiment's own)."""
+    claims than the experiment's own; ``looks``: the seeds each look added, for an experiment extended after its
+    result was seen, :mod:`~vdtutorial.experiments.looks`)."""
     by_measure = {measure: curves_from_rows(rows, measure, window) for measure in measures_of(metric)}
     summary = {"final": {label: final_point(curve) for label, curve in by_measure[metric].items()},
                "final_by_measure": {measure: {label: final_point(curve) for label, curve in curves.items()}
                                     for measure, curves in by_measure.items()},
-               "claims": claim_effects(name, rows, metric, window, claims=claims)}
+               "claims": claim_effects(name, rows, metric, window, claims=claims, looks=looks)}
     return by_measure[metric], plot_measures(by_measure, title, window), summary
 
 
@@ -207,9 +210,10 @@ def rederive(folder: str | Path) -> ExperimentResult:
                          max(run["total_steps"] for run in learners),
                          len(seeds) if len(counts) == 1 else f"{counts[0]} to {counts[-1]}",
                          record["trpo_config"].get("fvp_subsample", 1.0), max(run.get("demo_seed", 0) for run in learners))
-    curves, figure, derived = derive(name, rows, record["metric"], window, title)
+    curves, figure, derived = derive(name, rows, record["metric"], window, title, looks=looks_of(record))
     save_png(figure, folder / f"{name}.png", 120)
     summary = {**record.get("summary", {}), **derived}
+    summary["claims"] = mark_batches(summary["claims"], record, rows)   # a merged record: claims crossing batches
     if "vd_reaches_l2_final" in summary:
         summary["vd_reaches_l2_final"] = vd_reaches_l2_final(curves)
     record.update(title=title, measures=list(measures_of(record["metric"])), seeds=seeds, summary=summary)
