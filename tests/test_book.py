@@ -34,18 +34,6 @@ TESTED_CHAPTERS = ("00", "04", "07")
 
 
 # -- the pieces ------------------------------------------------------------------------------------------
-def test_animation_controls_need_no_icon_font():
-    """matplotlib's jshtml buttons load Font Awesome from a CDN; the book draws them as inline SVG instead."""
-    frames = [np.full((8, 8, 3), shade, dtype=np.uint8) for shade in (0, 128, 255)]
-    page = viz.frames_animation(frames).to_jshtml()
-    assert "font-awesome" in page and '<i class="fa fa-play"></i>' in page  # what matplotlib writes today
-    offline = offline_assets.offline_animation_icons(page)
-    assert "font-awesome" not in offline and 'class="fa' not in offline
-    assert offline.count("<svg ") == page.count('<i class="fa ') == 9
-    assert not re.search(r"""(?:src|href)\s*=\s*["']?https?:""", offline)
-    assert offline_assets.offline_animation_icons("<p>no animation</p>") == "<p>no animation</p>"
-
-
 def test_links_to_repository_files_point_at_copies_inside_the_book(tmp_path):
     """A chapter links ``../docs/results.md`` (relative to notebooks/); next to the book's pages that would be
     a dead link, so the book copies the file in and links the copy. Missing files and files outside the

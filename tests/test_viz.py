@@ -6,6 +6,7 @@ transforms composed from the recorded meshcat scene tree.
 """
 import base64
 import html
+import io
 import json
 import re
 import subprocess
@@ -336,12 +337,23 @@ def test_show_rgbd_two_images_and_metric_colour_bar():
         assert any(ax.get_ylabel() == "depth [m]" for ax in fig.axes)
 
 
-def test_frames_animation_to_jshtml():
+def test_frames_animation_is_a_sized_player_that_needs_nothing_from_another_host():
+    """The player stores every frame as a PNG, gives its image a size in pixels (a front end that scales images to
+    their box's width lays one without a size out at 0 x 0) and loads no script, style sheet or font."""
+    import matplotlib.image
+
     frames = [np.full((12, 16, 3), 40 * k, dtype=np.uint8) for k in range(4)]
-    animation = viz.frames_animation(frames, fps=8)
-    page = animation.to_jshtml()
-    assert page.count("data:image/png;base64") == len(frames)
-    assert len(page) < 100_000
+    frames[1][2, 3] = (255, 0, 0)
+    page = viz.frames_animation(frames, fps=8, scale=2).data
+    urls = json.loads(re.search(r"const frames = (\[.*?\]);", page).group(1))
+    decoded = [matplotlib.image.imread(io.BytesIO(base64.b64decode(u.split(",", 1)[1])), format="png") for u in urls]
+    assert [np.round(d[..., :3] * 255).astype(np.uint8).tolist() for d in decoded] == [f.tolist() for f in frames]
+    assert re.search(r'<img [^>]*width="32" height="24"[^>]*width: 32px; height: 24px; max-width: none', page)
+    assert "setInterval(" in page and ", 125);" in page  # 8 frames a second
+    assert not re.search(r"(?:src|href)\s*=\s*[\"']?(?:https?:)?//|@import|url\(", page)
+    assert 'class="fa' not in page and "font-awesome" not in page
+    with pytest.raises(ValueError, match="at least one frame"):
+        viz.frames_animation([])
 
 
 def _view_of(rec):

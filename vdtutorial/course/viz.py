@@ -22,6 +22,7 @@ import base64
 import functools
 import html
 import json
+import uuid
 import warnings
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -557,7 +558,7 @@ def record_rollout(
 
 
 # --------------------------------------------------------------------------------------------------
-# Camera frames (matplotlib)
+# Camera frames
 # --------------------------------------------------------------------------------------------------
 def _as_rgb(image) -> np.ndarray:
     """RGB for imshow: drops an alpha channel (pybullet returns RGBA) and maps 0..255 floats to 0..1."""
@@ -595,30 +596,75 @@ def show_rgbd(rgbd, title: str | None = None):
     return fig
 
 
-def frames_animation(rgb_frames: Sequence, fps: float = 10, size: float = 3.0):
-    """A matplotlib ``FuncAnimation`` flipping through camera frames; ``.to_jshtml()`` shows it inline.
+#: The frame player's page: one ``<img>`` sized in pixels (a notebook front end's ``max-width: 100%; height: auto``
+#: on images inside a shrink-to-fit box lays an image without a size out at 0 x 0), a play/pause button, a range
+#: input and a frame counter, all drawn by the browser: no script, style sheet or font from another host.
+_PLAYER = """<div id="{id}" class="vdtutorial-frames" style="display: block;">
+<img src="{first}" alt="camera frame 1 of {count}" width="{width}" height="{height}"
+ style="display: block; width: {width}px; height: {height}px; max-width: none; image-rendering: pixelated;">
+<div style="display: flex; align-items: center; gap: 8px; margin-top: 4px; width: {width}px; max-width: none;">
+<button type="button" style="min-width: 5em;">play</button>
+<input type="range" min="0" max="{last}" value="0" step="1" style="flex: 1;" aria-label="frame">
+<span style="font-family: monospace;">1 / {count}</span>
+</div>
+<script>
+(() => {{
+  const root = document.getElementById("{id}");
+  if (root === null || root.dataset.ready) return;
+  root.dataset.ready = "1";
+  const frames = {frames};
+  const image = root.querySelector("img"), button = root.querySelector("button");
+  const range = root.querySelector("input"), counter = root.querySelector("span");
+  let timer = null;
+  const show = (k) => {{
+    range.value = k;
+    image.src = frames[k];
+    image.alt = `camera frame ${{k + 1}} of ${{frames.length}}`;
+    counter.textContent = `${{k + 1}} / ${{frames.length}}`;
+  }};
+  const stop = () => {{ clearInterval(timer); timer = null; button.textContent = "play"; }};
+  range.addEventListener("input", () => {{ stop(); show(Number(range.value)); }});
+  button.addEventListener("click", () => {{
+    if (timer !== null) {{ stop(); return; }}
+    button.textContent = "pause";
+    timer = setInterval(() => show((Number(range.value) + 1) % frames.length), {interval});
+  }});
+}})();
+</script>
+</div>
+"""
 
-    The figure is ``size`` inches on its longer side at 100 dpi with no margins, so the embedded PNG
-    frames stay small. Like :func:`show_rgbd`, the figure is closed in pyplot to avoid a stray
-    static copy below the animation.
+
+def _png_data_url(frame: np.ndarray) -> str:
+    """A camera frame as a ``data:`` URL of a PNG, so the page needs no file beside it."""
+    import io
+
+    from PIL import Image
+
+    pixels = np.asarray(frame)
+    if np.issubdtype(pixels.dtype, np.floating):
+        pixels = np.round(pixels * 255)
+    buffer = io.BytesIO()
+    Image.fromarray(pixels.astype(np.uint8)).save(buffer, format="png", optimize=True)
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def frames_animation(rgb_frames: Sequence, fps: float = 10, scale: int = 1):
+    """An inline player flipping through camera frames: an IPython ``HTML`` object (end a cell with it).
+
+    The frames are stored as PNGs in the page and shown ``scale`` times their pixel size, with a play button and
+    a slider. The player is written here rather than taken from matplotlib's ``to_jshtml``: that page asks a CDN
+    for its buttons' icon font and leaves its image's size to the front end, which JupyterLab lays out at 0 x 0.
     """
-    import matplotlib.pyplot as plt
-    from matplotlib.animation import FuncAnimation
+    from IPython.display import HTML
 
     frames = [_as_rgb(frame) for frame in rgb_frames]
     if not frames:
         raise ValueError("frames_animation needs at least one frame")
+    if fps <= 0 or int(scale) < 1:
+        raise ValueError(f"frames_animation needs fps > 0 and a whole scale >= 1, not fps={fps}, scale={scale}")
     height, width = frames[0].shape[:2]
-    scale = size / max(height, width)
-    fig = plt.figure(figsize=(width * scale, height * scale), dpi=100)
-    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-    ax.set_axis_off()
-    image = ax.imshow(frames[0])
-
-    def draw(index):
-        image.set_data(frames[index])
-        return (image,)
-
-    animation = FuncAnimation(fig, draw, frames=len(frames), interval=1000.0 / fps, blit=True)
-    plt.close(fig)
-    return animation
+    urls = [_png_data_url(frame) for frame in frames]
+    return HTML(_PLAYER.format(id=f"vdtutorial-frames-{uuid.uuid4().hex}", first=urls[0], frames=json.dumps(urls),
+                               count=len(urls), last=len(urls) - 1, width=width * int(scale),
+                               height=height * int(scale), interval=int(round(1000 / fps))))
