@@ -128,6 +128,53 @@ def test_page_is_self_contained_and_holds_the_scene(scene):
     assert "/meshcat/arm/hand/visual3/box" in objects
 
 
+class _Kernel:
+    """What ``Recorder.iframe`` reads of ipykernel's kernel: the request being answered."""
+
+    def __init__(self):
+        self.parent = {}
+
+    def answer(self, request, cell=None):
+        self.parent = {"header": {"msg_id": request}, "metadata": {"cellId": cell} if cell else {}}
+
+    def get_parent(self):
+        return self.parent
+
+
+def test_in_a_notebook_kernel_only_the_first_scene_carries_the_viewer(scene, monkeypatch):
+    """A notebook stores every scene it shows; the viewer (most of a page) goes into the first scene's output only,
+    and later scenes take it from the page. A cell that carried it carries it again when it runs again, and
+    outside a kernel (or in Colab, one page per output) every scene carries its own."""
+    import IPython
+
+    cid, bodies = scene
+    rec = viz.Recorder()
+    viz.mirror_bodies(rec, cid, bodies)
+    viewer = html.escape(viz._viewer_js()[:2000], quote=True)
+    carries = lambda: viewer in rec.iframe()  # noqa: E731
+    assert carries() and carries(), "outside a kernel every scene carries the viewer"
+
+    kernel = _Kernel()
+    monkeypatch.setattr(IPython, "get_ipython", lambda: type("Shell", (), {"kernel": kernel})())
+    monkeypatch.setattr(viz, "_viewer_display", None)
+    kernel.answer("run-1", cell="cell-a")
+    first, second_in_same_run = rec.iframe(), rec.iframe()
+    assert viewer in first and viewer not in second_in_same_run
+    assert len(second_in_same_run) < 0.1 * len(first)
+    kernel.answer("run-2", cell="cell-b")
+    assert not carries()
+    kernel.answer("run-3", cell="cell-a")
+    assert carries(), "the cell that carried the viewer carries it again when it runs again"
+    kernel.answer("run-4")  # a front end that names no cell (nbclient)
+    assert not carries()
+    monkeypatch.setitem(sys.modules, "google.colab", type(sys)("google.colab"))
+    assert carries()
+
+    shared = html.unescape(re.search(r'srcdoc="([^"]*)"', second_in_same_run).group(1))
+    assert not re.search(r"<script[^>]*\bsrc\s*=", shared) and "parent.__vdtutorialMeshcatViewer" in shared
+    assert recorded_commands(shared) == recorded_commands(rec.html())
+
+
 def test_shape_dimensions_follow_pybullet_conventions(scene):
     cid, bodies = scene
     capsule = p.createMultiBody(0, -1, p.createVisualShape(p.GEOM_CAPSULE, radius=0.05, length=0.3,

@@ -22,6 +22,7 @@ import base64
 import functools
 import html
 import json
+import sys
 import uuid
 import warnings
 from pathlib import Path
@@ -129,34 +130,97 @@ def _viewer_js() -> str:
     return source.replace("</script", "<\\/script")
 
 
+#: The global of the notebook page (an iframe's parent) where the first scene leaves the viewer's source for the
+#: scenes after it.
+_SHARED_VIEWER = "__vdtutorialMeshcatViewer"
+#: A scene page's viewer, inlined; it also leaves its source on the parent page, for the scenes that come without it.
+_VIEWER_INLINE = """<script id="meshcat-viewer">{viewer_js}</script>
+<script>
+try {{ parent.{shared} = document.getElementById("meshcat-viewer").textContent; }} catch (error) {{}}
+drawScene();
+</script>"""
+#: A scene page without the viewer: it takes the source the notebook's first scene left on the parent page, waiting
+#: for it when that scene has not loaded yet, and says where the viewer comes from while it waits.
+_VIEWER_SHARED = """<script>
+const waitingSince = Date.now();
+(function takeViewer() {{
+  let source = null;
+  try {{ source = parent.{shared} || null; }} catch (error) {{}}
+  if (source === null) {{
+    if (Date.now() - waitingSince > 3000) document.getElementById("waiting").hidden = false;
+    setTimeout(takeViewer, 300);
+    return;
+  }}
+  document.getElementById("waiting").remove();
+  const script = document.createElement("script");
+  script.textContent = source;
+  document.head.appendChild(script);
+  drawScene();
+}})();
+</script>"""
 _PAGE = """<!DOCTYPE html>
 <html>
 <head><meta charset="utf-8"><title>vdtutorial scene</title>
-<style>html, body {{ margin: 0; height: 100%; overflow: hidden; }} #scene {{ width: 100vw; height: 100vh; }}</style>
+<style>html, body {{ margin: 0; height: 100%; overflow: hidden; }} #scene {{ width: 100vw; height: 100vh; }}
+#waiting {{ position: absolute; top: 1em; left: 1em; right: 1em; font: 14px sans-serif; }}</style>
 </head>
 <body>
+<p id="waiting" hidden>This 3-D scene uses the viewer that the first scene of this notebook brings along: scroll up to
+that scene (or run its cell again) and this one draws itself.</p>
 <div id="scene"></div>
-<script>{viewer_js}</script>
 <script>
 // Replay the recorded meshcat commands in order. They are decoded synchronously (not through
 // fetch() of data: URLs) so that objects, transforms and the animation arrive in recording order.
-const viewer = new MeshCat.Viewer(document.getElementById("scene"));
-for (const encoded of {commands}) {{
-  const raw = atob(encoded);
-  const bytes = new Uint8Array(raw.length);
-  for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
-  viewer.handle_command_bytearray(bytes);
-}}
-// The point the camera looks at and orbits about (frame_view), in three.js's frame (y up); null: the origin.
-const lookAt = {look_at};
-if (lookAt !== null) {{
-  viewer.controls.target.set(lookAt[0], lookAt[1], lookAt[2]);
-  viewer.controls.update();
+function drawScene() {{
+  const viewer = new MeshCat.Viewer(document.getElementById("scene"));
+  for (const encoded of {commands}) {{
+    const raw = atob(encoded);
+    const bytes = new Uint8Array(raw.length);
+    for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
+    viewer.handle_command_bytearray(bytes);
+  }}
+  // The point the camera looks at and orbits about (frame_view), in three.js's frame (y up); null: the origin.
+  const lookAt = {look_at};
+  if (lookAt !== null) {{
+    viewer.controls.target.set(lookAt[0], lookAt[1], lookAt[2]);
+    viewer.controls.update();
+  }}
 }}
 </script>
+{viewer}
 </body>
 </html>
 """
+
+
+#: Which display of the running kernel brought the viewer along: (the request it answered, the notebook cell that
+#: sent the request or None), see :func:`_brings_viewer`.
+_viewer_display: tuple[str, str | None] | None = None
+
+
+def _brings_viewer() -> bool:
+    """Whether the scene about to be shown inline carries the viewer's JavaScript itself.
+
+    The viewer (three.js included) is most of a scene's page, and a notebook stores every output it shows: a
+    copy per scene made a chapter of a few scenes weigh megabytes. So in a notebook kernel the first scene brings
+    the viewer and leaves its source on the notebook page, and every later scene takes it from there. The scenes
+    of a cell that brought it once bring it again when that cell runs again (JupyterLab names the cell in its
+    request), so that re-running it keeps a copy in the saved notebook. Outside a notebook kernel, and in Colab,
+    which shows each output in a page of its own, every scene brings its own viewer.
+    """
+    global _viewer_display
+    shell = sys.modules["IPython"].get_ipython() if "IPython" in sys.modules else None
+    kernel = getattr(shell, "kernel", None)
+    if kernel is None or "google.colab" in sys.modules:
+        return True
+    parent = kernel.get_parent() or {}
+    request, cell = parent.get("header", {}).get("msg_id"), (parent.get("metadata") or {}).get("cellId")
+    if request is None:
+        return True
+    if _viewer_display is None or (cell is not None and cell == _viewer_display[1] and request != _viewer_display[0]):
+        _viewer_display = (request, cell)
+        return True
+    return False
 
 
 class Recorder:
@@ -208,15 +272,23 @@ class Recorder:
             forward.server_proc.kill()
             forward.server_proc.wait()
 
-    def html(self) -> str:
-        """The standalone page: viewer JavaScript plus every recorded command, no network access."""
+    def html(self, viewer: bool = True) -> str:
+        """The standalone page: viewer JavaScript plus every recorded command, no network access. With ``viewer``
+        False the page has no viewer of its own and takes the one an earlier scene left on the notebook page."""
         commands = []
         for node in walk(self.tree):
             for packed in (node.object, *node.properties, node.transform, node.animation):
                 if packed is not None:
                     commands.append(base64.b64encode(packed).decode("ascii"))
         look_at = None if self.look_at is None else _three_frame(self.look_at)
-        return _PAGE.format(viewer_js=_viewer_js(), commands=json.dumps(commands), look_at=json.dumps(look_at))
+        script = (_VIEWER_INLINE.format(viewer_js=_viewer_js(), shared=_SHARED_VIEWER) if viewer
+                  else _VIEWER_SHARED.format(shared=_SHARED_VIEWER))
+        return _PAGE.format(viewer=script, commands=json.dumps(commands), look_at=json.dumps(look_at))
+
+    def iframe(self, style: str = "width: 100%; height: 100%; border: none;") -> str:
+        """The scene as an ``<iframe srcdoc=...>`` element for a notebook's HTML output; in a notebook kernel only
+        the first scene carries the viewer (:func:`_brings_viewer`)."""
+        return f'<iframe srcdoc="{html.escape(self.html(viewer=_brings_viewer()), quote=True)}" style="{style}"></iframe>'
 
     def _iframe(self, height: int) -> str:
         # srcdoc carries the whole page, so Jupyter needs no server or file to display it. The wrapping div
@@ -225,9 +297,7 @@ class Recorder:
         width = int(round(height * VIEW_ASPECT))
         return (
             f'<div style="width: 100%; max-width: {width}px; aspect-ratio: {width} / {int(height)}; '
-            'resize: both; overflow: hidden;">'
-            f'<iframe srcdoc="{html.escape(self.html(), quote=True)}" '
-            'style="width: 100%; height: 100%; border: none;"></iframe></div>'
+            f'resize: both; overflow: hidden;">{self.iframe()}</div>'
         )
 
     def show(self, height: int = 400):
