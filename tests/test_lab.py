@@ -6,6 +6,7 @@ All the test checks what a student sees:
 
 * every picture in an output has a size on the page (a picture laid out at 0 x 0 shows nothing) and is not
   blown up beyond its pixels or shrunk so far that its text is unreadable;
+* every 3-D scene (an iframe) draws its canvas;
 * no request left the JupyterLab server (a CDN's script or font is a picture that breaks offline);
 * each slider's picture and caption are those its value draws: the slider is moved one step down (its readout
   and picture must change) and back up, and the picture and caption must then be the ones Run All left;
@@ -78,6 +79,16 @@ PICTURES = """(async () => { const out = [];
         out.push({cell: k, width: r.width, height: r.height, natural: [i.naturalWidth, i.naturalHeight]}); }
     return out; })()"""
 
+#: The 3-D scenes in outputs (iframes) that have not drawn their canvas yet, each scrolled into view first: a scene
+#: without the viewer's JavaScript never does.
+SCENES_NOT_DRAWN = """(async () => { const out = [];
+    const cells = [...document.querySelectorAll('.jp-Notebook .jp-Cell')];
+    for (const [k, cell] of cells.entries()) for (const f of cell.querySelectorAll('.jp-OutputArea iframe')) {
+        f.scrollIntoView({block: 'center'});
+        await new Promise(r => setTimeout(r, 300));
+        const d = f.contentDocument;
+        if (!d || d.readyState !== 'complete' || d.querySelector('canvas') === null) out.push(k); }
+    return out; })()"""
 
 def _step(browser, k, key, code, keycode):
     """Move the k-th slider one step with the keyboard, as a student does."""
@@ -154,6 +165,10 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
             scale = p["width"] / p["natural"][0]
             assert MIN_SCALE <= scale <= MAX_SCALE, \
                 f"{chapter}, cell {p['cell']}: a {p['natural'][0]}-px picture shown {p['width']:.0f} px wide"
+        try:
+            browser.wait_for(f"{SCENES_NOT_DRAWN}.then(cells => cells.length === 0)", f"{chapter}'s 3-D scenes", timeout=60)
+        except AssertionError:
+            raise AssertionError(f"{chapter}: the 3-D scenes of cells {browser.evaluate(SCENES_NOT_DRAWN)} drew nothing")
         remote = off_host(browser.requests, url)
         assert not remote, f"{chapter} asked another host for {remote}"
 
