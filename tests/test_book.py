@@ -16,6 +16,8 @@ import shutil
 import subprocess
 import tempfile
 import time
+import urllib.parse
+import urllib.request
 from pathlib import Path
 
 import nbformat
@@ -210,6 +212,30 @@ READY = """(() => {
 })()"""
 
 
+def missing_files(requests) -> list[str]:
+    """The file: URLs a page asked for that are not on disk (a font MathJax looks for and the book does not ship)."""
+    return [url for url in requests
+            if url.startswith("file:") and not Path(urllib.request.url2pathname(urllib.parse.urlparse(url).path)).exists()]
+
+
+def test_mathjax_asks_for_no_font_the_book_lacks(tmp_path):
+    """Script, fraktur and calligraphic letters: MathJax's hidden MathML for screen readers names TeX fonts that
+    jupyter-server-mathjax does not ship; the page asks for none of them, and still typesets every equation."""
+    executable = chromium_executable("the book's MathJax test")
+    urls = offline_assets.copy_assets(tmp_path / html_book.STATIC)
+    notebook = nbformat.v4.new_notebook(cells=[nbformat.v4.new_markdown_cell(
+        "# 99 · Letters\n\n$\\mathcal{L}$, $\\mathscr{D}$, $\\mathfrak{g}$ and $$\\mathbb{E}[x]$$")])
+    book = {"previous": None, "next": None, "mathjax_settings": offline_assets.MATHJAX_SETTINGS}
+    page = tmp_path / "letters.html"
+    page.write_text(html_book._exporter(urls).from_notebook_node(notebook, resources={"book": book})[0])
+    with Chromium(executable) as browser:
+        browser.show(page, "the letters typeset")
+        time.sleep(1.0)  # fonts are asked for when the typeset page is laid out
+        browser.evaluate("document.body.offsetHeight")
+        assert browser.evaluate("document.querySelectorAll('.MathJax, .MathJax_Display').length") >= 4
+        assert not missing_files(browser.requests), missing_files(browser.requests)
+
+
 def _scene_pixels(browser, frame_index):
     """The picture of the ``frame_index``-th meshcat scene on screen, as an H x W x 3 array in [0, 1]."""
     import matplotlib.image
@@ -267,6 +293,8 @@ def _check_chapter_page(browser, chapter, previous):
     scene, widget or equation, for the screenshot."""
     remote = [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
     assert not remote, f"{chapter.page} asked the network for {remote}"
+    assert not missing_files(browser.requests), f"{chapter.page} asked for files the book lacks"
+    assert browser.evaluate("document.title") == chapter.title
     assert browser.evaluate("document.querySelectorAll('.MathJax').length") > 0, "no equation typeset"
     assert browser.evaluate("document.querySelectorAll('.MathJax_Error, .merror').length") == 0
     leftover = RAW_TEX.findall(browser.evaluate(MARKDOWN_TEXT))

@@ -274,6 +274,7 @@ def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, sourc
         start = time.perf_counter()
         notebook = execute(chapter, quick, timeout)
         seconds[chapter.number] = time.perf_counter() - start
+        notebook.metadata["title"] = chapter.title  # the page's <title>; nbconvert's default is "Notebook"
         marked = mark_kernel_controls(notebook)
         repository_links(notebook, source, out)
         chapter_links(notebook, {c.page for c in chapters})

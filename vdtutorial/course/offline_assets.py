@@ -28,8 +28,11 @@ MATHJAX_CONFIG = "TeX-AMS-MML_HTMLorMML-full,Safe"
 
 #: MathJax's settings for a book page, before MathJax starts: TeX between $...$ or \(...\) (and $$...$$ or
 #: \[...\] displayed), and the STIX web fonts, the only ones jupyter-server-mathjax ships (MathJax would
-#: otherwise look for its TeX fonts first).
-MATHJAX_SETTINGS = """<script type="text/x-mathjax-config">
+#: otherwise look for its TeX fonts first). The hidden MathML that MathJax adds beside each equation for screen
+#: readers is styled by its native-MathML settings, whose script and fraktur letters name TeX fonts that are not
+#: shipped; the style rule keeps that hidden copy on the page's own fonts, so no font file is asked for in vain.
+MATHJAX_SETTINGS = """<style>.MJX_Assistive_MathML * { font-family: serif !important; }</style>
+<script type="text/x-mathjax-config">
 MathJax.Hub.Config({
   tex2jax: {inlineMath: [["$", "$"], ["\\\\(", "\\\\)"]], displayMath: [["$$", "$$"], ["\\\\[", "\\\\]"]],
             processEscapes: true},
