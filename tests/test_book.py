@@ -24,7 +24,7 @@ import nbformat
 import numpy as np
 import pytest
 
-from vdtutorial.course import html_book, offline_assets, viz
+from vdtutorial.course import html_book, offline_assets
 from vdtutorial.__main__ import build_parser
 from vdtutorial.settings import shipped_dir
 

@@ -136,7 +136,8 @@ def lab(tmp_path_factory):
 
 def off_host(requests, server_url):
     """The requests that went neither to the JupyterLab server nor to the page itself (data:, blob:, about:)."""
-    return [url for url in requests if not (url.startswith(server_url) or url.split(":", 1)[0] in ("data", "blob", "about"))]
+    return [url for url in requests
+            if not (url.startswith(server_url) or url.split(":", 1)[0] in ("data", "blob", "about"))]
 
 
 def test_off_host_names_only_other_hosts():
@@ -163,10 +164,11 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
         problems += [f"cell {p['cell']}: a picture laid out at {p['width']:.0f} x {p['height']:.0f} px (its pixels: "
                      f"{p['natural'][0]} x {p['natural'][1]})" for p in pictures
                      if p["width"] < 1 or p["height"] < 1 or 0 in p["natural"]]
-        problems += [f"cell {p['cell']}: a {p['natural'][0]}-px picture shown {p['width']:.0f} px wide" for p in pictures
-                     if p["natural"][0] and not MIN_SCALE <= p["width"] / p["natural"][0] <= MAX_SCALE]
+        problems += [f"cell {p['cell']}: a {p['natural'][0]}-px picture shown {p['width']:.0f} px wide"
+                     for p in pictures if p["natural"][0] and not MIN_SCALE <= p["width"] / p["natural"][0] <= MAX_SCALE]
         try:
-            browser.wait_for(f"{SCENES_NOT_DRAWN}.then(cells => cells.length === 0)", f"{chapter}'s 3-D scenes", timeout=60)
+            browser.wait_for(f"{SCENES_NOT_DRAWN}.then(cells => cells.length === 0)", f"{chapter}'s 3-D scenes",
+                             timeout=60)
         except AssertionError:
             problems.append(f"the 3-D scenes of cells {browser.evaluate(SCENES_NOT_DRAWN)} drew nothing")
         problems += [f"a request to another host: {url}" for url in off_host(browser.requests, url)]
@@ -184,7 +186,8 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
                 try:
                     browser.wait_for(redrawn, f"{chapter}'s slider {k} to redraw its picture ({key})", timeout=120)
                 except AssertionError as timeout:
-                    raise AssertionError(f"{timeout}; the kernel reported: {browser.evaluate('window.__errors')}") from None
+                    errors = browser.evaluate("window.__errors")
+                    raise AssertionError(f"{timeout}; the kernel reported: {errors}") from None
                 browser.wait_for(KERNEL_IDLE, f"{chapter}'s kernel after the slider moved", timeout=300)
                 moved = browser.evaluate(SLIDERS)[k]
             if moved["readout"] != after_run_all["readout"] or \

@@ -19,7 +19,13 @@ import pytest
 from matplotlib.text import Text
 from PIL import Image
 
-from vdtutorial.experiments import curves_from_rows, plot_curves, plot_measures, read_rows, results_file
+from vdtutorial.experiments import (
+    curves_from_rows,
+    plot_curves,
+    plot_measures,
+    read_rows,
+    results_file,
+)
 from vdtutorial.experiments.beyond import RL
 from vdtutorial.settings import data_dir
 
@@ -74,7 +80,7 @@ def test_chapter_07_draws_the_smoothing_picture_at_the_width_of_its_box(beyond):
     curves are the shipped beyond experiment's: plot_curves's figure size and fonts do not depend on the data.)"""
     by_measure, record = beyond
     source = _cell("07_finetuning", "141f86fd")
-    dpi = int(re.search(r"^WINDOW_DPI = (\d+)$", source, re.M).group(1))
+    dpi = int(re.search(r"^WINDOW_DPI = (\d+)$", source, re.MULTILINE).group(1))
     curves = by_measure[record["rl"]["metric"]]
     width, text = shown_text_px(plot_curves(curves, record["rl"]["metric"], "a title", 25), dpi, OUTPUT_WIDTH)
     assert OUTPUT_WIDTH <= width <= 1.3 * OUTPUT_WIDTH, width

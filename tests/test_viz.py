@@ -151,7 +151,10 @@ def test_in_a_notebook_kernel_only_the_first_scene_carries_the_viewer(scene, mon
     rec = viz.Recorder()
     viz.mirror_bodies(rec, cid, bodies)
     viewer = html.escape(viz._viewer_js()[:2000], quote=True)
-    carries = lambda: viewer in rec.iframe()  # noqa: E731
+
+    def carries():
+        return viewer in rec.iframe()
+
     assert carries() and carries(), "outside a kernel every scene carries the viewer"
 
     kernel = _Kernel()

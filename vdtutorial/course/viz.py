@@ -7,7 +7,9 @@ headless under ``pytest --nbmake`` in CI, where no browser can reach a port on t
 
 meshcat normally runs a tornado/ZMQ server that the browser reaches over a websocket; with meshcat 0.3.2
 that is fragile here (see :class:`Recorder`), so by default no server starts: the scene is recorded in
-memory and :meth:`Recorder.html` replays it into one self-contained page that needs no network.
+memory and :meth:`Recorder.html` replays it into one self-contained page that needs no network. Shown inline in
+a notebook, only the notebook's first scene carries the viewer's JavaScript and the later ones take it from the
+notebook page (:meth:`Recorder.iframe`), which keeps a saved chapter small.
 
 Mirroring is generic: it works from pybullet body ids and ``getVisualShapeData`` alone and never
 imports the environment modules, so the same code draws the arm, the table and the cup. The module
@@ -288,7 +290,8 @@ class Recorder:
     def iframe(self, style: str = "width: 100%; height: 100%; border: none;") -> str:
         """The scene as an ``<iframe srcdoc=...>`` element for a notebook's HTML output; in a notebook kernel only
         the first scene carries the viewer (:func:`_brings_viewer`)."""
-        return f'<iframe srcdoc="{html.escape(self.html(viewer=_brings_viewer()), quote=True)}" style="{style}"></iframe>'
+        page = html.escape(self.html(viewer=_brings_viewer()), quote=True)
+        return f'<iframe srcdoc="{page}" style="{style}"></iframe>'
 
     def _iframe(self, height: int) -> str:
         # srcdoc carries the whole page, so Jupyter needs no server or file to display it. The wrapping div
@@ -737,4 +740,4 @@ def frames_animation(rgb_frames: Sequence, fps: float = 10, scale: int = 1):
     urls = [_png_data_url(frame) for frame in frames]
     return HTML(_PLAYER.format(id=f"vdtutorial-frames-{uuid.uuid4().hex}", first=urls[0], frames=json.dumps(urls),
                                count=len(urls), last=len(urls) - 1, width=width * int(scale),
-                               height=height * int(scale), interval=int(round(1000 / fps))))
+                               height=height * int(scale), interval=round(1000 / fps)))
