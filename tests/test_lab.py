@@ -11,6 +11,7 @@ All the test checks what a student sees:
 * each slider's picture and caption are those its value draws: the slider is moved one step down (its readout
   and picture must change) and back up, and the picture and caption must then be the ones Run All left;
 * no text beside a slider runs past its box (a long ``Label`` is cut at the window's edge);
+* saved and opened again, its pictures and 3-D scenes still show;
 * no error reached the kernel's replies, in a cell or in a widget's callback (the latter reach only JupyterLab's
   Log Console, never the notebook).
 
@@ -195,8 +196,22 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
                 problems.append(f"after Run All slider {k} read {after_run_all['readout']} but its picture and caption "
                                 f"were not the ones that value draws (Run All: {after_run_all['caption']!r}; drawn at "
                                 f"{moved['readout']}: {moved['caption']!r})")
+        problems += [f"text beside a slider cut at the window's edge (1280 px): {text!r}"
+                     for slider in browser.evaluate(SLIDERS) for text in slider["cut"]]
+        problems += [f"the kernel reported {error}" for error in browser.evaluate("window.__errors")]
+
+        # The notebook as a student hands it in: saved, then opened again.
+        cells = browser.evaluate("document.querySelectorAll('.jp-Notebook .jp-Cell').length")
+        browser.evaluate(f"{NOTEBOOK}.context.save().then(() => true)")
+        browser.call("Page.reload")
+        time.sleep(3)  # the old page's context goes away while the new one loads
+        browser.wait_for(f"{KERNEL_IDLE} && document.querySelectorAll('.jp-Notebook .jp-Cell').length === {cells}",
+                         f"{chapter} to open again", timeout=180)
+        problems += [f"reopened, cell {p['cell']}: a picture laid out at {p['width']:.0f} x {p['height']:.0f} px"
+                     for p in browser.evaluate(PICTURES) if p["width"] < 1 or p["height"] < 1]
+        try:
+            browser.wait_for(f"{SCENES_NOT_DRAWN}.then(cells => cells.length === 0)", f"{chapter}'s 3-D scenes",
+                             timeout=60)
+        except AssertionError:
+            problems.append(f"reopened, the 3-D scenes of cells {browser.evaluate(SCENES_NOT_DRAWN)} drew nothing")
         assert problems == [], f"{chapter}: " + "; ".join(problems)
-        cut = [text for slider in browser.evaluate(SLIDERS) for text in slider["cut"]]
-        assert cut == [], f"{chapter}: text beside a slider is cut at the window's edge (1280 px): {cut}"
-        errors = browser.evaluate("window.__errors")
-        assert errors == [], f"{chapter}: the kernel reported errors: {errors}"
