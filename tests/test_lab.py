@@ -35,6 +35,9 @@ pytestmark = pytest.mark.pipeline  # chapters end to end: CI's lock leg only
 
 #: The chapters with pictures a callback or a script draws, and how many sliders each shows.
 CHAPTERS = {"01_environment": 0, "03_demonstrations": 1, "05_pretraining": 1, "07_finetuning": 1}
+#: The file browser folded away, as a student reading a chapter has it: the output area is then about 960 px wide
+#: in the test's 1280-px window.
+COLLAPSED = "jupyterapp.shell.collapseLeft()"
 #: How far a picture may be scaled on the page relative to its pixels: above MAX_SCALE it is blown up and soft;
 #: below MIN_SCALE matplotlib's default 10-pt text, drawn at its default 100 dpi, is shown under 8 px high.
 MAX_SCALE, MIN_SCALE = 1.05, 0.6
@@ -155,6 +158,7 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
     with Chromium(executable, offline=False) as browser:
         browser.call("Page.navigate", url=f"{url}/lab/tree/notebooks/{chapter}.ipynb?reset")
         browser.wait_for(KERNEL_IDLE, f"{chapter}'s kernel", timeout=180)
+        browser.evaluate(f"{COLLAPSED}, true")
         browser.evaluate(RECORD_ERRORS)
         browser.evaluate(RUN_ALL)
         browser.wait_for(f"window.__ranAll && {KERNEL_IDLE}", f"Run All of {chapter}", timeout=900)
@@ -207,6 +211,7 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
         time.sleep(3)  # the old page's context goes away while the new one loads
         browser.wait_for(f"{KERNEL_IDLE} && document.querySelectorAll('.jp-Notebook .jp-Cell').length === {cells}",
                          f"{chapter} to open again", timeout=180)
+        browser.evaluate(f"{COLLAPSED}, true")
         problems += [f"reopened, cell {p['cell']}: a picture laid out at {p['width']:.0f} x {p['height']:.0f} px"
                      for p in browser.evaluate(PICTURES) if p["width"] < 1 or p["height"] < 1]
         try:

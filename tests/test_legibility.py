@@ -2,8 +2,9 @@
 
 A PNG wider than the output area is shrunk to fit, and its text with it; a PNG narrower than the widget box it fills
 is blown up and soft. JupyterLab's output area is about 830 px wide in a 1280-px window with the file browser open
-(tests/test_lab.py measures the pictures of the chapters with sliders as shown). Here the figures are drawn as the
-chapters draw them, at the dpi their cells use, and the smallest text is measured as it lands on the page.
+and about 960 px with it folded away (tests/test_lab.py measures the pictures of the chapters with sliders there).
+Here the figures are drawn as the chapters draw them, at the dpi their cells use, and the smallest text is measured
+as it lands on the narrower page.
 """
 import io
 import json
