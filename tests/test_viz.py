@@ -5,6 +5,7 @@ helpers (and, where possible, through the collision shapes or the AABB), and com
 transforms composed from the recorded meshcat scene tree.
 """
 import base64
+import gzip
 import html
 import io
 import json
@@ -24,6 +25,7 @@ import umsgpack
 
 import vdtutorial
 from vdtutorial.course import viz
+from meshcat.servers.zmqserver import VIEWER_ROOT
 
 JACO_URDF = Path(vdtutorial.__file__).resolve().parent / "assets" / "jaco6.urdf"  # the package under test
 TABLE_HALF_EXTENTS = (0.4, 0.6, 0.02)
@@ -106,10 +108,25 @@ def link_name(cid, body, link):
     return raw.decode()
 
 
+def _unpacked(packed: str) -> bytes:
+    return gzip.decompress(base64.b64decode(packed))
+
+
 def recorded_commands(page):
-    """Decode the command list embedded in a page back into meshcat command dicts."""
-    encoded = json.loads(re.search(r"for \(const encoded of (\[.*?\])\)", page, re.S).group(1))
-    return [umsgpack.unpackb(base64.b64decode(item)) for item in encoded]
+    """Decode the commands packed into a page back into meshcat command dicts, in their order."""
+    data = _unpacked(re.search(r'await inflate\("([^"]*)"\)', page).group(1))
+    commands, at = [], 0
+    while at < len(data):
+        size = int.from_bytes(data[at:at + 4], "big")
+        commands.append(umsgpack.unpackb(data[at + 4:at + 4 + size]))
+        at += 4 + size
+    return commands
+
+
+def packed_viewer(page) -> str | None:
+    """The viewer's source a page carries, or None."""
+    match = re.search(r'^inflate\("([^"]*)"\)', page, re.MULTILINE)
+    return None if match is None else _unpacked(match.group(1)).decode()
 
 
 def test_page_is_self_contained_and_holds_the_scene(scene):
@@ -117,10 +134,10 @@ def test_page_is_self_contained_and_holds_the_scene(scene):
     rec = viz.Recorder()
     viz.mirror_bodies(rec, cid, bodies)
     page = rec.html()
-    assert viz._viewer_js()[:2000] in page  # the viewer bundle is inlined
+    assert packed_viewer(page) == (Path(VIEWER_ROOT) / "main.min.js").read_text()  # the viewer bundle, packed
     assert not re.search(r"<script[^>]*\bsrc\s*=", page)
     assert not re.search(r"<link[^>]*\bhref\s*=", page)
-    assert 0.8e6 < len(page) < 1.2e6
+    assert 0.2e6 < len(page) < 0.4e6
     objects = {c["path"] for c in recorded_commands(page) if c["type"] == "set_object"}
     assert "/meshcat/table/link0/visual0/box" in objects
     assert "/meshcat/cup/link0/visual0/cylinder" in objects
@@ -150,10 +167,9 @@ def test_in_a_notebook_kernel_only_the_first_scene_carries_the_viewer(scene, mon
     cid, bodies = scene
     rec = viz.Recorder()
     viz.mirror_bodies(rec, cid, bodies)
-    viewer = html.escape(viz._viewer_js()[:2000], quote=True)
 
     def carries():
-        return viewer in rec.iframe()
+        return packed_viewer(html.unescape(rec.iframe())) is not None
 
     assert carries() and carries(), "outside a kernel every scene carries the viewer"
 
@@ -162,7 +178,7 @@ def test_in_a_notebook_kernel_only_the_first_scene_carries_the_viewer(scene, mon
     monkeypatch.setattr(viz, "_viewer_display", None)
     kernel.answer("run-1", cell="cell-a")
     first, second_in_same_run = rec.iframe(), rec.iframe()
-    assert viewer in first and viewer not in second_in_same_run
+    assert packed_viewer(html.unescape(first)) and packed_viewer(html.unescape(second_in_same_run)) is None
     assert len(second_in_same_run) < 0.1 * len(first)
     kernel.answer("run-2", cell="cell-b")
     assert not carries()

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import base64
 import functools
+import gzip
 import html
 import json
 import sys
@@ -124,22 +125,28 @@ class _SceneTreeWindow:
             self.forward.send(command)
 
 
+def _packed(data: bytes) -> str:
+    """``data`` gzip-compressed and base64-encoded, for a page that inflates it with the browser's own
+    ``DecompressionStream``: the viewer shrinks to about a third, a scene's meshes and poses to about half."""
+    return base64.b64encode(gzip.compress(data, mtime=0)).decode("ascii")
+
+
 @functools.lru_cache(maxsize=1)
-def _viewer_js() -> str:
-    """The meshcat viewer bundle (three.js included, ~0.85 MB), read once per process."""
-    source = (Path(VIEWER_ROOT) / "main.min.js").read_text(encoding="utf-8")
-    # A literal "</script" would end the inline <script> element early.
-    return source.replace("</script", "<\\/script")
+def _viewer_packed() -> str:
+    """The meshcat viewer bundle (three.js included), packed by :func:`_packed`, made once per process."""
+    return _packed((Path(VIEWER_ROOT) / "main.min.js").read_bytes())
 
 
 #: The global of the notebook page (an iframe's parent) where the first scene leaves the viewer's source for the
 #: scenes after it.
 _SHARED_VIEWER = "__vdtutorialMeshcatViewer"
 #: A scene page's viewer, inlined; it also leaves its source on the parent page, for the scenes that come without it.
-_VIEWER_INLINE = """<script id="meshcat-viewer">{viewer_js}</script>
-<script>
-try {{ parent.{shared} = document.getElementById("meshcat-viewer").textContent; }} catch (error) {{}}
-drawScene();
+_VIEWER_INLINE = """<script>
+inflate("{viewer}").then((bytes) => {{
+  const source = new TextDecoder().decode(bytes);
+  try {{ parent.{shared} = source; }} catch (error) {{}}
+  startViewer(source);
+}});
 </script>"""
 #: A scene page without the viewer: it takes the source the notebook's first scene left on the parent page, waiting
 #: for it when that scene has not loaded yet, and says where the viewer comes from while it waits.
@@ -154,10 +161,7 @@ const waitingSince = Date.now();
     return;
   }}
   document.getElementById("waiting").remove();
-  const script = document.createElement("script");
-  script.textContent = source;
-  document.head.appendChild(script);
-  drawScene();
+  startViewer(source);
 }})();
 </script>"""
 _PAGE = """<!DOCTYPE html>
@@ -171,15 +175,25 @@ _PAGE = """<!DOCTYPE html>
 that scene (or run its cell again) and this one draws itself.</p>
 <div id="scene"></div>
 <script>
-// Replay the recorded meshcat commands in order. They are decoded synchronously (not through
-// fetch() of data: URLs) so that objects, transforms and the animation arrive in recording order.
-function drawScene() {{
+// Packed data (gzip, then base64) back to bytes.
+async function inflate(packed) {{
+  const bytes = Uint8Array.from(atob(packed), (c) => c.charCodeAt(0));
+  const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream("gzip"));
+  return new Uint8Array(await new Response(stream).arrayBuffer());
+}}
+// Run the viewer's source, then replay the recorded meshcat commands in recording order (objects, transforms,
+// the animation); each is msgpack, preceded by its length (4 bytes, big-endian).
+async function startViewer(source) {{
+  const script = document.createElement("script");
+  script.textContent = source;
+  document.head.appendChild(script);
   const viewer = new MeshCat.Viewer(document.getElementById("scene"));
-  for (const encoded of {commands}) {{
-    const raw = atob(encoded);
-    const bytes = new Uint8Array(raw.length);
-    for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
-    viewer.handle_command_bytearray(bytes);
+  const commands = await inflate("{commands}");
+  const sizes = new DataView(commands.buffer);
+  for (let at = 0; at < commands.length; ) {{
+    const size = sizes.getUint32(at);
+    viewer.handle_command_bytearray(commands.slice(at + 4, at + 4 + size));
+    at += 4 + size;
   }}
   // The point the camera looks at and orbits about (frame_view), in three.js's frame (y up); null: the origin.
   const lookAt = {look_at};
@@ -277,15 +291,15 @@ class Recorder:
     def html(self, viewer: bool = True) -> str:
         """The standalone page: viewer JavaScript plus every recorded command, no network access. With ``viewer``
         False the page has no viewer of its own and takes the one an earlier scene left on the notebook page."""
-        commands = []
+        commands = b""
         for node in walk(self.tree):
             for packed in (node.object, *node.properties, node.transform, node.animation):
                 if packed is not None:
-                    commands.append(base64.b64encode(packed).decode("ascii"))
+                    commands += len(packed).to_bytes(4, "big") + packed
         look_at = None if self.look_at is None else _three_frame(self.look_at)
-        script = (_VIEWER_INLINE.format(viewer_js=_viewer_js(), shared=_SHARED_VIEWER) if viewer
+        script = (_VIEWER_INLINE.format(viewer=_viewer_packed(), shared=_SHARED_VIEWER) if viewer
                   else _VIEWER_SHARED.format(shared=_SHARED_VIEWER))
-        return _PAGE.format(viewer=script, commands=json.dumps(commands), look_at=json.dumps(look_at))
+        return _PAGE.format(viewer=script, commands=_packed(commands), look_at=json.dumps(look_at))
 
     def iframe(self, style: str = "width: 100%; height: 100%; border: none;") -> str:
         """The scene as an ``<iframe srcdoc=...>`` element for a notebook's HTML output; in a notebook kernel only
