@@ -24,7 +24,7 @@ import nbformat
 import numpy as np
 import pytest
 
-from vdtutorial.course import html_book, offline_assets
+from vdtutorial.course import html_book, offline_assets, viz
 from vdtutorial.__main__ import build_parser
 from vdtutorial.settings import shipped_dir
 
@@ -285,6 +285,39 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
             browser.show(page, f"{chapter.page}'s equations, widgets and scenes")
             _check_chapter_page(browser, chapter, previous=book.chapters[k - 1].page if k else None)
             (SCREENSHOTS / f"{page.stem}.png").write_bytes(browser.screenshot())
+
+
+def test_a_later_scene_draws_with_the_viewer_the_first_scene_brought(tmp_path, monkeypatch):
+    """In a notebook only the first scene carries meshcat's viewer (vdtutorial.course.viz._brings_viewer); a page
+    holding it and a later scene without it, the later one placed first, draws the arm, the cup and the table in
+    both, offline."""
+    import IPython
+
+    from vdtutorial.envs.scene import JacoScene
+
+    executable = chromium_executable("the shared viewer's browser test")
+    scene = JacoScene()
+    recorder = viz.Recorder()
+    viz.mirror_bodies(recorder, scene.client, scene.bodies)
+    request = {"header": {"msg_id": "run-1"}, "metadata": {}}
+    kernel = type("Kernel", (), {"get_parent": lambda self: request})()
+    monkeypatch.setattr(IPython, "get_ipython", lambda: type("Shell", (), {"kernel": kernel})())
+    monkeypatch.setattr(viz, "_viewer_display", None)
+    first = recorder.iframe("width: 480px; height: 360px; border: none;")
+    later = recorder.iframe("width: 480px; height: 360px; border: none;")
+    assert len(later) < len(first) / 4
+    page = tmp_path / "scenes.html"
+    page.write_text(f"<!DOCTYPE html><html><body>{later}<br>{first}</body></html>")
+    with Chromium(executable) as browser:
+        browser.call("Page.navigate", url=page.as_uri())
+        browser.wait_for("[...document.querySelectorAll('iframe')].every(f => f.contentDocument"
+                         " && f.contentDocument.querySelector('canvas') !== null)", "both scenes drawn", timeout=60)
+        for frame in range(2):
+            red, green, blue = np.moveaxis(_scene_pixels(browser, frame), 2, 0)
+            assert np.mean(np.maximum(np.maximum(red, green), blue) < 0.2) > 0.005, f"no arm in scene {frame}"
+            assert np.mean((red > 0.6) & (green < 0.35) & (blue < 0.35)) > 0.001, f"no cup in scene {frame}"
+        assert not [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
+    scene.close()
 
 
 def _check_chapter_page(browser, chapter, previous):
