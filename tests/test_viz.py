@@ -472,3 +472,30 @@ def test_a_rollout_is_framed_over_all_its_states(scene):
         across, along = _screen_fractions(camera, look_at, viz.subject_corners(cid, bodies))
         assert np.all(np.abs(across) <= 1) and np.all(np.abs(along) <= 1)
     set_arm(cid, arm, start)
+
+
+def test_compact_figures_shows_figures_as_palette_pngs_in_ipython():
+    """After compact_figures, IPython formats a matplotlib figure as a PNG of at most 256 colours (PIL mode "P"),
+    the same size as the full-colour one and with the same pixels where the figure uses few colours."""
+    import io
+
+    import matplotlib.pyplot as plt
+    from IPython.core.interactiveshell import InteractiveShell
+    from IPython.core.pylabtools import print_figure
+    from PIL import Image
+
+    shell = InteractiveShell.instance()
+    try:
+        fig, ax = plt.subplots(figsize=(3, 2))
+        ax.plot([0, 1, 2], [0, 1, 0], color="C0")
+        ax.set_title("a line")
+        before = Image.open(io.BytesIO(print_figure(fig, "png", bbox_inches="tight")))  # the inline backend's PNG
+        assert "image/png" not in shell.display_formatter.format(fig)[0]
+        viz.compact_figures()
+        png = shell.display_formatter.format(fig)[0]["image/png"]
+        after = Image.open(io.BytesIO(png))
+        plt.close(fig)
+        assert after.mode == "P" and after.size == before.size
+        assert np.mean(np.asarray(after.convert("RGB")) == np.asarray(before.convert("RGB"))) > 0.99
+    finally:
+        InteractiveShell.clear_instance()
