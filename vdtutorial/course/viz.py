@@ -738,15 +738,16 @@ def _png_data_url(frame: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
-def palette_png(figure) -> bytes:
-    """``figure`` as the notebook's inline backend draws it (its dpi, cropped to what it draws), in a PNG of at most
-    256 colours: a line plot or a histogram needs no more, and the file is much smaller than the full-colour one."""
+def palette_png(figure, dpi: float | None = None) -> bytes:
+    """``figure`` as the notebook's inline backend draws it (cropped to what it draws, at ``dpi`` or the figure's
+    own), in a PNG of at most 256 colours: a line plot or a histogram needs no more, and the file is much smaller
+    than the full-colour one."""
     import io
 
     from IPython.core.pylabtools import print_figure
     from PIL import Image
 
-    with Image.open(io.BytesIO(print_figure(figure, "png", bbox_inches="tight"))) as image:
+    with Image.open(io.BytesIO(print_figure(figure, "png", bbox_inches="tight", dpi=dpi or figure.dpi))) as image:
         buffer = io.BytesIO()
         image.convert("RGB").quantize(colors=256).save(buffer, format="png", optimize=True)
     return buffer.getvalue()
