@@ -757,12 +757,16 @@ def compact_figures() -> None:
     """Show every matplotlib figure of this notebook as a 256-colour PNG (:func:`palette_png`).
 
     A chapter stores each figure it shows; a chapter with many figures then weighs what a student hands in and a
-    teacher collects. Call it after importing pyplot (the inline backend sets its own PNG formatter when it starts);
-    outside IPython it does nothing."""
+    teacher collects. Outside IPython it does nothing."""
+    import matplotlib
+    from matplotlib import pyplot
     from matplotlib.figure import Figure
 
     shell = sys.modules["IPython"].get_ipython() if "IPython" in sys.modules else None
     if shell is not None:
+        # The inline backend sets its own PNG formatter when it loads, which pyplot otherwise does at the first
+        # figure: load it now, then replace its formatter.
+        pyplot.switch_backend(matplotlib.get_backend())
         shell.display_formatter.formatters["image/png"].for_type(Figure, palette_png)
 
 
