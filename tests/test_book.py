@@ -16,6 +16,8 @@ import shutil
 import subprocess
 import tempfile
 import time
+import urllib.parse
+import urllib.request
 from pathlib import Path
 
 import nbformat
@@ -34,18 +36,6 @@ TESTED_CHAPTERS = ("00", "04", "07")
 
 
 # -- the pieces ------------------------------------------------------------------------------------------
-def test_animation_controls_need_no_icon_font():
-    """matplotlib's jshtml buttons load Font Awesome from a CDN; the book draws them as inline SVG instead."""
-    frames = [np.full((8, 8, 3), shade, dtype=np.uint8) for shade in (0, 128, 255)]
-    page = viz.frames_animation(frames).to_jshtml()
-    assert "font-awesome" in page and '<i class="fa fa-play"></i>' in page  # what matplotlib writes today
-    offline = offline_assets.offline_animation_icons(page)
-    assert "font-awesome" not in offline and 'class="fa' not in offline
-    assert offline.count("<svg ") == page.count('<i class="fa ') == 9
-    assert not re.search(r"""(?:src|href)\s*=\s*["']?https?:""", offline)
-    assert offline_assets.offline_animation_icons("<p>no animation</p>") == "<p>no animation</p>"
-
-
 def test_links_to_repository_files_point_at_copies_inside_the_book(tmp_path):
     """A chapter links ``../docs/results.md`` (relative to notebooks/); next to the book's pages that would be
     a dead link, so the book copies the file in and links the copy. Missing files and files outside the
@@ -222,6 +212,30 @@ READY = """(() => {
 })()"""
 
 
+def missing_files(requests) -> list[str]:
+    """The file: URLs a page asked for that are not on disk (a font MathJax looks for and the book does not ship)."""
+    return [url for url in requests
+            if url.startswith("file:") and not Path(urllib.request.url2pathname(urllib.parse.urlparse(url).path)).exists()]
+
+
+def test_mathjax_asks_for_no_font_the_book_lacks(tmp_path):
+    """Script, fraktur and calligraphic letters: MathJax's hidden MathML for screen readers names TeX fonts that
+    jupyter-server-mathjax does not ship; the page asks for none of them, and still typesets every equation."""
+    executable = chromium_executable("the book's MathJax test")
+    urls = offline_assets.copy_assets(tmp_path / html_book.STATIC)
+    notebook = nbformat.v4.new_notebook(cells=[nbformat.v4.new_markdown_cell(
+        "# 99 · Letters\n\n$\\mathcal{L}$, $\\mathscr{D}$, $\\mathfrak{g}$ and $$\\mathbb{E}[x]$$")])
+    book = {"previous": None, "next": None, "mathjax_settings": offline_assets.MATHJAX_SETTINGS}
+    page = tmp_path / "letters.html"
+    page.write_text(html_book._exporter(urls).from_notebook_node(notebook, resources={"book": book})[0])
+    with Chromium(executable) as browser:
+        browser.show(page, "the letters typeset")
+        time.sleep(1.0)  # fonts are asked for when the typeset page is laid out
+        browser.evaluate("document.body.offsetHeight")
+        assert browser.evaluate("document.querySelectorAll('.MathJax, .MathJax_Display').length") >= 4
+        assert not missing_files(browser.requests), missing_files(browser.requests)
+
+
 def _scene_pixels(browser, frame_index):
     """The picture of the ``frame_index``-th meshcat scene on screen, as an H x W x 3 array in [0, 1]."""
     import matplotlib.image
@@ -273,12 +287,47 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
             (SCREENSHOTS / f"{page.stem}.png").write_bytes(browser.screenshot())
 
 
+def test_a_later_scene_draws_with_the_viewer_the_first_scene_brought(tmp_path, monkeypatch):
+    """In a notebook only the first scene carries meshcat's viewer (vdtutorial.course.viz._brings_viewer); a page
+    holding it and a later scene without it, the later one placed first, draws the arm, the cup and the table in
+    both, offline."""
+    import IPython
+
+    from vdtutorial.envs.scene import JacoScene
+
+    executable = chromium_executable("the shared viewer's browser test")
+    scene = JacoScene()
+    recorder = viz.Recorder()
+    viz.mirror_bodies(recorder, scene.client, scene.bodies)
+    request = {"header": {"msg_id": "run-1"}, "metadata": {}}
+    kernel = type("Kernel", (), {"get_parent": lambda self: request})()
+    monkeypatch.setattr(IPython, "get_ipython", lambda: type("Shell", (), {"kernel": kernel})())
+    monkeypatch.setattr(viz, "_viewer_display", None)
+    first = recorder.iframe("width: 480px; height: 360px; border: none;")
+    later = recorder.iframe("width: 480px; height: 360px; border: none;")
+    assert len(later) < len(first) / 4
+    page = tmp_path / "scenes.html"
+    page.write_text(f"<!DOCTYPE html><html><body>{later}<br>{first}</body></html>")
+    with Chromium(executable) as browser:
+        browser.call("Page.navigate", url=page.as_uri())
+        browser.wait_for("[...document.querySelectorAll('iframe')].every(f => f.contentDocument"
+                         " && f.contentDocument.querySelector('canvas') !== null)", "both scenes drawn", timeout=60)
+        for frame in range(2):
+            red, green, blue = np.moveaxis(_scene_pixels(browser, frame), 2, 0)
+            assert np.mean(np.maximum(np.maximum(red, green), blue) < 0.2) > 0.005, f"no arm in scene {frame}"
+            assert np.mean((red > 0.6) & (green < 0.35) & (blue < 0.35)) > 0.001, f"no cup in scene {frame}"
+        assert not [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
+    scene.close()
+
+
 def _check_chapter_page(browser, chapter, previous):
     """What a reader must see on a chapter's page: no network, typeset equations, the book's links, meshcat
     scenes with the arm, the cup and the table in them, and chapter 07's slider; it ends scrolled to the first
     scene, widget or equation, for the screenshot."""
     remote = [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
     assert not remote, f"{chapter.page} asked the network for {remote}"
+    assert not missing_files(browser.requests), f"{chapter.page} asked for files the book lacks"
+    assert browser.evaluate("document.title") == chapter.title
     assert browser.evaluate("document.querySelectorAll('.MathJax').length") > 0, "no equation typeset"
     assert browser.evaluate("document.querySelectorAll('.MathJax_Error, .merror').length") == 0
     leftover = RAW_TEX.findall(browser.evaluate(MARKDOWN_TEXT))

@@ -5,7 +5,9 @@ helpers (and, where possible, through the collision shapes or the AABB), and com
 transforms composed from the recorded meshcat scene tree.
 """
 import base64
+import gzip
 import html
+import io
 import json
 import re
 import subprocess
@@ -23,6 +25,7 @@ import umsgpack
 
 import vdtutorial
 from vdtutorial.course import viz
+from meshcat.servers.zmqserver import VIEWER_ROOT
 
 JACO_URDF = Path(vdtutorial.__file__).resolve().parent / "assets" / "jaco6.urdf"  # the package under test
 TABLE_HALF_EXTENTS = (0.4, 0.6, 0.02)
@@ -105,10 +108,25 @@ def link_name(cid, body, link):
     return raw.decode()
 
 
+def _unpacked(packed: str) -> bytes:
+    return gzip.decompress(base64.b64decode(packed))
+
+
 def recorded_commands(page):
-    """Decode the command list embedded in a page back into meshcat command dicts."""
-    encoded = json.loads(re.search(r"for \(const encoded of (\[.*?\])\)", page, re.S).group(1))
-    return [umsgpack.unpackb(base64.b64decode(item)) for item in encoded]
+    """Decode the commands packed into a page back into meshcat command dicts, in their order."""
+    data = _unpacked(re.search(r'await inflate\("([^"]*)"\)', page).group(1))
+    commands, at = [], 0
+    while at < len(data):
+        size = int.from_bytes(data[at:at + 4], "big")
+        commands.append(umsgpack.unpackb(data[at + 4:at + 4 + size]))
+        at += 4 + size
+    return commands
+
+
+def packed_viewer(page) -> str | None:
+    """The viewer's source a page carries, or None."""
+    match = re.search(r'^inflate\("([^"]*)"\)', page, re.MULTILINE)
+    return None if match is None else _unpacked(match.group(1)).decode()
 
 
 def test_page_is_self_contained_and_holds_the_scene(scene):
@@ -116,15 +134,64 @@ def test_page_is_self_contained_and_holds_the_scene(scene):
     rec = viz.Recorder()
     viz.mirror_bodies(rec, cid, bodies)
     page = rec.html()
-    assert viz._viewer_js()[:2000] in page  # the viewer bundle is inlined
+    assert packed_viewer(page) == (Path(VIEWER_ROOT) / "main.min.js").read_text()  # the viewer bundle, packed
     assert not re.search(r"<script[^>]*\bsrc\s*=", page)
     assert not re.search(r"<link[^>]*\bhref\s*=", page)
-    assert 0.8e6 < len(page) < 1.2e6
+    assert 0.2e6 < len(page) < 0.4e6
     objects = {c["path"] for c in recorded_commands(page) if c["type"] == "set_object"}
     assert "/meshcat/table/link0/visual0/box" in objects
     assert "/meshcat/cup/link0/visual0/cylinder" in objects
     assert "/meshcat/arm/link2/visual0/cylinder" in objects
     assert "/meshcat/arm/hand/visual3/box" in objects
+
+
+class _Kernel:
+    """What ``Recorder.iframe`` reads of ipykernel's kernel: the request being answered."""
+
+    def __init__(self):
+        self.parent = {}
+
+    def answer(self, request, cell=None):
+        self.parent = {"header": {"msg_id": request}, "metadata": {"cellId": cell} if cell else {}}
+
+    def get_parent(self):
+        return self.parent
+
+
+def test_in_a_notebook_kernel_only_the_first_scene_carries_the_viewer(scene, monkeypatch):
+    """A notebook stores every scene it shows; the viewer (most of a page) goes into the first scene's output only,
+    and later scenes take it from the page. A cell that carried it carries it again when it runs again, and
+    outside a kernel (or in Colab, one page per output) every scene carries its own."""
+    import IPython
+
+    cid, bodies = scene
+    rec = viz.Recorder()
+    viz.mirror_bodies(rec, cid, bodies)
+
+    def carries():
+        return packed_viewer(html.unescape(rec.iframe())) is not None
+
+    assert carries() and carries(), "outside a kernel every scene carries the viewer"
+
+    kernel = _Kernel()
+    monkeypatch.setattr(IPython, "get_ipython", lambda: type("Shell", (), {"kernel": kernel})())
+    monkeypatch.setattr(viz, "_viewer_display", None)
+    kernel.answer("run-1", cell="cell-a")
+    first, second_in_same_run = rec.iframe(), rec.iframe()
+    assert packed_viewer(html.unescape(first)) and packed_viewer(html.unescape(second_in_same_run)) is None
+    assert len(second_in_same_run) < 0.1 * len(first)
+    kernel.answer("run-2", cell="cell-b")
+    assert not carries()
+    kernel.answer("run-3", cell="cell-a")
+    assert carries(), "the cell that carried the viewer carries it again when it runs again"
+    kernel.answer("run-4")  # a front end that names no cell (nbclient)
+    assert not carries()
+    monkeypatch.setitem(sys.modules, "google.colab", type(sys)("google.colab"))
+    assert carries()
+
+    shared = html.unescape(re.search(r'srcdoc="([^"]*)"', second_in_same_run).group(1))
+    assert not re.search(r"<script[^>]*\bsrc\s*=", shared) and "parent.__vdtutorialMeshcatViewer" in shared
+    assert recorded_commands(shared) == recorded_commands(rec.html())
 
 
 def test_shape_dimensions_follow_pybullet_conventions(scene):
@@ -336,12 +403,23 @@ def test_show_rgbd_two_images_and_metric_colour_bar():
         assert any(ax.get_ylabel() == "depth [m]" for ax in fig.axes)
 
 
-def test_frames_animation_to_jshtml():
+def test_frames_animation_is_a_sized_player_that_needs_nothing_from_another_host():
+    """The player stores every frame as a PNG, gives its image a size in pixels (a front end that scales images to
+    their box's width lays one without a size out at 0 x 0) and loads no script, style sheet or font."""
+    import matplotlib.image
+
     frames = [np.full((12, 16, 3), 40 * k, dtype=np.uint8) for k in range(4)]
-    animation = viz.frames_animation(frames, fps=8)
-    page = animation.to_jshtml()
-    assert page.count("data:image/png;base64") == len(frames)
-    assert len(page) < 100_000
+    frames[1][2, 3] = (255, 0, 0)
+    page = viz.frames_animation(frames, fps=8, scale=2).data
+    urls = json.loads(re.search(r"const frames = (\[.*?\]);", page).group(1))
+    decoded = [matplotlib.image.imread(io.BytesIO(base64.b64decode(u.split(",", 1)[1])), format="png") for u in urls]
+    assert [np.round(d[..., :3] * 255).astype(np.uint8).tolist() for d in decoded] == [f.tolist() for f in frames]
+    assert re.search(r'<img [^>]*width="32" height="24"[^>]*width: 32px; height: 24px; max-width: none', page)
+    assert "setInterval(" in page and ", 125);" in page  # 8 frames a second
+    assert not re.search(r"(?:src|href)\s*=\s*[\"']?(?:https?:)?//|@import|url\(", page)
+    assert 'class="fa' not in page and "font-awesome" not in page
+    with pytest.raises(ValueError, match="at least one frame"):
+        viz.frames_animation([])
 
 
 def _view_of(rec):
@@ -394,3 +472,30 @@ def test_a_rollout_is_framed_over_all_its_states(scene):
         across, along = _screen_fractions(camera, look_at, viz.subject_corners(cid, bodies))
         assert np.all(np.abs(across) <= 1) and np.all(np.abs(along) <= 1)
     set_arm(cid, arm, start)
+
+
+def test_compact_figures_shows_figures_as_palette_pngs_in_ipython():
+    """After compact_figures, IPython formats a matplotlib figure as a PNG of at most 256 colours (PIL mode "P"),
+    the same size as the full-colour one and with the same pixels where the figure uses few colours."""
+    import io
+
+    import matplotlib.pyplot as plt
+    from IPython.core.interactiveshell import InteractiveShell
+    from IPython.core.pylabtools import print_figure
+    from PIL import Image
+
+    shell = InteractiveShell.instance()
+    try:
+        fig, ax = plt.subplots(figsize=(3, 2))
+        ax.plot([0, 1, 2], [0, 1, 0], color="C0")
+        ax.set_title("a line")
+        before = Image.open(io.BytesIO(print_figure(fig, "png", bbox_inches="tight")))  # the inline backend's PNG
+        assert "image/png" not in shell.display_formatter.format(fig)[0]
+        viz.compact_figures()
+        png = shell.display_formatter.format(fig)[0]["image/png"]
+        after = Image.open(io.BytesIO(png))
+        plt.close(fig)
+        assert after.mode == "P" and after.size == before.size
+        assert np.mean(np.asarray(after.convert("RGB")) == np.asarray(before.convert("RGB"))) > 0.99
+    finally:
+        InteractiveShell.clear_instance()

@@ -15,7 +15,7 @@ from CDNs, to be undone one by one.
 Two things an exported notebook cannot do are said on the page instead of being left broken: a widget
 whose controls run Python callbacks (every slider in the chapters redraws a figure in the kernel) keeps
 the picture it was saved with, its controls are greyed out, and a note above it says that moving them
-needs a running kernel; the animation controls draw their icons as inline SVG. A chapter's link to a file
+needs a running kernel. A chapter's link to a file
 of the repository (``../docs/results.md``) would point outside the book: the file is copied in and linked there;
 a link to another chapter or an appendix (``05_pretraining.ipynb``) points at its page.
 
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import nbformat
 
-from vdtutorial.course.offline_assets import MATHJAX_SETTINGS, copy_assets, offline_animation_icons
+from vdtutorial.course.offline_assets import MATHJAX_SETTINGS, copy_assets
 from vdtutorial.settings import QUICK_ENV, shipped_dir
 
 #: The nbconvert template of a chapter page (JupyterLab's, with the book's navigation).
@@ -177,16 +177,6 @@ def mark_kernel_controls(notebook) -> int:
     return marked
 
 
-def offline_outputs(notebook) -> None:
-    """Every HTML output with matplotlib's animation icons drawn without their CDN font."""
-    for cell in notebook.cells:
-        for output in cell.get("outputs", []):
-            data = output.get("data", {})
-            if "text/html" in data:
-                text = data["text/html"]
-                data["text/html"] = offline_animation_icons(text if isinstance(text, str) else "".join(text))
-
-
 #: A markdown link from a chapter to a file of the repository outside ``notebooks/``: ``](../docs/results.md)``.
 REPOSITORY_LINK = re.compile(r"\]\(\.\./([^)#\s]+)(#[^)\s]*)?\)")
 
@@ -284,8 +274,8 @@ def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, sourc
         start = time.perf_counter()
         notebook = execute(chapter, quick, timeout)
         seconds[chapter.number] = time.perf_counter() - start
+        notebook.metadata["title"] = chapter.title  # the page's <title>; nbconvert's default is "Notebook"
         marked = mark_kernel_controls(notebook)
-        offline_outputs(notebook)
         repository_links(notebook, source, out)
         chapter_links(notebook, {c.page for c in chapters})
         book = {"previous": chapters[k - 1] if k > 0 else None, "next": chapters[k + 1] if k + 1 < len(chapters) else None,

@@ -7,7 +7,9 @@ headless under ``pytest --nbmake`` in CI, where no browser can reach a port on t
 
 meshcat normally runs a tornado/ZMQ server that the browser reaches over a websocket; with meshcat 0.3.2
 that is fragile here (see :class:`Recorder`), so by default no server starts: the scene is recorded in
-memory and :meth:`Recorder.html` replays it into one self-contained page that needs no network.
+memory and :meth:`Recorder.html` replays it into one self-contained page that needs no network. Shown inline in
+a notebook, only the notebook's first scene carries the viewer's JavaScript and the later ones take it from the
+notebook page (:meth:`Recorder.iframe`), which keeps a saved chapter small.
 
 Mirroring is generic: it works from pybullet body ids and ``getVisualShapeData`` alone and never
 imports the environment modules, so the same code draws the arm, the table and the cup. The module
@@ -20,8 +22,11 @@ from __future__ import annotations
 
 import base64
 import functools
+import gzip
 import html
 import json
+import sys
+import uuid
 import warnings
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -50,6 +55,8 @@ __all__ = [
     "record_rollout",
     "show_rgbd",
     "frames_animation",
+    "palette_png",
+    "compact_figures",
 ]
 
 #: Side length (m) of the square drawn for a ``GEOM_PLANE``, which pybullet reports without a size.
@@ -120,42 +127,118 @@ class _SceneTreeWindow:
             self.forward.send(command)
 
 
+def _packed(data: bytes) -> str:
+    """``data`` gzip-compressed and base64-encoded, for a page that inflates it with the browser's own
+    ``DecompressionStream``: the viewer shrinks to about a third, a scene's meshes and poses to about half."""
+    return base64.b64encode(gzip.compress(data, mtime=0)).decode("ascii")
+
+
 @functools.lru_cache(maxsize=1)
-def _viewer_js() -> str:
-    """The meshcat viewer bundle (three.js included, ~0.85 MB), read once per process."""
-    source = (Path(VIEWER_ROOT) / "main.min.js").read_text(encoding="utf-8")
-    # A literal "</script" would end the inline <script> element early.
-    return source.replace("</script", "<\\/script")
+def _viewer_packed() -> str:
+    """The meshcat viewer bundle (three.js included), packed by :func:`_packed`, made once per process."""
+    return _packed((Path(VIEWER_ROOT) / "main.min.js").read_bytes())
 
 
+#: The global of the notebook page (an iframe's parent) where the first scene leaves the viewer's source for the
+#: scenes after it.
+_SHARED_VIEWER = "__vdtutorialMeshcatViewer"
+#: A scene page's viewer, inlined; it also leaves its source on the parent page, for the scenes that come without it.
+_VIEWER_INLINE = """<script>
+inflate("{viewer}").then((bytes) => {{
+  const source = new TextDecoder().decode(bytes);
+  try {{ parent.{shared} = source; }} catch (error) {{}}
+  startViewer(source);
+}});
+</script>"""
+#: A scene page without the viewer: it takes the source the notebook's first scene left on the parent page, waiting
+#: for it when that scene has not loaded yet, and says where the viewer comes from while it waits.
+_VIEWER_SHARED = """<script>
+const waitingSince = Date.now();
+(function takeViewer() {{
+  let source = null;
+  try {{ source = parent.{shared} || null; }} catch (error) {{}}
+  if (source === null) {{
+    if (Date.now() - waitingSince > 3000) document.getElementById("waiting").hidden = false;
+    setTimeout(takeViewer, 300);
+    return;
+  }}
+  document.getElementById("waiting").remove();
+  startViewer(source);
+}})();
+</script>"""
 _PAGE = """<!DOCTYPE html>
 <html>
 <head><meta charset="utf-8"><title>vdtutorial scene</title>
-<style>html, body {{ margin: 0; height: 100%; overflow: hidden; }} #scene {{ width: 100vw; height: 100vh; }}</style>
+<style>html, body {{ margin: 0; height: 100%; overflow: hidden; }} #scene {{ width: 100vw; height: 100vh; }}
+#waiting {{ position: absolute; top: 1em; left: 1em; right: 1em; font: 14px sans-serif; }}</style>
 </head>
 <body>
+<p id="waiting" hidden>This 3-D scene uses the viewer that the first scene of this notebook brings along: scroll up to
+that scene (or run its cell again) and this one draws itself.</p>
 <div id="scene"></div>
-<script>{viewer_js}</script>
 <script>
-// Replay the recorded meshcat commands in order. They are decoded synchronously (not through
-// fetch() of data: URLs) so that objects, transforms and the animation arrive in recording order.
-const viewer = new MeshCat.Viewer(document.getElementById("scene"));
-for (const encoded of {commands}) {{
-  const raw = atob(encoded);
-  const bytes = new Uint8Array(raw.length);
-  for (let i = 0; i < raw.length; i++) bytes[i] = raw.charCodeAt(i);
-  viewer.handle_command_bytearray(bytes);
+// Packed data (gzip, then base64) back to bytes.
+async function inflate(packed) {{
+  const bytes = Uint8Array.from(atob(packed), (c) => c.charCodeAt(0));
+  const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream("gzip"));
+  return new Uint8Array(await new Response(stream).arrayBuffer());
 }}
-// The point the camera looks at and orbits about (frame_view), in three.js's frame (y up); null: the origin.
-const lookAt = {look_at};
-if (lookAt !== null) {{
-  viewer.controls.target.set(lookAt[0], lookAt[1], lookAt[2]);
-  viewer.controls.update();
+// Run the viewer's source, then replay the recorded meshcat commands in recording order (objects, transforms,
+// the animation); each is msgpack, preceded by its length (4 bytes, big-endian).
+async function startViewer(source) {{
+  const script = document.createElement("script");
+  script.textContent = source;
+  document.head.appendChild(script);
+  const viewer = new MeshCat.Viewer(document.getElementById("scene"));
+  const commands = await inflate("{commands}");
+  const sizes = new DataView(commands.buffer);
+  for (let at = 0; at < commands.length; ) {{
+    const size = sizes.getUint32(at);
+    viewer.handle_command_bytearray(commands.slice(at + 4, at + 4 + size));
+    at += 4 + size;
+  }}
+  // The point the camera looks at and orbits about (frame_view), in three.js's frame (y up); null: the origin.
+  const lookAt = {look_at};
+  if (lookAt !== null) {{
+    viewer.controls.target.set(lookAt[0], lookAt[1], lookAt[2]);
+    viewer.controls.update();
+  }}
 }}
 </script>
+{viewer}
 </body>
 </html>
 """
+
+
+#: Which display of the running kernel brought the viewer along: (the request it answered, the notebook cell that
+#: sent the request or None), see :func:`_brings_viewer`.
+_viewer_display: tuple[str, str | None] | None = None
+
+
+def _brings_viewer() -> bool:
+    """Whether the scene about to be shown inline carries the viewer's JavaScript itself.
+
+    The viewer (three.js included) is most of a scene's page, and a notebook stores every output it shows: a
+    copy per scene made a chapter of a few scenes weigh megabytes. So in a notebook kernel the first scene brings
+    the viewer and leaves its source on the notebook page, and every later scene takes it from there. The scenes
+    of a cell that brought it once bring it again when that cell runs again (JupyterLab names the cell in its
+    request), so that re-running it keeps a copy in the saved notebook. Outside a notebook kernel, and in Colab,
+    which shows each output in a page of its own, every scene brings its own viewer.
+    """
+    global _viewer_display
+    shell = sys.modules["IPython"].get_ipython() if "IPython" in sys.modules else None
+    kernel = getattr(shell, "kernel", None)
+    if kernel is None or "google.colab" in sys.modules:
+        return True
+    parent = kernel.get_parent() or {}
+    request, cell = parent.get("header", {}).get("msg_id"), (parent.get("metadata") or {}).get("cellId")
+    if request is None:
+        return True
+    if _viewer_display is None or (cell is not None and cell == _viewer_display[1] and request != _viewer_display[0]):
+        _viewer_display = (request, cell)
+        return True
+    return False
 
 
 class Recorder:
@@ -207,15 +290,24 @@ class Recorder:
             forward.server_proc.kill()
             forward.server_proc.wait()
 
-    def html(self) -> str:
-        """The standalone page: viewer JavaScript plus every recorded command, no network access."""
-        commands = []
+    def html(self, viewer: bool = True) -> str:
+        """The standalone page: viewer JavaScript plus every recorded command, no network access. With ``viewer``
+        False the page has no viewer of its own and takes the one an earlier scene left on the notebook page."""
+        commands = b""
         for node in walk(self.tree):
             for packed in (node.object, *node.properties, node.transform, node.animation):
                 if packed is not None:
-                    commands.append(base64.b64encode(packed).decode("ascii"))
+                    commands += len(packed).to_bytes(4, "big") + packed
         look_at = None if self.look_at is None else _three_frame(self.look_at)
-        return _PAGE.format(viewer_js=_viewer_js(), commands=json.dumps(commands), look_at=json.dumps(look_at))
+        script = (_VIEWER_INLINE.format(viewer=_viewer_packed(), shared=_SHARED_VIEWER) if viewer
+                  else _VIEWER_SHARED.format(shared=_SHARED_VIEWER))
+        return _PAGE.format(viewer=script, commands=_packed(commands), look_at=json.dumps(look_at))
+
+    def iframe(self, style: str = "width: 100%; height: 100%; border: none;") -> str:
+        """The scene as an ``<iframe srcdoc=...>`` element for a notebook's HTML output; in a notebook kernel only
+        the first scene carries the viewer (:func:`_brings_viewer`)."""
+        page = html.escape(self.html(viewer=_brings_viewer()), quote=True)
+        return f'<iframe srcdoc="{page}" style="{style}"></iframe>'
 
     def _iframe(self, height: int) -> str:
         # srcdoc carries the whole page, so Jupyter needs no server or file to display it. The wrapping div
@@ -224,9 +316,7 @@ class Recorder:
         width = int(round(height * VIEW_ASPECT))
         return (
             f'<div style="width: 100%; max-width: {width}px; aspect-ratio: {width} / {int(height)}; '
-            'resize: both; overflow: hidden;">'
-            f'<iframe srcdoc="{html.escape(self.html(), quote=True)}" '
-            'style="width: 100%; height: 100%; border: none;"></iframe></div>'
+            f'resize: both; overflow: hidden;">{self.iframe()}</div>'
         )
 
     def show(self, height: int = 400):
@@ -557,7 +647,7 @@ def record_rollout(
 
 
 # --------------------------------------------------------------------------------------------------
-# Camera frames (matplotlib)
+# Camera frames
 # --------------------------------------------------------------------------------------------------
 def _as_rgb(image) -> np.ndarray:
     """RGB for imshow: drops an alpha channel (pybullet returns RGBA) and maps 0..255 floats to 0..1."""
@@ -595,30 +685,107 @@ def show_rgbd(rgbd, title: str | None = None):
     return fig
 
 
-def frames_animation(rgb_frames: Sequence, fps: float = 10, size: float = 3.0):
-    """A matplotlib ``FuncAnimation`` flipping through camera frames; ``.to_jshtml()`` shows it inline.
+#: The frame player's page: one ``<img>`` sized in pixels (a notebook front end's ``max-width: 100%; height: auto``
+#: on images inside a shrink-to-fit box lays an image without a size out at 0 x 0), a play/pause button, a range
+#: input and a frame counter, all drawn by the browser: no script, style sheet or font from another host.
+_PLAYER = """<div id="{id}" class="vdtutorial-frames" style="display: block;">
+<img src="{first}" alt="camera frame 1 of {count}" width="{width}" height="{height}"
+ style="display: block; width: {width}px; height: {height}px; max-width: none; image-rendering: pixelated;">
+<div style="display: flex; align-items: center; gap: 8px; margin-top: 4px; width: {width}px; max-width: none;">
+<button type="button" style="min-width: 5em;">play</button>
+<input type="range" min="0" max="{last}" value="0" step="1" style="flex: 1;" aria-label="frame">
+<span style="font-family: monospace;">1 / {count}</span>
+</div>
+<script>
+(() => {{
+  const root = document.getElementById("{id}");
+  if (root === null || root.dataset.ready) return;
+  root.dataset.ready = "1";
+  const frames = {frames};
+  const image = root.querySelector("img"), button = root.querySelector("button");
+  const range = root.querySelector("input"), counter = root.querySelector("span");
+  let timer = null;
+  const show = (k) => {{
+    range.value = k;
+    image.src = frames[k];
+    image.alt = `camera frame ${{k + 1}} of ${{frames.length}}`;
+    counter.textContent = `${{k + 1}} / ${{frames.length}}`;
+  }};
+  const stop = () => {{ clearInterval(timer); timer = null; button.textContent = "play"; }};
+  range.addEventListener("input", () => {{ stop(); show(Number(range.value)); }});
+  button.addEventListener("click", () => {{
+    if (timer !== null) {{ stop(); return; }}
+    button.textContent = "pause";
+    timer = setInterval(() => show((Number(range.value) + 1) % frames.length), {interval});
+  }});
+}})();
+</script>
+</div>
+"""
 
-    The figure is ``size`` inches on its longer side at 100 dpi with no margins, so the embedded PNG
-    frames stay small. Like :func:`show_rgbd`, the figure is closed in pyplot to avoid a stray
-    static copy below the animation.
+
+def _png_data_url(frame: np.ndarray) -> str:
+    """A camera frame as a ``data:`` URL of a PNG, so the page needs no file beside it."""
+    import io
+
+    from PIL import Image
+
+    pixels = np.asarray(frame)
+    if np.issubdtype(pixels.dtype, np.floating):
+        pixels = np.round(pixels * 255)
+    buffer = io.BytesIO()
+    Image.fromarray(pixels.astype(np.uint8)).save(buffer, format="png", optimize=True)
+    return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
+
+
+def palette_png(figure, dpi: float | None = None) -> bytes:
+    """``figure`` as the notebook's inline backend draws it (cropped to what it draws, at ``dpi`` or the figure's
+    own), in a PNG of at most 256 colours: a line plot or a histogram needs no more, and the file is much smaller
+    than the full-colour one."""
+    import io
+
+    from IPython.core.pylabtools import print_figure
+    from PIL import Image
+
+    with Image.open(io.BytesIO(print_figure(figure, "png", bbox_inches="tight", dpi=dpi or figure.dpi))) as image:
+        buffer = io.BytesIO()
+        image.convert("RGB").quantize(colors=256).save(buffer, format="png", optimize=True)
+    return buffer.getvalue()
+
+
+def compact_figures() -> None:
+    """Show every matplotlib figure of this notebook as a 256-colour PNG (:func:`palette_png`).
+
+    A chapter stores each figure it shows; a chapter with many figures then weighs what a student hands in and a
+    teacher collects. Outside IPython it does nothing."""
+    import matplotlib
+    from matplotlib import pyplot
+    from matplotlib.figure import Figure
+
+    shell = sys.modules["IPython"].get_ipython() if "IPython" in sys.modules else None
+    if shell is not None:
+        # The inline backend sets its own PNG formatter when it loads, which pyplot otherwise does at the first
+        # figure: load it now, then replace its formatter.
+        pyplot.switch_backend(matplotlib.get_backend())
+        shell.display_formatter.formatters["image/png"].for_type(Figure, palette_png)
+
+
+def frames_animation(rgb_frames: Sequence, fps: float = 10, scale: int = 1):
+    """An inline player flipping through camera frames: an IPython ``HTML`` object (end a cell with it).
+
+    The frames are stored as PNGs in the page and shown ``scale`` times their pixel size, with a play button and
+    a slider. The player is written here rather than taken from matplotlib's ``to_jshtml``: that page asks a CDN
+    for its buttons' icon font and leaves its image's size to the front end, which JupyterLab lays out at 0 x 0.
     """
-    import matplotlib.pyplot as plt
-    from matplotlib.animation import FuncAnimation
+    from IPython.display import HTML
 
     frames = [_as_rgb(frame) for frame in rgb_frames]
     if not frames:
         raise ValueError("frames_animation needs at least one frame")
+    if fps <= 0 or int(scale) < 1:
+        raise ValueError(f"frames_animation needs fps > 0 and a whole scale >= 1, not fps={fps}, scale={scale}")
     height, width = frames[0].shape[:2]
-    scale = size / max(height, width)
-    fig = plt.figure(figsize=(width * scale, height * scale), dpi=100)
-    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-    ax.set_axis_off()
-    image = ax.imshow(frames[0])
-
-    def draw(index):
-        image.set_data(frames[index])
-        return (image,)
-
-    animation = FuncAnimation(fig, draw, frames=len(frames), interval=1000.0 / fps, blit=True)
-    plt.close(fig)
-    return animation
+    urls = [_png_data_url(frame) for frame in frames]
+    return HTML(_PLAYER.format(id=f"vdtutorial-frames-{uuid.uuid4().hex}", first=urls[0], frames=json.dumps(urls),
+                               count=len(urls), last=len(urls) - 1, width=width * int(scale),
+                               height=height * int(scale), interval=round(1000 / fps)))

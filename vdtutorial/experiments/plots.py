@@ -90,15 +90,26 @@ def plot_curves(curves: dict[str, Curve], metric: str, title: str, window: int |
     return fig
 
 
-def plot_measures(curves_by_measure: dict[str, dict[str, Curve]], title: str, window: int | None = None) -> Figure:
-    """:func:`plot_curves` for several measures side by side, one panel each (the paper's metric first), under
-    one title and one legend below them."""
+def plot_measures(curves_by_measure: dict[str, dict[str, Curve]], title: str, window: int | None = None,
+                  columns: int | None = None) -> Figure:
+    """:func:`plot_curves` for several measures, one panel each (the paper's metric first), under one title and one
+    legend below them; ``columns`` panels a row (default: all in one row, as the shipped figures are drawn). One
+    column keeps every panel and the legend readable at a notebook's width, where a row of three is shrunk."""
     window = smooth_window() if window is None else window
-    fig = Figure(figsize=(5.2 * len(curves_by_measure), 5.5), layout="constrained")
-    axes = fig.subplots(1, len(curves_by_measure), squeeze=False)[0]
+    panels = len(curves_by_measure)
+    if columns is None:
+        columns, rows, size = panels, 1, (5.2 * panels, 5.5)
+    else:
+        columns = max(1, min(columns, panels))
+        rows = -(-panels // columns)
+        size = (7.5 if columns == 1 else 5.2 * columns, 3.3 * rows + 2.2)
+    fig = Figure(figsize=size, layout="constrained")
+    axes = fig.subplots(rows, columns, squeeze=False).ravel()
     for ax, (metric, curves) in zip(axes, curves_by_measure.items()):
         _draw_panel(ax, curves, metric, legend=False)
         ax.set_xlabel("environment steps", fontsize=9)
+    for ax in axes[len(curves_by_measure):]:
+        ax.set_visible(False)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=8)
     fig.suptitle(f"{title}\n{_smoothing_text(window)}", fontsize=10)
     return fig
