@@ -84,14 +84,6 @@ def test_the_core_runs_without_the_course_the_runner_or_the_experiments():
     assert run.stdout.strip() == "[]", f"importing the core loaded the subpackages {run.stdout.strip()}"
 
 
-def test_the_runner_rounds_the_columns_trpo_calls_timing():
-    """The grid runner may not import TRPO, so it names the timing columns itself: the two lists must agree."""
-    from vdtutorial.runner import rows
-    from vdtutorial.trpo import TIMING_COLUMNS
-
-    assert rows.TIMING_COLUMNS == TIMING_COLUMNS
-
-
 #: What a docstring or comment of the core must not hold: measurements, their dates and the issues behind them
 #: belong in docs/ (results, differences), which the docstrings link. A citation's year ("Schulman et al., 2015")
 #: is a reference, not a date.

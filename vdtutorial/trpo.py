@@ -42,10 +42,9 @@ from vdtutorial.rollout import Rollout, check_vec_env, iteration_seeds, rollout
 from vdtutorial.trust_region import FisherProduct, conjugate_gradient, double_backward_fvp, flat_grad, line_search, mean_kl
 
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
-#: The columns of a log row that measure time rather than learning (:meth:`TRPO.iterate`).
+#: The columns of a log row that measure time rather than learning (:meth:`TRPO.iterate`): seconds, named as such
+#: (``_s``, ``_time``), which is how :mod:`vdtutorial.runner.rows` knows to store them coarsely.
 TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
-#: The parts of :meth:`TRPO.update` whose CPU seconds (less machine-dependent than wall time) ``update_split`` holds.
-UPDATE_PARTS = ("gradient", "fisher_setup", "cg_products", "line_search", "baseline")
 #: The statistics an update returns (:meth:`TRPO.update`), also those a ``TRPO(step=...)`` must return.
 STEP_STATS = ("mean_kl", "entropy", "surrogate_improvement", "line_search")
 
@@ -226,7 +225,6 @@ class TRPO:
         self.params = [p for p in policy.parameters() if p.requires_grad]
         self.iteration_index = 0
         self.rows: list[dict] = []
-        self.update_split: dict[str, float] = {}  # CPU seconds of the last update's parts (see update)
         self.checked_deterministic = False  # by the first update (see _check_deterministic)
         check_vec_env(self.env, self.config.steps_per_iter)
 
@@ -251,29 +249,25 @@ class TRPO:
     # -- 3-7. the update --------------------------------------------------------------------------
     def update(self, batch: Batch) -> dict:
         """Steps 3-6 on ``batch``, then refit the baseline (step 7). Returns :data:`STEP_STATS`: mean KL, entropy before
-        the step, surrogate improvement, line search (accepted fraction or "rejected"); CPU seconds: ``update_split``.
-        The first update checks that the policy is deterministic (ValueError if not)."""
+        the step, surrogate improvement, line search (accepted fraction or "rejected"). The first update checks that
+        the policy is deterministic (ValueError if not)."""
         if not self.checked_deterministic:
             self.checked_deterministic = _check_deterministic(self.policy, map_obs(lambda x: x[:8], batch.obs))
         with on_device(self.policy, self.device):
             return self._step(batch.to(self.device))
 
     def _step(self, batch: Batch) -> dict:
-        cfg, laps = self.config, [time.process_time()]
-        obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs  # a fast policy's, made once
         if self.step is None:
-            stats = self._trpo_step(batch, obs, laps, cfg)
-        else:  # the learner's steps 3-6; its time counts as the line search's
-            stats = self.step(self.policy, self.params, obs, batch.actions, batch.advantages, cfg)
+            stats = self._trpo_step(batch, self.config)
+        else:  # the learner's steps 3-6
+            stats = self.step(self.policy, self.params, batch.obs, batch.actions, batch.advantages, self.config)
             if not isinstance(stats, dict) or not set(STEP_STATS) <= set(stats):
                 raise TypeError(f"TRPO(step=...) must return a dict with the keys {STEP_STATS}, got {stats!r}")
-            laps += [laps[0]] * 3 + [time.process_time()]
         self.baseline.fit(batch.features, batch.timesteps, batch.returns)
-        laps.append(time.process_time())
-        self.update_split = {part: float(t) for part, t in zip(UPDATE_PARTS, np.diff(laps))}
         return {key: stats[key] for key in STEP_STATS}
 
-    def _trpo_step(self, batch: Batch, obs: TensorObs, laps: list[float], cfg: TRPOConfig) -> dict:
+    def _trpo_step(self, batch: Batch, cfg: TRPOConfig) -> dict:
+        obs = batch.obs
         dist = self.policy.distribution(obs)  # one forward with graph at theta_old: pi_old (detached), surrogate, g
         old = Normal(dist.mean.detach().clone(), dist.stddev.detach().clone())
         old_log_prob = old.log_prob(batch.actions).sum(-1)
@@ -289,23 +283,27 @@ class TRPO:
         surrogate = surrogate_of(dist)
         index = batch.fvp_index
         g = flat_grad(surrogate, self.params, retain_graph=index is None)  # the double backward may reuse the graph
-        laps.append(time.process_time())
         if index is None:  # F over the whole batch, at the forward pass just made
             Fvp = self.fvp(self.policy, self.params, obs, old, cfg.cg_damping, dist)
         else:  # F over the subsample (TRPOConfig.fvp_subsample)
-            Fvp = self.fvp(self.policy, self.params, map_obs(lambda x: x[index], batch.obs),
-                           Normal(old.mean[index], old.stddev[index]), cfg.cg_damping)
-        laps.append(time.process_time())
+            sub_obs = map_obs(lambda x: x[index], obs)
+            sub_old = Normal(old.mean[index], old.stddev[index])
+            Fvp = self.fvp(self.policy, self.params, sub_obs, sub_old, cfg.cg_damping)
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
         sFs = (direction @ Fvp(direction)).item()
-        laps.append(time.process_time())
         # Scale so that the KL's quadratic model, 0.5 step^T F step, is max_kl (a zero gradient: a zero step, rejected).
-        full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction if sFs > 0 else torch.zeros_like(direction)
+        if sFs > 0:
+            full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction
+        else:
+            full_step = torch.zeros_like(direction)
         fraction, improvement, kl = line_search(self.params, full_step, surrogate_and_kl, cfg.max_kl,
                                                 cfg.backtrack_iters, cfg.backtrack_coeff, surrogate.item())
-        laps.append(time.process_time())
-        return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(), "surrogate_improvement": improvement,
-                "line_search": "rejected" if fraction is None else fraction}
+        return {
+            "mean_kl": kl,
+            "entropy": old.entropy().sum(-1).mean().item(),
+            "surrogate_improvement": improvement,
+            "line_search": "rejected" if fraction is None else fraction,
+        }
 
     # -- one iteration, the main loop ---------------------------------------------------------------
     def iterate(self) -> dict:

@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from vdtutorial.baselines import LinearFeatureBaseline
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.expert import IKExpert
 from vdtutorial.fast.fisher import gauss_newton_fvp
@@ -194,6 +195,87 @@ FINETUNE_CASES = (
 )
 #: The products the cases name, as ``TRPO(fvp=...)`` takes them.
 FISHER_PRODUCTS = {"double_backward": double_backward_fvp, "gauss_newton": gauss_newton_fvp}
+#: The parts of a TRPO update that :class:`UpdateClock` times, in the order the update runs them.
+UPDATE_PARTS = ("gradient", "fisher_setup", "cg_products", "line_search", "baseline")
+
+
+class UpdateClock:
+    """The CPU seconds (less machine-dependent than wall time) of the parts of one TRPO update, timed from outside
+    through what TRPO is given: its Fisher-vector product (:meth:`fvp`), its baseline (:meth:`baseline`) and the
+    update's start (:class:`PartTimedTRPO`). Between those marks lie the surrogate gradient (with the forward pass
+    at theta_old), the Fisher setup, the CG products, the line search and the baseline fit (:data:`UPDATE_PARTS`)."""
+
+    def __init__(self):
+        self.marks: dict[str, float] = {}
+
+    def mark(self, name: str) -> None:
+        self.marks[name] = time.process_time()
+
+    def fvp(self, product):
+        """``product`` (a ``TRPO(fvp=...)``) with its setup and its last product call marked."""
+
+        def timed_product(policy, params, obs, old, damping, dist=None):
+            self.mark("fisher_setup")
+            fisher = product(policy, params, obs, old, damping, dist)
+            self.mark("cg_products")
+
+            def timed_fisher(v: torch.Tensor) -> torch.Tensor:
+                result = fisher(v)
+                self.mark("line_search")  # the line search starts after the last product
+                return result
+
+            return timed_fisher
+
+        return timed_product
+
+    def baseline(self, baseline) -> "TimedBaseline":
+        """``baseline`` with its fit marked."""
+        return TimedBaseline(baseline, self)
+
+    def split(self) -> dict[str, float]:
+        """The last update's parts, CPU seconds each (the time between one part's mark and the next's)."""
+        order = [*UPDATE_PARTS, "end"]
+        return {part: self.marks[after] - self.marks[part] for part, after in zip(order, order[1:])}
+
+
+class TimedBaseline:
+    """A TRPO baseline whose ``fit`` marks the start and the end of the update's last part (:class:`UpdateClock`)."""
+
+    def __init__(self, baseline, clock: UpdateClock):
+        self.inner, self.clock = baseline, clock
+
+    def predict(self, features, timesteps):
+        return self.inner.predict(features, timesteps)
+
+    def fit(self, features, timesteps, returns):
+        self.clock.mark("baseline")
+        self.inner.fit(features, timesteps, returns)
+        self.clock.mark("end")
+
+    def state_dict(self) -> dict:
+        return self.inner.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        self.inner.load_state_dict(state)
+
+
+class PartTimedTRPO(TRPO):
+    """TRPO whose updates are timed by parts (:class:`UpdateClock`): the clock's Fisher product and baseline wrap
+    the ones given, and :meth:`update` marks its start. The algorithm is TRPO's own, unchanged."""
+
+    def __init__(self, policy, env, config, fvp, device, seed: int = 0):
+        self.clock = UpdateClock()
+        super().__init__(policy, env, config, seed=seed, fvp=self.clock.fvp(fvp), device=device,
+                         baseline=self.clock.baseline(LinearFeatureBaseline(config.baseline_reg)))
+
+    def update(self, batch):
+        self.clock.mark("gradient")
+        return super().update(batch)
+
+    @property
+    def update_split(self) -> dict[str, float]:
+        """CPU seconds of the last update's parts (:data:`UPDATE_PARTS`)."""
+        return self.clock.split()
 
 
 def bench_finetune(iterations: int | None = None, profile: bool = False,
@@ -210,8 +292,8 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
     affects them alike; the speed-up of the Gauss-Newton form on the whole batch is printed after
     them. One warm-up iteration each, then ``iterations`` timed ones (default 10; quick mode 2).
 
-    A second table splits each case's update into its parts, in CPU seconds per iteration
-    (``TRPO.update_split``): the surrogate gradient (with the forward pass at theta_old), the Fisher
+    A second table splits each case's update into its parts, in CPU seconds per iteration, timed from outside
+    the update (:class:`UpdateClock`): the surrogate gradient (with the forward pass at theta_old), the Fisher
     setup, the CG products, the line search and the baseline fit. With ``profile``, the rgbd whole-batch
     Gauss-Newton case then runs ``iterations`` more under the profilers (:func:`print_profile`).
 
@@ -225,7 +307,7 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
     from vdtutorial.experiments.checkpoints import checkpoint_path, default_config, load_checkpoint
     from vdtutorial.pretrain import PretrainConfig
     from vdtutorial.rollout import make_vec_env
-    from vdtutorial.trpo import TRPO, TRPOConfig
+    from vdtutorial.trpo import TRPOConfig
 
     iterations = iterations or budget(10, 2)
     threads = torch.get_num_threads()
@@ -246,8 +328,7 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
             torch.manual_seed(0)
             policy = finetune_policy("vd", env, demos, obs_mode, 0, config, checkpoints_root=ckpt.parent.parent)
             policy = fast_policy(policy) if fisher == "gauss_newton" else policy
-            algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fvp=FISHER_PRODUCTS[fisher],
-                        device=device)
+            algo = PartTimedTRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), FISHER_PRODUCTS[fisher], device)
             runs.append((algo, []))
         for i in range(iterations + 1):
             for algo, timed in runs:  # every case collects from the shared env, reset with its own seeds
