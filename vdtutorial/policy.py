@@ -58,7 +58,7 @@ def _as_tensor(x, device):
 
 
 def obs_to_tensor(obs, device: torch.device | str | None = None):
-    """Tensor(s) from a numpy array, a tensor, or a dict of either: uint8 images stay uint8 (4x less memory;
+    """Tensor(s) from a numpy array, a tensor, or a dict of either: uint8 images stay uint8 (a quarter of the memory;
     the network scales them), anything else becomes float32. ``device``: where they go (None: where they are)."""
     return map_obs(lambda x: _as_tensor(x, device), obs)
 

@@ -1,4 +1,4 @@
-"""Benchmarks a learner waits for, measured on the machine at hand (``python -m vdtutorial bench ...``).
+"""Benchmarks a learner waits for, run on the machine at hand (``python -m vdtutorial bench ...``).
 
 ``env``: environment steps per second for each task x observation mode x image size, in one process
 and with two worker processes (gymnasium's AsyncVectorEnv), and the IK expert's time per action.

@@ -122,7 +122,7 @@ class _SceneTreeWindow:
 
 @functools.lru_cache(maxsize=1)
 def _viewer_js() -> str:
-    """The meshcat viewer bundle (three.js included, ~0.85 MB), read once per process."""
+    """The meshcat viewer bundle (three.js included), read once per process."""
     source = (Path(VIEWER_ROOT) / "main.min.js").read_text(encoding="utf-8")
     # A literal "</script" would end the inline <script> element early.
     return source.replace("</script", "<\\/script")
@@ -172,7 +172,7 @@ class Recorder:
     (``AttributeError``), and after the server dies the next command blocks forever; call
     :meth:`close` here instead, which stops the server and keeps recording in memory.
 
-    Why no server by default: meshcat normally runs a tornado/ZMQ server in a subprocess. Measured with
+    Why no server by default: meshcat normally runs a tornado/ZMQ server in a subprocess. With
     meshcat 0.3.2 that is fragile here: ``Visualizer.close()`` raises ``AttributeError`` (its window has
     no ``close``) and once the server process is gone every further call blocks forever on the ZMQ reply.
     So the recorder hands ``meshcat.Visualizer`` a window object whose ``send`` stores each command in an

@@ -205,7 +205,7 @@ def _import_ray():
 
 
 #: Tries to start a private local Ray. On a heavily loaded machine its raylet gives up when the dashboard
-#: agent takes more than 15 s to start (ray-project/ray issue 65983); a later try may find the machine less busy.
+#: agent is slow to start (ray-project/ray issue 65983); a later try may find the machine less busy.
 LOCAL_RAY_ATTEMPTS = 3
 
 
