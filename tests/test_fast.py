@@ -1,6 +1,6 @@
 """The exact speed-ups of vdtutorial.fast: the fast policy gives the plain policy's distribution bit for bit, and
-fast_policy wraps a policy's own networks without touching what it stores, and reuses a batch's prepared inputs only while
-the batch is unchanged."""
+fast_policy wraps a policy's own networks without touching what it stores, and reuses a batch's prepared inputs only
+while the batch is unchanged."""
 import pytest
 import torch
 import torch.nn.functional as F
@@ -13,8 +13,8 @@ from vdtutorial.policy import GaussianPolicy, make_policy
 
 @pytest.mark.parametrize("kind", list(SPACES))
 def test_prepared_inputs_give_the_networks_own_outputs_bit_for_bit(kind):
-    """FastGaussianPolicy.prepare() normalises once for both networks and the rgbd networks' first convolutions run as one:
-    the distribution is exactly that of mu and sigma each run on the raw observations (also pruned, for a
+    """FastGaussianPolicy.prepare() normalises once for both networks and the rgbd networks' first convolutions run as
+    one: the distribution is exactly that of mu and sigma each run on the raw observations (also pruned, for a
     half-pruned first layer, and for one observation, as in a rollout step)."""
     torch.manual_seed(0)
     space = SPACES[kind]()

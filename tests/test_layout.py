@@ -74,7 +74,8 @@ def test_a_module_docstring_names_the_chapter_that_teaches_it(path):
             f"chapter {chapters[number].name} does not mention {names[0]}"
 
 
-#: A pointer to a docstring section: "module docstring" or a class of the same module, then the quoted words to look for.
+#: A pointer to a docstring section: "module docstring" or a class of the same module, then the quoted words to look
+#: for.
 POINTER = re.compile(r'(module docstring|:class:`~?([\w.]+)`),\s+"([^"]+)"')
 
 

@@ -39,7 +39,14 @@ from tqdm.auto import tqdm
 from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, Obs, default_baseline_features
 from vdtutorial.policy import map_obs, obs_to_tensor, on_device, stack_obs, torch_device
 from vdtutorial.rollout import Rollout, check_vec_env, iteration_seeds, rollout
-from vdtutorial.trust_region import FisherProduct, conjugate_gradient, double_backward_fvp, flat_grad, line_search, mean_kl
+from vdtutorial.trust_region import (
+    FisherProduct,
+    conjugate_gradient,
+    double_backward_fvp,
+    flat_grad,
+    line_search,
+    mean_kl,
+)
 
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
 #: The columns of a log row that measure time rather than learning (:meth:`TRPO.iterate`): seconds, named as such
@@ -121,7 +128,8 @@ def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones:
     With ``lam=1``, ``A + values`` are the discounted returns (bootstrapped at the cut).
     """
     advantages = np.zeros_like(rewards, dtype=np.float64)
-    next_value, next_advantage = last_values, 0.0
+    next_value = last_values
+    next_advantage = 0.0
     for t in reversed(range(len(rewards))):
         alive = 1.0 - dones[t]
         delta = rewards[t] + gamma * next_value * alive - values[t]
@@ -132,8 +140,13 @@ def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones:
 
 
 # -- 2. advantages: the second part of TRPO.collect ----------------------------------------------------------
-def advantages_and_returns(trajectories: Rollout, features: np.ndarray, baseline, baseline_features: Callable[[Obs], np.ndarray],
-                           config: TRPOConfig) -> tuple[np.ndarray, np.ndarray]:
+def advantages_and_returns(
+    trajectories: Rollout,
+    features: np.ndarray,
+    baseline,
+    baseline_features: Callable[[Obs], np.ndarray],
+    config: TRPOConfig,
+) -> tuple[np.ndarray, np.ndarray]:
     """Step 2: the advantages of ``trajectories`` against ``baseline`` (fitted on the previous batch), normalised,
     and the baseline's next targets (``TRPOConfig.baseline``), flat, time-major; ``features`` of the observations.
 
@@ -153,8 +166,9 @@ def advantages_and_returns(trajectories: Rollout, features: np.ndarray, baseline
         returns = gae(rewards, values, last_values, trajectories.dones, config.gamma, 1.0) + values
     else:  # sb3-contrib: regress on the lambda-returns, less noisy targets for a network
         returns = advantages + values
-    advantages, returns = advantages.reshape(-1), returns.reshape(-1)
-    return (advantages - advantages.mean()) / (advantages.std() + 1e-8), returns
+    advantages = advantages.reshape(-1)
+    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    return advantages, returns.reshape(-1)
 
 
 @dataclass
@@ -182,7 +196,8 @@ def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
     """TRPO's KL(old, new) must be 0 before the step, so ``distribution(obs)`` must be a function of (obs, parameters);
     a sparse-VD policy in training mode draws new weight noise on every call and breaks this silently."""
     with torch.no_grad():
-        first, second = policy.distribution(obs), policy.distribution(obs)
+        first = policy.distribution(obs)
+        second = policy.distribution(obs)
     if not (torch.equal(first.mean, second.mean) and torch.equal(first.stddev, second.stddev)):
         raise ValueError("TRPO needs a deterministic policy: two evaluations on the same observations differ "
                          "(a sparse-VD policy in training mode samples weight noise: call prune_() or eval() first)")
@@ -205,8 +220,9 @@ class TRPO:
     fvp: step 4's Fisher-vector product (default :func:`vdtutorial.trust_region.double_backward_fvp`, any policy);
         an exact one changes the cost only (experiments: :func:`vdtutorial.fast.fisher.gauss_newton_fvp`).
     device: where :meth:`update` runs ("cuda": a GPU); rollouts, the baseline and checkpoints stay on the CPU.
-    step: ``step(policy, params, obs, actions, advantages, config) -> dict``, the learner's steps 3-6 (parameters left at
-        the new point, :data:`STEP_STATS` returned); chapter 06b drives TRPO with the learner's update through it.
+    step: ``step(policy, params, obs, actions, advantages, config) -> dict``, the learner's steps 3-6 (parameters
+        left at the new point, :data:`STEP_STATS` returned); chapter 06b drives TRPO with the learner's update through
+        it.
     """
 
     def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
@@ -214,9 +230,13 @@ class TRPO:
                  baseline_features: Callable[[Obs], np.ndarray] | None = None,
                  baseline=None, fvp: FisherProduct = double_backward_fvp, device: torch.device | str = "cpu",
                  step: Callable[..., dict] | None = None):
-        self.policy, self.fvp, self.device, self.step = policy, fvp, torch_device(device), step
+        self.policy = policy
+        self.fvp = fvp
+        self.device = torch_device(device)
+        self.step = step
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
-        self.config, self.seed = config or TRPOConfig(), seed
+        self.config = config or TRPOConfig()
+        self.seed = seed
         self.baseline_features = baseline_features or default_baseline_features
         if baseline is None and self.config.baseline != "linear":
             raise ValueError(f"config.baseline={self.config.baseline!r} is a value network: pass TRPO(baseline="
@@ -231,10 +251,12 @@ class TRPO:
     # -- 1. collect, 2. advantages ----------------------------------------------------------------
     def collect(self) -> Batch:
         """One batch of the current policy (:func:`rollout`) and its advantages, seeded by (seed, iteration_index)."""
-        cfg, n = self.config, self.env.num_envs
+        cfg = self.config
+        n = self.env.num_envs
         env_seeds, noise_seed = iteration_seeds(self.seed, self.iteration_index, n)
         generator = torch.Generator().manual_seed(noise_seed)
-        trajectories = rollout(self.policy, self.env, cfg.steps_per_iter // n, env_seeds, generator, cfg.bootstrap_time_limits)
+        steps_per_env = cfg.steps_per_iter // n
+        trajectories = rollout(self.policy, self.env, steps_per_env, env_seeds, generator, cfg.bootstrap_time_limits)
         features = self.baseline_features(trajectories.observations)
         advantages, returns = advantages_and_returns(trajectories, features, self.baseline, self.baseline_features, cfg)
         fvp_index = None
@@ -342,7 +364,8 @@ class TRPO:
 
     # -- checkpoints ------------------------------------------------------------------------------
     def checkpoint(self) -> dict:
-        """Policy, baseline, iteration index, log rows: all a run needs to continue (noise comes from (seed, iteration))."""
+        """Policy, baseline, iteration index, log rows: all a run needs to continue (noise comes from (seed,
+        iteration))."""
         return {"policy": self.policy.state_dict(), "baseline": self.baseline.state_dict(),
                 "iteration": self.iteration_index, "rows": self.rows, "seed": self.seed, "config": asdict(self.config)}
 
@@ -350,7 +373,9 @@ class TRPO:
         """Continue from a :meth:`checkpoint` of a run with the same seed and config."""
         saved_config = {**asdict(TRPOConfig()), **state["config"]}  # a field added since: its old behaviour
         if state["seed"] != self.seed or saved_config != asdict(self.config):
-            raise ValueError("checkpoint was written with a different seed or config: resuming would not continue the run")
+            raise ValueError(
+                "checkpoint was written with a different seed or config: resuming would not continue the run"
+            )
         self.policy.load_state_dict(state["policy"])
         self.baseline.load_state_dict(state["baseline"])
         self.iteration_index = state["iteration"]

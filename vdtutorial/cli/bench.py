@@ -38,7 +38,9 @@ def _make(task: str, obs_mode: str, image_size: int):
     return lambda: gym.make(ENV_IDS[task], obs_mode=obs_mode, image_size=image_size)
 
 
-def env_steps_per_second(task: str, obs_mode: str, image_size: int, steps: int, workers: int = 1, seed: int = 0) -> float:
+def env_steps_per_second(
+    task: str, obs_mode: str, image_size: int, steps: int, workers: int = 1, seed: int = 0
+) -> float:
     """Random-action steps per second; with ``workers > 1`` an AsyncVectorEnv of that many envs
     (each vector step counts ``workers`` env steps)."""
     rng = np.random.default_rng(seed)
@@ -95,7 +97,9 @@ def bench_env(steps: int | None = None) -> list[dict]:
     for task, obs_mode, size in ENV_CASES:
         one = env_steps_per_second(task, obs_mode, size, steps)
         two = env_steps_per_second(task, obs_mode, size, steps, workers=2)
-        rows.append({"task": task, "obs_mode": obs_mode, "image_size": size, "steps_per_s": one, "steps_per_s_2workers": two})
+        rows.append(
+            {"task": task, "obs_mode": obs_mode, "image_size": size, "steps_per_s": one, "steps_per_s_2workers": two}
+        )
         print(f"{task:6} {obs_mode:6} {size:>5} {one:>15.0f} {two:>18.0f}", flush=True)
     for task in ENV_IDS:
         t = expert_timing(task, budget(50, 5))
@@ -160,27 +164,32 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
         vd = make_policy(space, 6, variational=True).mu.train()
         ckpt = checkpoint_path(demos.meta, "vd", obs_mode, 0)
         if ckpt.exists():
-            trained, source = load_checkpoint(ckpt).mu, f"shipped {ckpt.name}"
+            trained = load_checkpoint(ckpt).mu
+            source = f"shipped {ckpt.name}"
         elif obs_mode == "state":
             trained = pretrain(demos, PretrainConfig(reg="vd", epochs=budget(150, 3)), progress=False)[0].mu
             source = "pre-trained here"
         else:
-            trained, source = make_policy(space, 6, variational=True).mu.eval(), "untrained VD net (no checkpoint)"
+            trained = make_policy(space, 6, variational=True).mu.eval()
+            source = "untrained VD net (no checkpoint)"
         small = compact(trained.eval())
         for name, net in (("plain", plain), ("sparse VD (train mode)", vd), ("compacted pruned", small)):
             fwd, fb = _network_times(net, obs, repeats)
             n_weights = sum(p.numel() for n, p in net.named_parameters() if n.endswith("weight"))
-            rows.append({"obs_mode": obs_mode, "network": name, "forward_ms": 1e3 * fwd, "forward_backward_ms": 1e3 * fb, "weights": n_weights})
+            row = {"obs_mode": obs_mode, "network": name, "forward_ms": 1e3 * fwd, "forward_backward_ms": 1e3 * fb}
+            rows.append({**row, "weights": n_weights})
             print(f"{obs_mode:6} {name:26} {1e3 * fwd:>11.2f} {1e3 * fb:>11.2f} {n_weights:>9d}")
         report = sparsity_report(trained)
-        print(f"       compacted from: {source}; {report.weight_fraction:.1%} weights, {report.neuron_fraction:.1%} neurons pruned")
+        pruned = f"{report.weight_fraction:.1%} weights, {report.neuron_fraction:.1%} neurons pruned"
+        print(f"       compacted from: {source}; {pruned}")
     for obs_mode in ("state", "rgbd"):
         part = Demos(**{k: getattr(demos, k)[:samples] for k in ("joints", "cup", "actions", "episode", "t")},
                      meta={**demos.meta, "samples": samples})
         obs = demo_observations(part, obs_mode, 128)
         for reg in ("l2", "vd"):
             start = time.perf_counter()
-            pretrain(part, PretrainConfig(reg=reg, obs_mode=obs_mode, epochs=1, val_fraction=0.0), progress=False, observations=obs)
+            config = PretrainConfig(reg=reg, obs_mode=obs_mode, epochs=1, val_fraction=0.0)
+            pretrain(part, config, progress=False, observations=obs)
             seconds = time.perf_counter() - start
             rows.append({"obs_mode": obs_mode, "epoch": reg, "samples": samples, "seconds": seconds})
             print(f"one pre-training epoch, {obs_mode}, {reg}, {samples} samples: {seconds:.2f} s")
@@ -242,7 +251,8 @@ class TimedBaseline:
     """A TRPO baseline whose ``fit`` marks the start and the end of the update's last part (:class:`UpdateClock`)."""
 
     def __init__(self, baseline, clock: UpdateClock):
-        self.inner, self.clock = baseline, clock
+        self.inner = baseline
+        self.clock = clock
 
     def predict(self, features, timesteps):
         return self.inner.predict(features, timesteps)

@@ -2,8 +2,8 @@ r"""The exact Fisher-vector product of the Gaussian policy, computed in Gauss-Ne
 
 TRPO's conjugate gradient needs F v about a dozen times per update, where F is the Hessian of the mean
 KL(pi_old || pi_theta) at theta = theta_old (:mod:`vdtutorial.trpo`, step 4). The generic way
-(:func:`vdtutorial.trust_region.double_backward_fvp`, TRPO's default and the one chapter 06 teaches) differentiates the KL
-twice with autograd. For the paper's policy pi(a | s) = N(mu(s), diag(sigma(s)^2)) the same matrix has
+(:func:`vdtutorial.trust_region.double_backward_fvp`, TRPO's default and the one chapter 06 teaches) differentiates
+the KL twice with autograd. For the paper's policy pi(a | s) = N(mu(s), diag(sigma(s)^2)) the same matrix has
 a closed form (chapter 06 derives it): with J the Jacobian of the network outputs (mu, sigma) with
 respect to theta, on N states,
 
@@ -118,7 +118,8 @@ class _Trace:
         for module, *cached in self.steps:
             if isinstance(module, WEIGHT_LAYERS):
                 x, weight, mask = cached
-                dw, db = tangents.get(module.weight), tangents.get(module.bias)
+                dw = tangents.get(module.weight)
+                db = tangents.get(module.bias)
                 if dw is None:
                     dw = torch.zeros_like(weight)
                 elif mask is not None:
@@ -172,7 +173,8 @@ class _FirstConvolutions:
     per update for both (:class:`GaussNewtonFisher`, "Their two weight gradients stay two matrix products")."""
 
     def __init__(self, layers: list[nn.Module], image: torch.Tensor):
-        self.layers, self.image = layers, image
+        self.layers = layers
+        self.image = image
         self.weights, self.masks = zip(*(applied_weight(layer) for layer in layers))
         self.outputs = fused_conv2d(layers, image, self.weights, [layer.bias for layer in layers])
         self.patches = _unfold(image, self.weights[0].shape[2:], *conv_geometry(layers[0])[:3])
@@ -215,7 +217,9 @@ class _NetTrace:
         self.widths = [s.output.shape[-1] for s in self.streams]
         self.output = self.head.output
 
-    def tangent(self, tangents: dict[nn.Parameter, torch.Tensor], first_tangent: torch.Tensor | None = None) -> torch.Tensor:
+    def tangent(
+        self, tangents: dict[nn.Parameter, torch.Tensor], first_tangent: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """d output along ``tangents``; ``first_tangent``: that of the first layer traced apart, if any."""
         features = [self.streams[0].tangent(tangents, first_tangent)]
         features += [s.tangent(tangents, None) for s in self.streams[1:]]
@@ -280,7 +284,8 @@ class GaussNewtonFisher:
         # d sigma / d (sigma network output), and M per output (1/N: the KL is a mean over the batch)
         self.dstd = torch.sigmoid(self.sigma.output)
         variance = old.variance.detach()
-        self.m_mean, self.m_std = 1 / (variance * len(variance)), 2 / (variance * len(variance))
+        self.m_mean = 1 / (variance * len(variance))
+        self.m_std = 2 / (variance * len(variance))
 
     @torch.no_grad()
     def __call__(self, v: torch.Tensor) -> torch.Tensor:
@@ -289,9 +294,10 @@ class GaussNewtonFisher:
         tangents = {p: piece.view_as(p) for p, piece in zip(self.params, pieces)}
         grads = {}
         first_tangents = [None, None] if self.first is None else self.first.tangent(tangents)
-        g_mu = self.mu.backward(self.m_mean * self.mu.tangent(tangents, first_tangents[0]), grads)
-        g_sigma = self.sigma.backward(self.dstd * self.m_std * self.dstd * self.sigma.tangent(tangents, first_tangents[1]),
-                                      grads)
+        mu_tangent = self.mu.tangent(tangents, first_tangents[0])
+        sigma_tangent = self.sigma.tangent(tangents, first_tangents[1])
+        g_mu = self.mu.backward(self.m_mean * mu_tangent, grads)
+        g_sigma = self.sigma.backward(self.dstd * self.m_std * self.dstd * sigma_tangent, grads)
         if self.first is not None:
             self.first.backward([g_mu, g_sigma], grads)
         return torch.cat([grads[p].reshape(-1) if p in grads else v.new_zeros(p.numel()) for p in self.params])

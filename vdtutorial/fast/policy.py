@@ -63,7 +63,9 @@ def fusable_convolutions(layers) -> bool:
                for layer in layers) and conv_geometry(first)[3] == 1
 
 
-def fused_conv2d(layers, x: torch.Tensor, weights: list[torch.Tensor], biases: list[torch.Tensor | None]) -> list[torch.Tensor]:
+def fused_conv2d(
+    layers, x: torch.Tensor, weights: list[torch.Tensor], biases: list[torch.Tensor | None]
+) -> list[torch.Tensor]:
     """The convolutions ``layers`` (:func:`fusable_convolutions`) of the same input ``x`` with the given
     weights and biases, computed as one convolution with all their filters stacked, then split per layer."""
     stride, padding, dilation, _ = conv_geometry(layers[0])
@@ -88,7 +90,8 @@ def same_inputs(net: PolicyNet, other: PolicyNet) -> bool:
     normalisation), so that both can read one prepared copy."""
     if net.kind != other.kind:
         return False
-    mine, theirs = dict(net.named_buffers(recurse=False)), dict(other.named_buffers(recurse=False))
+    mine = dict(net.named_buffers(recurse=False))
+    theirs = dict(other.named_buffers(recurse=False))
     return mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
 
 
