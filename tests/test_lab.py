@@ -3,7 +3,8 @@ moved by the keyboard.
 
 Each chapter is run from a folder written by ``python -m vdtutorial notebooks DEST`` in quick mode. After Run
 All, the test moves each slider one step and checks that the picture the slider drives is redrawn and that its
-readout changed, and that no text beside a slider runs past its box (a long ``Label`` is cut at the window's edge); throughout, it records every error the kernel reports, in a cell or in a widget's callback (the
+readout changed, and that no text beside a slider runs past its box (a long ``Label`` is cut at the window's
+edge); throughout, it records every error the kernel reports, in a cell or in a widget's callback (the
 latter reach only JupyterLab's Log Console, never the notebook). Chromium is driven over the DevTools protocol
 as in ``test_book.py``; JupyterLab is started with ``expose_app_in_browser`` so that the page's
 ``window.jupyterapp`` can run the notebook's commands.
@@ -37,9 +38,9 @@ RECORD_ERRORS = f"""(() => {{ window.__errors = [];
         if (args.direction === 'recv' && m.header.msg_type === 'error')
             window.__errors.push(m.content.ename + ': ' + m.content.evalue);
     }}); return true; }})()"""
-RUN_ALL = f"""(() => {{ window.__ranAll = false;
-    jupyterapp.commands.execute('notebook:run-all-cells').then(() => {{ window.__ranAll = true; }});
-    return true; }})()"""
+RUN_ALL = """(() => { window.__ranAll = false;
+    jupyterapp.commands.execute('notebook:run-all-cells').then(() => { window.__ranAll = true; });
+    return true; })()"""
 #: Every slider's readout and the pictures of the widget box it sits in.
 SLIDERS = """[...document.querySelectorAll('.jp-OutputArea .widget-slider')].map(s => {
     const box = s.closest('.widget-vbox') || s.parentElement;

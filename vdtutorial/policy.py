@@ -183,7 +183,9 @@ class PolicyNet(nn.Module):
         self.head = nn.Sequential(make_linear(features, out_dim, variational))
 
     def _register_bounds(self, low, high, part: slice, dims: int) -> None:
-        select = (lambda b: None if b is None else np.asarray(b, dtype=np.float32)[part])
+        def select(bound):
+            return None if bound is None else np.asarray(bound, dtype=np.float32)[part]
+
         centre, half_width = _bounds_affine(select(low), select(high), dims)
         self.register_buffer("input_centre", centre)
         self.register_buffer("input_scale", half_width)

@@ -127,8 +127,8 @@ def package_checks(names=("numpy", "torch", "gymnasium", "meshcat", "matplotlib"
             version = md.version(name)
             importlib.import_module(name)
         except md.PackageNotFoundError:
-            rows.append(("FIX", name, f"not installed: `pip install vdtutorial` (or `pip install -e .` in a clone) "
-                         f"pulls it in"))
+            rows.append(("FIX", name, "not installed: `pip install vdtutorial` (or `pip install -e .` in a clone) "
+                         "pulls it in"))
             continue
         except Exception as exc:  # installed but broken
             rows.append(("FIX", name, f"installed ({version}) but `import {name}` fails: {exc!r}. Reinstall it: "
