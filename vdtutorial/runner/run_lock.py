@@ -42,8 +42,8 @@ def lock_path(state_path: str | os.PathLike) -> Path:
 
 
 def holder_alive(path: Path, stale_s: float = STALE_S) -> bool:
-    """Whether the lock at ``path`` exists and its holder may still be running (module docstring, "A lock whose holder
-    has died")."""
+    """Whether the lock at ``path`` exists and its holder may still be running
+    (module docstring, "A lock whose holder has died")."""
     try:
         age = time.time() - path.stat().st_mtime
         holder = json.loads(path.read_text())
