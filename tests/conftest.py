@@ -63,7 +63,8 @@ def pytest_report_header(config):
     """Which package and which numerics this run tests (CI's two legs differ in both)."""
     import pybullet
 
-    return (f"vdtutorial from {Path(vdtutorial.__file__).parent}; {', '.join(f'{k} {v}' for k, v in numerics_here().items())}; "
+    numerics = ", ".join(f"{k} {v}" for k, v in numerics_here().items())
+    return (f"vdtutorial from {Path(vdtutorial.__file__).parent}; {numerics}; "
             f"pybullet.isNumpyEnabled() = {bool(pybullet.isNumpyEnabled())}")
 
 

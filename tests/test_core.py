@@ -8,12 +8,9 @@ import that is cut, must be struck from its list (the tests say so), so the boun
 from __future__ import annotations
 
 import ast
-import io
 import os
-import re
 import subprocess
 import sys
-import tokenize
 from pathlib import Path
 
 import vdtutorial
@@ -82,46 +79,3 @@ def test_the_core_runs_without_the_course_the_runner_or_the_experiments():
                          cwd=PACKAGE.parent)
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == "[]", f"importing the core loaded the subpackages {run.stdout.strip()}"
-
-
-def test_the_runner_rounds_the_columns_trpo_calls_timing():
-    """The grid runner may not import TRPO, so it names the timing columns itself: the two lists must agree."""
-    from vdtutorial.runner import rows
-    from vdtutorial.trpo import TIMING_COLUMNS
-
-    assert rows.TIMING_COLUMNS == TIMING_COLUMNS
-
-
-#: What a docstring or comment of the core must not hold: measurements, their dates and the issues behind them
-#: belong in docs/ (results, differences), which the docstrings link. A citation's year ("Schulman et al., 2015")
-#: is a reference, not a date.
-HISTORY = re.compile(r"[Mm]easured|\b[Ii]ssues? \d+|\b(?:January|February|March|April|May|June|July|August|September|"
-                     r"October|November|December) \d{4}\b|\b\d{4}-\d{2}-\d{2}\b")
-
-
-def _docs_and_comments(path: Path) -> list[tuple[int, str]]:
-    """(line, text) of every docstring and comment of ``path``."""
-    source = path.read_text()
-    found = [(node.body[0].lineno, ast.get_docstring(node, clean=False))
-             for node in ast.walk(ast.parse(source)) if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef))
-             and ast.get_docstring(node, clean=False)]
-    found += [(token.start[0], token.string) for token in tokenize.generate_tokens(io.StringIO(source).readline)
-              if token.type == tokenize.COMMENT]
-    return found
-
-
-def test_no_docstring_or_comment_in_the_core_names_an_issue_a_date_or_a_measurement():
-    offending = [f"{path.relative_to(PACKAGE)}:{line}: {HISTORY.search(text).group(0)!r}"
-                 for path in _core_files() for line, text in _docs_and_comments(path) if HISTORY.search(text)]
-    assert not offending
-
-
-#: The core's budget: the method in at most 2,600 lines, no module over 450.
-CORE_LINES_MAX, MODULE_LINES_MAX = 2600, 450
-
-
-def test_the_core_stays_small():
-    lines = {str(path.relative_to(PACKAGE)): len(path.read_text().splitlines()) for path in _core_files()}
-    assert max(lines.values()) <= MODULE_LINES_MAX, {k: v for k, v in lines.items() if v > MODULE_LINES_MAX}
-    assert sum(lines.values()) <= CORE_LINES_MAX, f"the core grew to {sum(lines.values())} lines (budget {CORE_LINES_MAX})"
-    assert len((PACKAGE / "__main__.py").read_text().splitlines()) <= 40

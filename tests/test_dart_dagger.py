@@ -1,4 +1,5 @@
-"""DART's noise estimate and DAgger's aggregation (vdtutorial.beyond.dart, vdtutorial.beyond.dagger, vdtutorial.beyond.imitation_rounds)."""
+"""DART's noise estimate and DAgger's aggregation (vdtutorial.beyond.dart, vdtutorial.beyond.dagger,
+vdtutorial.beyond.imitation_rounds)."""
 import numpy as np
 import pytest
 

@@ -146,13 +146,39 @@ def test_supports_only_deterministic_gaussian_policies():
     assert supports(unpruned.eval())
 
     class Other(torch.nn.Module):
-        def distribution(self, obs):
-            return Normal(obs, torch.ones_like(obs))
+        def __init__(self):
+            super().__init__()
+            self.scale = torch.nn.Parameter(torch.tensor([0.5, 2.0]))
 
-    assert not supports(Other())
-    obs = torch.zeros(4, 2)
-    with pytest.raises(TypeError, match="GaussNewtonFisher needs a GaussianPolicy"):  # TRPO(fvp=gauss_newton_fvp) says so
-        gauss_newton_fvp(Other(), [], obs, Other().distribution(obs), 0.1)
+        def distribution(self, obs):
+            return Normal(obs * self.scale, torch.exp(self.scale) * torch.ones_like(obs))
+
+    other = Other()
+    assert not supports(other)
+    with pytest.raises(TypeError, match="GaussNewtonFisher needs a GaussianPolicy"):
+        GaussNewtonFisher(other, torch.zeros(4, 2), other.distribution(torch.zeros(4, 2)), [other.scale])
+
+
+def test_the_fast_product_falls_back_to_the_double_backward_for_another_policy():
+    """A policy the Gauss-Newton form cannot read (here an arbitrary module with a distribution) still gets its
+    Fisher-vector products from TRPO(fvp=gauss_newton_fvp): the double backward's, exactly."""
+
+    class Other(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.scale = torch.nn.Parameter(torch.tensor([0.5, 2.0]))
+
+        def distribution(self, obs):
+            return Normal(obs * self.scale, torch.exp(self.scale) * torch.ones_like(obs))
+
+    policy, obs = Other(), torch.randn(6, 2, generator=torch.Generator().manual_seed(0))
+    params = [policy.scale]
+    with torch.no_grad():
+        old = policy.distribution(obs)
+    v = torch.tensor([1.0, -3.0])
+    fast = gauss_newton_fvp(policy, params, obs, old, 0.1)(v)
+    assert torch.equal(fast, double_backward_fvp(policy, params, obs, old, 0.1)(v))
+    assert fast.abs().sum() > 0
 
 
 @pytest.mark.parametrize("fvp_subsample", [1.0, 0.25])

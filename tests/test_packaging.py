@@ -115,7 +115,7 @@ def test_ci_runs_the_readme_test_command():
     install = 'pip install -c constraints-py311.txt -e ".[test]"'
     test_line = "pytest -n 2 --nbmake tests notebooks"
     assert f"{install} && VDTUTORIAL_QUICK=1 {test_line}" in readme
-    assert f"python -m pip install --quiet -c constraints-py311.txt -e \".[test]\"" in ci
+    assert "python -m pip install --quiet -c constraints-py311.txt -e \".[test]\"" in ci
     assert f"\n{test_line}\n" in ci and "export VDTUTORIAL_QUICK=1" in ci
     assert "<!-- colab-cell" in readme and "colab_cell.py" in ci
 

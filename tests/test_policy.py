@@ -196,7 +196,7 @@ def test_compacting_a_trained_and_pruned_policy_keeps_its_outputs():
     with torch.no_grad():
         assert torch.allclose(small(test_obs), policy.mu.eval()(test_obs), atol=1e-5)
     whole = sparsity_report(policy)  # both networks; sigma's report shows its untrained layers
-    assert [l.name.split(".")[0] for l in whole.layers] == ["mu"] * 7 + ["sigma"] * 7
+    assert [layer.name.split(".")[0] for layer in whole.layers] == ["mu"] * 7 + ["sigma"] * 7
 
 
 def test_compacting_an_image_network():

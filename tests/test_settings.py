@@ -5,7 +5,6 @@ import importlib
 import json
 import os
 import pkgutil
-import runpy
 import subprocess
 import sys
 from dataclasses import asdict

@@ -1,7 +1,8 @@
-"""Tests of vdtutorial.trpo and vdtutorial.trust_region: each piece against a hand or brute-force computation, then the whole
-algorithm on a tiny 1-D reaching task defined here."""
+"""Tests of vdtutorial.trpo and vdtutorial.trust_region: each piece against a hand or brute-force computation, then the
+whole algorithm on a tiny 1-D reaching task defined here."""
 import copy
 import math
+import time
 
 import gymnasium
 import numpy as np
@@ -408,7 +409,8 @@ def pieces_step(policy, params, obs, actions, advantages, config):
 
 
 def test_a_step_from_the_library_pieces_reproduces_the_default_update():
-    """TRPO(step=...) (chapter 06b's hook): the pieces assembled by hand give the default update's parameters and log."""
+    """TRPO(step=...) (chapter 06b's hook): the pieces assembled by hand give the default update's parameters and
+    log."""
     runs = {}
     for step in (None, pieces_step):
         torch.manual_seed(0)
@@ -441,3 +443,31 @@ def test_mean_kl_is_the_gaussian_kl_summed_over_actions_and_averaged_over_states
     s0, s1 = torch.rand(5, 3, generator=gen) + 0.1, torch.rand(5, 3, generator=gen) + 0.1
     by_hand = (torch.log(s1 / s0) + (s0 ** 2 + (mu0 - mu1) ** 2) / (2 * s1 ** 2) - 0.5).sum(-1).mean()
     torch.testing.assert_close(mean_kl(Normal(mu0, s0), Normal(mu1, s1)), by_hand)
+
+
+def test_the_benchmark_times_the_update_from_outside_without_changing_it():
+    """bench finetune's TRPO times the update's parts through the Fisher product, the baseline and the update's start
+    it is given: the same iterations as a plain TRPO's, and parts that add up to the update's CPU time at most."""
+    from vdtutorial.cli.bench import UPDATE_PARTS, PartTimedTRPO
+
+    rows = {}
+    for timed in (False, True):
+        torch.manual_seed(0)
+        env = make_vec_env("Pendulum-v1", 2)
+        policy = make_policy(env.single_observation_space, 1, kind="mlp", scene_hidden=(16, 16))
+        config = TRPOConfig(steps_per_iter=64)
+        if timed:
+            algo = PartTimedTRPO(policy, env, config, double_backward_fvp, "cpu")
+        else:
+            algo = TRPO(policy, env, config, seed=0)
+        rows[timed] = []
+        for _ in range(2):
+            start = time.process_time()
+            row = algo.iterate()
+            cpu = time.process_time() - start
+            rows[timed].append({k: v for k, v in row.items() if k not in TIMING_COLUMNS})
+        env.close()
+    assert rows[True] == rows[False]
+    split = algo.update_split
+    assert tuple(split) == UPDATE_PARTS and all(seconds >= 0 for seconds in split.values())
+    assert 0 < sum(split.values()) <= cpu

@@ -162,7 +162,7 @@ def test_pruned_state_survives_state_dict_round_trip():
 @torch.no_grad()
 def test_model_kl_sums_layers_and_is_zero_for_plain_networks():
     model = _pruned_mlp()
-    assert vd.model_kl(model).item() == pytest.approx(sum(l.kl().item() for l in vd.svdo_layers(model)))
+    assert vd.model_kl(model).item() == pytest.approx(sum(layer.kl().item() for layer in vd.svdo_layers(model)))
     assert vd.model_kl(nn.Sequential(nn.Linear(3, 2))).item() == 0.0
 
 
@@ -211,7 +211,7 @@ def test_compact_conv_stack_gives_identical_outputs_with_fewer_parameters():
     with torch.no_grad():
         assert torch.allclose(small(x), model(x), atol=1e-5)
     report = sparsity_report(model)
-    assert [l.dead for l in report.layers] == [2, 1, 1, 1, 0]  # c1's unfoldable channel 1 counts as pruned
+    assert [layer.dead for layer in report.layers] == [2, 1, 1, 1, 0]  # c1's unfoldable channel 1 counts as pruned
 
 
 def test_sparsity_report_on_hand_built_network():

@@ -56,7 +56,8 @@ def demo_command(task: str, samples: int, noise: float, seed: int) -> str:
 
 def data_set_name(task: str, samples: int, noise: float) -> str:
     """The data set's part of a file name, ``TASK_nSAMPLES_sigmaSIGMA``: a demonstrations file adds its seed
-    (:func:`demo_path`), a checkpoint cloned from it adds its own settings (``experiments.checkpoints.checkpoint_path``)."""
+    (:func:`demo_path`), a checkpoint cloned from it adds its own settings
+    (``experiments.checkpoints.checkpoint_path``)."""
     return f"{task}_n{samples}_sigma{noise:g}"
 
 

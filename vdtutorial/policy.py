@@ -58,7 +58,7 @@ def _as_tensor(x, device):
 
 
 def obs_to_tensor(obs, device: torch.device | str | None = None):
-    """Tensor(s) from a numpy array, a tensor, or a dict of either: uint8 images stay uint8 (4x less memory;
+    """Tensor(s) from a numpy array, a tensor, or a dict of either: uint8 images stay uint8 (a quarter of the memory;
     the network scales them), anything else becomes float32. ``device``: where they go (None: where they are)."""
     return map_obs(lambda x: _as_tensor(x, device), obs)
 
@@ -183,7 +183,9 @@ class PolicyNet(nn.Module):
         self.head = nn.Sequential(make_linear(features, out_dim, variational))
 
     def _register_bounds(self, low, high, part: slice, dims: int) -> None:
-        select = (lambda b: None if b is None else np.asarray(b, dtype=np.float32)[part])
+        def select(bound):
+            return None if bound is None else np.asarray(bound, dtype=np.float32)[part]
+
         centre, half_width = _bounds_affine(select(low), select(high), dims)
         self.register_buffer("input_centre", centre)
         self.register_buffer("input_scale", half_width)

@@ -39,13 +39,19 @@ from tqdm.auto import tqdm
 from vdtutorial.baselines import BASELINES, LinearFeatureBaseline, Obs, default_baseline_features
 from vdtutorial.policy import map_obs, obs_to_tensor, on_device, stack_obs, torch_device
 from vdtutorial.rollout import Rollout, check_vec_env, iteration_seeds, rollout
-from vdtutorial.trust_region import FisherProduct, conjugate_gradient, double_backward_fvp, flat_grad, line_search, mean_kl
+from vdtutorial.trust_region import (
+    FisherProduct,
+    conjugate_gradient,
+    double_backward_fvp,
+    flat_grad,
+    line_search,
+    mean_kl,
+)
 
 TensorObs = torch.Tensor | dict[str, torch.Tensor]
-#: The columns of a log row that measure time rather than learning (:meth:`TRPO.iterate`).
+#: The columns of a log row that measure time rather than learning (:meth:`TRPO.iterate`): seconds, named as such
+#: (``_s``, ``_time``), which is how :mod:`vdtutorial.runner.rows` knows to store them coarsely.
 TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
-#: The parts of :meth:`TRPO.update` whose CPU seconds (less machine-dependent than wall time) ``update_split`` holds.
-UPDATE_PARTS = ("gradient", "fisher_setup", "cg_products", "line_search", "baseline")
 #: The statistics an update returns (:meth:`TRPO.update`), also those a ``TRPO(step=...)`` must return.
 STEP_STATS = ("mean_kl", "entropy", "surrogate_improvement", "line_search")
 
@@ -122,7 +128,8 @@ def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones:
     With ``lam=1``, ``A + values`` are the discounted returns (bootstrapped at the cut).
     """
     advantages = np.zeros_like(rewards, dtype=np.float64)
-    next_value, next_advantage = last_values, 0.0
+    next_value = last_values
+    next_advantage = 0.0
     for t in reversed(range(len(rewards))):
         alive = 1.0 - dones[t]
         delta = rewards[t] + gamma * next_value * alive - values[t]
@@ -133,8 +140,13 @@ def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones:
 
 
 # -- 2. advantages: the second part of TRPO.collect ----------------------------------------------------------
-def advantages_and_returns(trajectories: Rollout, features: np.ndarray, baseline, baseline_features: Callable[[Obs], np.ndarray],
-                           config: TRPOConfig) -> tuple[np.ndarray, np.ndarray]:
+def advantages_and_returns(
+    trajectories: Rollout,
+    features: np.ndarray,
+    baseline,
+    baseline_features: Callable[[Obs], np.ndarray],
+    config: TRPOConfig,
+) -> tuple[np.ndarray, np.ndarray]:
     """Step 2: the advantages of ``trajectories`` against ``baseline`` (fitted on the previous batch), normalised,
     and the baseline's next targets (``TRPOConfig.baseline``), flat, time-major; ``features`` of the observations.
 
@@ -154,8 +166,9 @@ def advantages_and_returns(trajectories: Rollout, features: np.ndarray, baseline
         returns = gae(rewards, values, last_values, trajectories.dones, config.gamma, 1.0) + values
     else:  # sb3-contrib: regress on the lambda-returns, less noisy targets for a network
         returns = advantages + values
-    advantages, returns = advantages.reshape(-1), returns.reshape(-1)
-    return (advantages - advantages.mean()) / (advantages.std() + 1e-8), returns
+    advantages = advantages.reshape(-1)
+    advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    return advantages, returns.reshape(-1)
 
 
 @dataclass
@@ -183,7 +196,8 @@ def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
     """TRPO's KL(old, new) must be 0 before the step, so ``distribution(obs)`` must be a function of (obs, parameters);
     a sparse-VD policy in training mode draws new weight noise on every call and breaks this silently."""
     with torch.no_grad():
-        first, second = policy.distribution(obs), policy.distribution(obs)
+        first = policy.distribution(obs)
+        second = policy.distribution(obs)
     if not (torch.equal(first.mean, second.mean) and torch.equal(first.stddev, second.stddev)):
         raise ValueError("TRPO needs a deterministic policy: two evaluations on the same observations differ "
                          "(a sparse-VD policy in training mode samples weight noise: call prune_() or eval() first)")
@@ -206,8 +220,9 @@ class TRPO:
     fvp: step 4's Fisher-vector product (default :func:`vdtutorial.trust_region.double_backward_fvp`, any policy);
         an exact one changes the cost only (experiments: :func:`vdtutorial.fast.fisher.gauss_newton_fvp`).
     device: where :meth:`update` runs ("cuda": a GPU); rollouts, the baseline and checkpoints stay on the CPU.
-    step: ``step(policy, params, obs, actions, advantages, config) -> dict``, the learner's steps 3-6 (parameters left at
-        the new point, :data:`STEP_STATS` returned); chapter 06b drives TRPO with the learner's update through it.
+    step: ``step(policy, params, obs, actions, advantages, config) -> dict``, the learner's steps 3-6 (parameters
+        left at the new point, :data:`STEP_STATS` returned); chapter 06b drives TRPO with the learner's update through
+        it.
     """
 
     def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
@@ -215,9 +230,13 @@ class TRPO:
                  baseline_features: Callable[[Obs], np.ndarray] | None = None,
                  baseline=None, fvp: FisherProduct = double_backward_fvp, device: torch.device | str = "cpu",
                  step: Callable[..., dict] | None = None):
-        self.policy, self.fvp, self.device, self.step = policy, fvp, torch_device(device), step
+        self.policy = policy
+        self.fvp = fvp
+        self.device = torch_device(device)
+        self.step = step
         self.env = env if isinstance(env, gymnasium.vector.VectorEnv) else env()
-        self.config, self.seed = config or TRPOConfig(), seed
+        self.config = config or TRPOConfig()
+        self.seed = seed
         self.baseline_features = baseline_features or default_baseline_features
         if baseline is None and self.config.baseline != "linear":
             raise ValueError(f"config.baseline={self.config.baseline!r} is a value network: pass TRPO(baseline="
@@ -226,17 +245,18 @@ class TRPO:
         self.params = [p for p in policy.parameters() if p.requires_grad]
         self.iteration_index = 0
         self.rows: list[dict] = []
-        self.update_split: dict[str, float] = {}  # CPU seconds of the last update's parts (see update)
         self.checked_deterministic = False  # by the first update (see _check_deterministic)
         check_vec_env(self.env, self.config.steps_per_iter)
 
     # -- 1. collect, 2. advantages ----------------------------------------------------------------
     def collect(self) -> Batch:
         """One batch of the current policy (:func:`rollout`) and its advantages, seeded by (seed, iteration_index)."""
-        cfg, n = self.config, self.env.num_envs
+        cfg = self.config
+        n = self.env.num_envs
         env_seeds, noise_seed = iteration_seeds(self.seed, self.iteration_index, n)
         generator = torch.Generator().manual_seed(noise_seed)
-        trajectories = rollout(self.policy, self.env, cfg.steps_per_iter // n, env_seeds, generator, cfg.bootstrap_time_limits)
+        steps_per_env = cfg.steps_per_iter // n
+        trajectories = rollout(self.policy, self.env, steps_per_env, env_seeds, generator, cfg.bootstrap_time_limits)
         features = self.baseline_features(trajectories.observations)
         advantages, returns = advantages_and_returns(trajectories, features, self.baseline, self.baseline_features, cfg)
         fvp_index = None
@@ -251,29 +271,25 @@ class TRPO:
     # -- 3-7. the update --------------------------------------------------------------------------
     def update(self, batch: Batch) -> dict:
         """Steps 3-6 on ``batch``, then refit the baseline (step 7). Returns :data:`STEP_STATS`: mean KL, entropy before
-        the step, surrogate improvement, line search (accepted fraction or "rejected"); CPU seconds: ``update_split``.
-        The first update checks that the policy is deterministic (ValueError if not)."""
+        the step, surrogate improvement, line search (accepted fraction or "rejected"). The first update checks that
+        the policy is deterministic (ValueError if not)."""
         if not self.checked_deterministic:
             self.checked_deterministic = _check_deterministic(self.policy, map_obs(lambda x: x[:8], batch.obs))
         with on_device(self.policy, self.device):
             return self._step(batch.to(self.device))
 
     def _step(self, batch: Batch) -> dict:
-        cfg, laps = self.config, [time.process_time()]
-        obs = self.policy.prepare(batch.obs) if hasattr(self.policy, "prepare") else batch.obs  # a fast policy's, made once
         if self.step is None:
-            stats = self._trpo_step(batch, obs, laps, cfg)
-        else:  # the learner's steps 3-6; its time counts as the line search's
-            stats = self.step(self.policy, self.params, obs, batch.actions, batch.advantages, cfg)
+            stats = self._trpo_step(batch, self.config)
+        else:  # the learner's steps 3-6
+            stats = self.step(self.policy, self.params, batch.obs, batch.actions, batch.advantages, self.config)
             if not isinstance(stats, dict) or not set(STEP_STATS) <= set(stats):
                 raise TypeError(f"TRPO(step=...) must return a dict with the keys {STEP_STATS}, got {stats!r}")
-            laps += [laps[0]] * 3 + [time.process_time()]
         self.baseline.fit(batch.features, batch.timesteps, batch.returns)
-        laps.append(time.process_time())
-        self.update_split = {part: float(t) for part, t in zip(UPDATE_PARTS, np.diff(laps))}
         return {key: stats[key] for key in STEP_STATS}
 
-    def _trpo_step(self, batch: Batch, obs: TensorObs, laps: list[float], cfg: TRPOConfig) -> dict:
+    def _trpo_step(self, batch: Batch, cfg: TRPOConfig) -> dict:
+        obs = batch.obs
         dist = self.policy.distribution(obs)  # one forward with graph at theta_old: pi_old (detached), surrogate, g
         old = Normal(dist.mean.detach().clone(), dist.stddev.detach().clone())
         old_log_prob = old.log_prob(batch.actions).sum(-1)
@@ -289,23 +305,27 @@ class TRPO:
         surrogate = surrogate_of(dist)
         index = batch.fvp_index
         g = flat_grad(surrogate, self.params, retain_graph=index is None)  # the double backward may reuse the graph
-        laps.append(time.process_time())
         if index is None:  # F over the whole batch, at the forward pass just made
             Fvp = self.fvp(self.policy, self.params, obs, old, cfg.cg_damping, dist)
         else:  # F over the subsample (TRPOConfig.fvp_subsample)
-            Fvp = self.fvp(self.policy, self.params, map_obs(lambda x: x[index], batch.obs),
-                           Normal(old.mean[index], old.stddev[index]), cfg.cg_damping)
-        laps.append(time.process_time())
+            sub_obs = map_obs(lambda x: x[index], obs)
+            sub_old = Normal(old.mean[index], old.stddev[index])
+            Fvp = self.fvp(self.policy, self.params, sub_obs, sub_old, cfg.cg_damping)
         direction = conjugate_gradient(Fvp, g, cfg.cg_iters)
         sFs = (direction @ Fvp(direction)).item()
-        laps.append(time.process_time())
         # Scale so that the KL's quadratic model, 0.5 step^T F step, is max_kl (a zero gradient: a zero step, rejected).
-        full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction if sFs > 0 else torch.zeros_like(direction)
+        if sFs > 0:
+            full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction
+        else:
+            full_step = torch.zeros_like(direction)
         fraction, improvement, kl = line_search(self.params, full_step, surrogate_and_kl, cfg.max_kl,
                                                 cfg.backtrack_iters, cfg.backtrack_coeff, surrogate.item())
-        laps.append(time.process_time())
-        return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(), "surrogate_improvement": improvement,
-                "line_search": "rejected" if fraction is None else fraction}
+        return {
+            "mean_kl": kl,
+            "entropy": old.entropy().sum(-1).mean().item(),
+            "surrogate_improvement": improvement,
+            "line_search": "rejected" if fraction is None else fraction,
+        }
 
     # -- one iteration, the main loop ---------------------------------------------------------------
     def iterate(self) -> dict:
@@ -344,7 +364,8 @@ class TRPO:
 
     # -- checkpoints ------------------------------------------------------------------------------
     def checkpoint(self) -> dict:
-        """Policy, baseline, iteration index, log rows: all a run needs to continue (noise comes from (seed, iteration))."""
+        """Policy, baseline, iteration index, log rows: all a run needs to continue (noise comes from (seed,
+        iteration))."""
         return {"policy": self.policy.state_dict(), "baseline": self.baseline.state_dict(),
                 "iteration": self.iteration_index, "rows": self.rows, "seed": self.seed, "config": asdict(self.config)}
 
@@ -352,7 +373,9 @@ class TRPO:
         """Continue from a :meth:`checkpoint` of a run with the same seed and config."""
         saved_config = {**asdict(TRPOConfig()), **state["config"]}  # a field added since: its old behaviour
         if state["seed"] != self.seed or saved_config != asdict(self.config):
-            raise ValueError("checkpoint was written with a different seed or config: resuming would not continue the run")
+            raise ValueError(
+                "checkpoint was written with a different seed or config: resuming would not continue the run"
+            )
         self.policy.load_state_dict(state["policy"])
         self.baseline.load_state_dict(state["baseline"])
         self.iteration_index = state["iteration"]

@@ -11,15 +11,21 @@ Taught in chapters 06a and 06b.
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Protocol
 
 import torch
 from torch import nn
 from torch.distributions import Distribution, kl_divergence
 
-#: A Fisher-vector product as TRPO takes it: ``fvp(policy, params, obs, old, damping, dist=None)`` returns
-#: ``v -> (F + damping * I) v`` (:func:`double_backward_fvp`).
-FisherProduct = Callable[..., Callable[[torch.Tensor], torch.Tensor]]
+class FisherProduct(Protocol):
+    """A Fisher-vector product as TRPO takes it (``TRPO(fvp=...)``): called once per update with the policy, the
+    parameters that move, the observations, pi_old on them (detached), the damping and, when the caller has it, the
+    policy's distribution with its autograd graph; returns ``v -> (F + damping * I) v``. :func:`double_backward_fvp`
+    serves any policy with ``distribution(obs)``; :func:`vdtutorial.fast.fisher.gauss_newton_fvp` the same matrix,
+    cheaper, for the paper's Gaussian policy."""
+
+    def __call__(self, policy: nn.Module, params: list[nn.Parameter], obs, old: Distribution, damping: float,
+                 dist: Distribution | None = None) -> Callable[[torch.Tensor], torch.Tensor]: ...
 
 
 def flat_grad(y: torch.Tensor, params: list[nn.Parameter], create_graph: bool = False,

@@ -1,7 +1,9 @@
 """Pre-training runs policy.train(), which also puts the frozen sigma network's sparse-VD
 layers in their noisy (training) mode. Measure what that changes: VD state pre-training on the shipped reach sets
 (2000/4000/8000 samples, Sigma 0.5, demo seed 0), pre-training seeds 0-2, as today and with sigma kept in eval mode."""
-import json, sys, time
+import json
+import sys
+import time
 import torch
 import vdtutorial.pretrain as pre
 from vdtutorial.demos import Demos, demo_path

@@ -11,7 +11,16 @@ from collections import defaultdict
 import torch
 from torch import nn
 
-from vdtutorial.analysis.sparsity import Edge, column_count, dead_units, kept_weights, unit_count, chain, graph, weight_layers
+from vdtutorial.analysis.sparsity import (
+    Edge,
+    chain,
+    column_count,
+    dead_units,
+    graph,
+    kept_weights,
+    unit_count,
+    weight_layers,
+)
 from vdtutorial.policy import PolicyNet
 
 
@@ -46,38 +55,38 @@ def compact_layers(module: nn.Module, edges: list[Edge]) -> dict[nn.Module, nn.M
     that product is zero. Pruned weights among the kept units stay as explicit zeros.
     """
     layers = weight_layers(module)
-    masks = {l: kept_weights(l) for l in layers}
-    weights = {l: l.weight * masks[l] for l in layers}
+    masks = {layer: kept_weights(layer) for layer in layers}
+    weights = {layer: layer.weight * masks[layer] for layer in layers}
     dead = dead_units(layers, edges, masks)
     consumers, producers = defaultdict(list), defaultdict(list)
     for e in edges:
         consumers[e.src].append(e)
         producers[e.dst].append(e)
     keep = {}
-    for l in layers:
-        keep[l] = torch.ones(unit_count(l), dtype=torch.bool)
-        if l in dead:
-            dead_in, dead_out = dead[l]
-            foldable = all(_fold_is_exact(e.dst) for e in consumers[l])
-            keep[l] = ~(dead_out | (dead_in & foldable))
+    for layer in layers:
+        keep[layer] = torch.ones(unit_count(layer), dtype=torch.bool)
+        if layer in dead:
+            dead_in, dead_out = dead[layer]
+            foldable = all(_fold_is_exact(e.dst) for e in consumers[layer])
+            keep[layer] = ~(dead_out | (dead_in & foldable))
     new = {}
-    for l in layers:
-        columns = torch.ones(column_count(l), dtype=torch.bool)
-        constants = torch.zeros(column_count(l))
-        for e in producers[l]:
+    for layer in layers:
+        columns = torch.ones(column_count(layer), dtype=torch.bool)
+        constants = torch.zeros(column_count(layer))
+        for e in producers[layer]:
             n = unit_count(e.src)
             bias = e.src.bias if e.src.bias is not None else torch.zeros(n)
             value = nn.Sequential(*e.post)(bias.view(1, n)).view(n)
             span = slice(e.offset, e.offset + n * e.repeat)
             columns[span] = keep[e.src].repeat_interleave(e.repeat)
             constants[span] = torch.where(keep[e.src], 0.0, value).repeat_interleave(e.repeat)
-        w = weights[l]
+        w = weights[layer]
         fold = w.reshape(*w.shape[:2], -1).sum(-1) @ constants
         bias = None
-        if l.bias is not None or bool(fold.any()):
-            bias = (l.bias if l.bias is not None else 0.0) + fold
-            bias = bias[keep[l]]
-        new[l] = _plain_like(l, w[keep[l]][:, columns], bias)
+        if layer.bias is not None or bool(fold.any()):
+            bias = (layer.bias if layer.bias is not None else 0.0) + fold
+            bias = bias[keep[layer]]
+        new[layer] = _plain_like(layer, w[keep[layer]][:, columns], bias)
     return new
 
 
@@ -91,8 +100,8 @@ def compact(module: nn.Module) -> nn.Module:
 
     Works for ``nn.Sequential`` stacks of Linear / Conv2d (plain or sparse VD), elementwise activations and
     ``Flatten`` (a removed channel removes its H * W columns of the following Linear layer), and for
-    the policy's :class:`vdtutorial.policy.PolicyNet` networks, and modules with their own ``compact()`` method. The input
-    and output sizes are unchanged; hidden layers shrink.
+    the policy's :class:`vdtutorial.policy.PolicyNet` networks, and modules with their own ``compact()`` method. The
+    input and output sizes are unchanged; hidden layers shrink.
     """
     if isinstance(module, nn.Sequential):
         return rebuild_sequential(module, compact_layers(module, chain(module)[0]))

@@ -134,13 +134,13 @@ def kept_weights(layer: nn.Module, threshold: float = THRESHOLD) -> torch.Tensor
 def dead_units(layers, edges, masks) -> dict[nn.Module, tuple[torch.Tensor, torch.Tensor]]:
     """Per layer, boolean vectors over its output units: (all incoming weights pruned, all outgoing
     weights pruned). Only layers whose units feed another layer (hidden layers) are listed."""
-    live_columns = {l: masks[l].transpose(0, 1).reshape(column_count(l), -1).any(1) for l in layers}
+    live_columns = {layer: masks[layer].transpose(0, 1).reshape(column_count(layer), -1).any(1) for layer in layers}
     dead_out = {}
     for e in edges:
         n = unit_count(e.src)
         read = live_columns[e.dst][e.offset:e.offset + n * e.repeat].view(n, e.repeat).any(1)
         dead_out[e.src] = dead_out.get(e.src, torch.ones(n, dtype=torch.bool, device=read.device)) & ~read
-    return {l: (~masks[l].reshape(unit_count(l), -1).any(1), d) for l, d in dead_out.items()}
+    return {layer: (~masks[layer].reshape(unit_count(layer), -1).any(1), d) for layer, d in dead_out.items()}
 
 
 @dataclass
@@ -174,7 +174,7 @@ class SparsityReport:
     threshold: float
 
     def _total(self, field: str) -> int:
-        return sum(getattr(l, field) for l in self.layers)
+        return sum(getattr(layer, field) for layer in self.layers)
 
     @property
     def weight_fraction(self) -> float:
@@ -209,9 +209,10 @@ class SparsityReport:
     def __str__(self) -> str:
         rows = [f"{'layer':<24}{'weights':>10}{'% pruned':>9}{'units':>7}{'dead-in':>9}{'dead-out':>10}"
                 f"{'units pruned':>14}"]
-        for l in self.layers:
-            rows.append(f"{l.name:<24}{l.weights:>10}{l.pruned_weights / l.weights:>9.1%}{l.hidden_units:>7}"
-                        f"{l.dead_in:>9}{l.dead_out:>10}{l.dead:>14}")
+        for layer in self.layers:
+            pruned = layer.pruned_weights / layer.weights
+            rows.append(f"{layer.name:<24}{layer.weights:>10}{pruned:>9.1%}{layer.hidden_units:>7}"
+                        f"{layer.dead_in:>9}{layer.dead_out:>10}{layer.dead:>14}")
         rows.append(f"weights pruned {self.weight_fraction:.1%} (compression x{self.compression:.1f}); neurons pruned "
                     f"{self.neuron_fraction:.1%} (dead-in {self.neuron_fraction_in:.1%}, dead-out "
                     f"{self.neuron_fraction_out:.1%}); threshold log alpha > {self.threshold:g}")
@@ -224,15 +225,15 @@ def sparsity_report(module: nn.Module, threshold: float = THRESHOLD) -> Sparsity
     (already pruned layers report their frozen mask). Plain layers count as fully kept."""
     names = {m: name or type(m).__name__ for name, m in module.named_modules()}
     layers = weight_layers(module)
-    masks = {l: kept_weights(l, threshold) for l in layers}
+    masks = {layer: kept_weights(layer, threshold) for layer in layers}
     dead = dead_units(layers, graph(module), masks)
     rows = []
-    for l in layers:
-        row = dict(name=names[l], weights=masks[l].numel(), pruned_weights=int((~masks[l]).sum()),
+    for layer in layers:
+        row = dict(name=names[layer], weights=masks[layer].numel(), pruned_weights=int((~masks[layer]).sum()),
                    hidden_units=0, dead_in=0, dead_out=0, dead=0)
-        if l in dead:
-            dead_in, dead_out = dead[l]
-            row.update(hidden_units=unit_count(l), dead_in=int(dead_in.sum()), dead_out=int(dead_out.sum()),
+        if layer in dead:
+            dead_in, dead_out = dead[layer]
+            row.update(hidden_units=unit_count(layer), dead_in=int(dead_in.sum()), dead_out=int(dead_out.sum()),
                        dead=int((dead_in | dead_out).sum()))
         rows.append(LayerSparsity(**row))
     return SparsityReport(rows, threshold)

@@ -1,4 +1,4 @@
-"""Benchmarks a learner waits for, measured on the machine at hand (``python -m vdtutorial bench ...``).
+"""Benchmarks a learner waits for, run on the machine at hand (``python -m vdtutorial bench ...``).
 
 ``env``: environment steps per second for each task x observation mode x image size, in one process
 and with two worker processes (gymnasium's AsyncVectorEnv), and the IK expert's time per action.
@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from vdtutorial.baselines import LinearFeatureBaseline
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.expert import IKExpert
 from vdtutorial.fast.fisher import gauss_newton_fvp
@@ -37,7 +38,9 @@ def _make(task: str, obs_mode: str, image_size: int):
     return lambda: gym.make(ENV_IDS[task], obs_mode=obs_mode, image_size=image_size)
 
 
-def env_steps_per_second(task: str, obs_mode: str, image_size: int, steps: int, workers: int = 1, seed: int = 0) -> float:
+def env_steps_per_second(
+    task: str, obs_mode: str, image_size: int, steps: int, workers: int = 1, seed: int = 0
+) -> float:
     """Random-action steps per second; with ``workers > 1`` an AsyncVectorEnv of that many envs
     (each vector step counts ``workers`` env steps)."""
     rng = np.random.default_rng(seed)
@@ -94,7 +97,9 @@ def bench_env(steps: int | None = None) -> list[dict]:
     for task, obs_mode, size in ENV_CASES:
         one = env_steps_per_second(task, obs_mode, size, steps)
         two = env_steps_per_second(task, obs_mode, size, steps, workers=2)
-        rows.append({"task": task, "obs_mode": obs_mode, "image_size": size, "steps_per_s": one, "steps_per_s_2workers": two})
+        rows.append(
+            {"task": task, "obs_mode": obs_mode, "image_size": size, "steps_per_s": one, "steps_per_s_2workers": two}
+        )
         print(f"{task:6} {obs_mode:6} {size:>5} {one:>15.0f} {two:>18.0f}", flush=True)
     for task in ENV_IDS:
         t = expert_timing(task, budget(50, 5))
@@ -159,27 +164,32 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
         vd = make_policy(space, 6, variational=True).mu.train()
         ckpt = checkpoint_path(demos.meta, "vd", obs_mode, 0)
         if ckpt.exists():
-            trained, source = load_checkpoint(ckpt).mu, f"shipped {ckpt.name}"
+            trained = load_checkpoint(ckpt).mu
+            source = f"shipped {ckpt.name}"
         elif obs_mode == "state":
             trained = pretrain(demos, PretrainConfig(reg="vd", epochs=budget(150, 3)), progress=False)[0].mu
             source = "pre-trained here"
         else:
-            trained, source = make_policy(space, 6, variational=True).mu.eval(), "untrained VD net (no checkpoint)"
+            trained = make_policy(space, 6, variational=True).mu.eval()
+            source = "untrained VD net (no checkpoint)"
         small = compact(trained.eval())
         for name, net in (("plain", plain), ("sparse VD (train mode)", vd), ("compacted pruned", small)):
             fwd, fb = _network_times(net, obs, repeats)
             n_weights = sum(p.numel() for n, p in net.named_parameters() if n.endswith("weight"))
-            rows.append({"obs_mode": obs_mode, "network": name, "forward_ms": 1e3 * fwd, "forward_backward_ms": 1e3 * fb, "weights": n_weights})
+            row = {"obs_mode": obs_mode, "network": name, "forward_ms": 1e3 * fwd, "forward_backward_ms": 1e3 * fb}
+            rows.append({**row, "weights": n_weights})
             print(f"{obs_mode:6} {name:26} {1e3 * fwd:>11.2f} {1e3 * fb:>11.2f} {n_weights:>9d}")
         report = sparsity_report(trained)
-        print(f"       compacted from: {source}; {report.weight_fraction:.1%} weights, {report.neuron_fraction:.1%} neurons pruned")
+        pruned = f"{report.weight_fraction:.1%} weights, {report.neuron_fraction:.1%} neurons pruned"
+        print(f"       compacted from: {source}; {pruned}")
     for obs_mode in ("state", "rgbd"):
         part = Demos(**{k: getattr(demos, k)[:samples] for k in ("joints", "cup", "actions", "episode", "t")},
                      meta={**demos.meta, "samples": samples})
         obs = demo_observations(part, obs_mode, 128)
         for reg in ("l2", "vd"):
             start = time.perf_counter()
-            pretrain(part, PretrainConfig(reg=reg, obs_mode=obs_mode, epochs=1, val_fraction=0.0), progress=False, observations=obs)
+            config = PretrainConfig(reg=reg, obs_mode=obs_mode, epochs=1, val_fraction=0.0)
+            pretrain(part, config, progress=False, observations=obs)
             seconds = time.perf_counter() - start
             rows.append({"obs_mode": obs_mode, "epoch": reg, "samples": samples, "seconds": seconds})
             print(f"one pre-training epoch, {obs_mode}, {reg}, {samples} samples: {seconds:.2f} s")
@@ -194,6 +204,88 @@ FINETUNE_CASES = (
 )
 #: The products the cases name, as ``TRPO(fvp=...)`` takes them.
 FISHER_PRODUCTS = {"double_backward": double_backward_fvp, "gauss_newton": gauss_newton_fvp}
+#: The parts of a TRPO update that :class:`UpdateClock` times, in the order the update runs them.
+UPDATE_PARTS = ("gradient", "fisher_setup", "cg_products", "line_search", "baseline")
+
+
+class UpdateClock:
+    """The CPU seconds (less machine-dependent than wall time) of the parts of one TRPO update, timed from outside
+    through what TRPO is given: its Fisher-vector product (:meth:`fvp`), its baseline (:meth:`baseline`) and the
+    update's start (:class:`PartTimedTRPO`). Between those marks lie the surrogate gradient (with the forward pass
+    at theta_old), the Fisher setup, the CG products, the line search and the baseline fit (:data:`UPDATE_PARTS`)."""
+
+    def __init__(self):
+        self.marks: dict[str, float] = {}
+
+    def mark(self, name: str) -> None:
+        self.marks[name] = time.process_time()
+
+    def fvp(self, product):
+        """``product`` (a ``TRPO(fvp=...)``) with its setup and its last product call marked."""
+
+        def timed_product(policy, params, obs, old, damping, dist=None):
+            self.mark("fisher_setup")
+            fisher = product(policy, params, obs, old, damping, dist)
+            self.mark("cg_products")
+
+            def timed_fisher(v: torch.Tensor) -> torch.Tensor:
+                result = fisher(v)
+                self.mark("line_search")  # the line search starts after the last product
+                return result
+
+            return timed_fisher
+
+        return timed_product
+
+    def baseline(self, baseline) -> "TimedBaseline":
+        """``baseline`` with its fit marked."""
+        return TimedBaseline(baseline, self)
+
+    def split(self) -> dict[str, float]:
+        """The last update's parts, CPU seconds each (the time between one part's mark and the next's)."""
+        order = [*UPDATE_PARTS, "end"]
+        return {part: self.marks[after] - self.marks[part] for part, after in zip(order, order[1:])}
+
+
+class TimedBaseline:
+    """A TRPO baseline whose ``fit`` marks the start and the end of the update's last part (:class:`UpdateClock`)."""
+
+    def __init__(self, baseline, clock: UpdateClock):
+        self.inner = baseline
+        self.clock = clock
+
+    def predict(self, features, timesteps):
+        return self.inner.predict(features, timesteps)
+
+    def fit(self, features, timesteps, returns):
+        self.clock.mark("baseline")
+        self.inner.fit(features, timesteps, returns)
+        self.clock.mark("end")
+
+    def state_dict(self) -> dict:
+        return self.inner.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        self.inner.load_state_dict(state)
+
+
+class PartTimedTRPO(TRPO):
+    """TRPO whose updates are timed by parts (:class:`UpdateClock`): the clock's Fisher product and baseline wrap
+    the ones given, and :meth:`update` marks its start. The algorithm is TRPO's own, unchanged."""
+
+    def __init__(self, policy, env, config, fvp, device, seed: int = 0):
+        self.clock = UpdateClock()
+        super().__init__(policy, env, config, seed=seed, fvp=self.clock.fvp(fvp), device=device,
+                         baseline=self.clock.baseline(LinearFeatureBaseline(config.baseline_reg)))
+
+    def update(self, batch):
+        self.clock.mark("gradient")
+        return super().update(batch)
+
+    @property
+    def update_split(self) -> dict[str, float]:
+        """CPU seconds of the last update's parts (:data:`UPDATE_PARTS`)."""
+        return self.clock.split()
 
 
 def bench_finetune(iterations: int | None = None, profile: bool = False,
@@ -210,8 +302,8 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
     affects them alike; the speed-up of the Gauss-Newton form on the whole batch is printed after
     them. One warm-up iteration each, then ``iterations`` timed ones (default 10; quick mode 2).
 
-    A second table splits each case's update into its parts, in CPU seconds per iteration
-    (``TRPO.update_split``): the surrogate gradient (with the forward pass at theta_old), the Fisher
+    A second table splits each case's update into its parts, in CPU seconds per iteration, timed from outside
+    the update (:class:`UpdateClock`): the surrogate gradient (with the forward pass at theta_old), the Fisher
     setup, the CG products, the line search and the baseline fit. With ``profile``, the rgbd whole-batch
     Gauss-Newton case then runs ``iterations`` more under the profilers (:func:`print_profile`).
 
@@ -225,7 +317,7 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
     from vdtutorial.experiments.checkpoints import checkpoint_path, default_config, load_checkpoint
     from vdtutorial.pretrain import PretrainConfig
     from vdtutorial.rollout import make_vec_env
-    from vdtutorial.trpo import TRPO, TRPOConfig
+    from vdtutorial.trpo import TRPOConfig
 
     iterations = iterations or budget(10, 2)
     threads = torch.get_num_threads()
@@ -246,8 +338,7 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
             torch.manual_seed(0)
             policy = finetune_policy("vd", env, demos, obs_mode, 0, config, checkpoints_root=ckpt.parent.parent)
             policy = fast_policy(policy) if fisher == "gauss_newton" else policy
-            algo = TRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), seed=0, fvp=FISHER_PRODUCTS[fisher],
-                        device=device)
+            algo = PartTimedTRPO(policy, env, TRPOConfig(fvp_subsample=fvp_subsample), FISHER_PRODUCTS[fisher], device)
             runs.append((algo, []))
         for i in range(iterations + 1):
             for algo, timed in runs:  # every case collects from the shared env, reset with its own seeds

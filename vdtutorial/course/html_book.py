@@ -246,7 +246,8 @@ def _index_page(chapters: list[Chapter], goals: dict[str, str], quick: bool, mat
 <h1>vdtutorial: the book</h1>
 <p>A rebuild, chapter by chapter, of J. Blau, L. Ott, F. Ramos, <em>Improving Reinforcement Learning
 Pre-Training with Variational Dropout</em>, IROS 2018. Each page is a chapter as it ran in {mode}, with its
-outputs; to change and run the code, open the notebooks in Jupyter (<code>python -m vdtutorial notebooks DEST</code>).</p>
+outputs; to change and run the code, open the notebooks in Jupyter
+(<code>python -m vdtutorial notebooks DEST</code>).</p>
 <table>
 <thead><tr><th>chapter</th><th>after it, a student can</th></tr></thead>
 <tbody>

@@ -255,7 +255,7 @@ class Recorder:
     (``AttributeError``), and after the server dies the next command blocks forever; call
     :meth:`close` here instead, which stops the server and keeps recording in memory.
 
-    Why no server by default: meshcat normally runs a tornado/ZMQ server in a subprocess. Measured with
+    Why no server by default: meshcat normally runs a tornado/ZMQ server in a subprocess. With
     meshcat 0.3.2 that is fragile here: ``Visualizer.close()`` raises ``AttributeError`` (its window has
     no ``close``) and once the server process is gone every further call blocks forever on the ZMQ reply.
     So the recorder hands ``meshcat.Visualizer`` a window object whose ``send`` stores each command in an

@@ -2,8 +2,8 @@ r"""The exact Fisher-vector product of the Gaussian policy, computed in Gauss-Ne
 
 TRPO's conjugate gradient needs F v about a dozen times per update, where F is the Hessian of the mean
 KL(pi_old || pi_theta) at theta = theta_old (:mod:`vdtutorial.trpo`, step 4). The generic way
-(:func:`vdtutorial.trust_region.double_backward_fvp`, TRPO's default and the one chapter 06 teaches) differentiates the KL
-twice with autograd. For the paper's policy pi(a | s) = N(mu(s), diag(sigma(s)^2)) the same matrix has
+(:func:`vdtutorial.trust_region.double_backward_fvp`, TRPO's default and the one chapter 06 teaches) differentiates
+the KL twice with autograd. For the paper's policy pi(a | s) = N(mu(s), diag(sigma(s)^2)) the same matrix has
 a closed form (chapter 06 derives it): with J the Jacobian of the network outputs (mu, sigma) with
 respect to theta, on N states,
 
@@ -23,6 +23,8 @@ Taught in chapter 06b.
 """
 from __future__ import annotations
 
+from typing import Callable
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -31,6 +33,7 @@ from torch.distributions import Normal
 from vdtutorial.fast.policy import (FastGaussianPolicy, applied_weight, conv_geometry, fused_conv2d, fused_first_layers,
                                     prepare_inputs)
 from vdtutorial.policy import GaussianPolicy, PolicyNet
+from vdtutorial.trust_region import double_backward_fvp
 from vdtutorial.vd import WEIGHT_LAYERS, SVDOLayer
 
 #: The parameter-free modules the products let weight layers (vd.WEIGHT_LAYERS) be mixed with.
@@ -48,7 +51,7 @@ def supports(policy: nn.Module) -> bool:
     Linear / Conv2d layers, ReLU, Tanh and Flatten (every network :func:`vdtutorial.policy.make_policy`
     builds), with sparse-VD layers pruned or in eval mode (in train mode an unpruned sparse-VD layer is
     random, and TRPO's policy must be deterministic). :func:`supports` says whether a policy qualifies;
-    TRPO falls back to the double backward for any other policy.
+    :func:`gauss_newton_fvp` falls back to the double backward for any other policy.
     """
     if type(policy) not in (GaussianPolicy, FastGaussianPolicy):  # another subclass may change distribution()
         return False
@@ -115,7 +118,8 @@ class _Trace:
         for module, *cached in self.steps:
             if isinstance(module, WEIGHT_LAYERS):
                 x, weight, mask = cached
-                dw, db = tangents.get(module.weight), tangents.get(module.bias)
+                dw = tangents.get(module.weight)
+                db = tangents.get(module.bias)
                 if dw is None:
                     dw = torch.zeros_like(weight)
                 elif mask is not None:
@@ -149,8 +153,8 @@ class _Trace:
 
 def _unfold(x: torch.Tensor, kernel: tuple[int, int], stride, padding, dilation) -> torch.Tensor:
     """``F.unfold(x, kernel, dilation, padding, stride)``, the patches (N, C * kh * kw, positions), copied
-    out of a strided view of x: the same numbers, 1.6x faster here than ``F.unfold`` (104 ms instead of
-    162 ms for the 200 128 x 128 images of a TRPO batch and the 8 x 8 / stride 4 kernel, one thread)."""
+    out of a strided view of x: the same numbers, faster than ``F.unfold`` on a TRPO batch of images
+    (docs/results.md, "The Gauss-Newton Fisher's form")."""
     if any(padding):
         x = F.pad(x, (padding[1], padding[1], padding[0], padding[0]))
     n, c, height, width = x.shape
@@ -169,7 +173,8 @@ class _FirstConvolutions:
     per update for both (:class:`GaussNewtonFisher`, "Their two weight gradients stay two matrix products")."""
 
     def __init__(self, layers: list[nn.Module], image: torch.Tensor):
-        self.layers, self.image = layers, image
+        self.layers = layers
+        self.image = image
         self.weights, self.masks = zip(*(applied_weight(layer) for layer in layers))
         self.outputs = fused_conv2d(layers, image, self.weights, [layer.bias for layer in layers])
         self.patches = _unfold(image, self.weights[0].shape[2:], *conv_geometry(layers[0])[:3])
@@ -212,7 +217,9 @@ class _NetTrace:
         self.widths = [s.output.shape[-1] for s in self.streams]
         self.output = self.head.output
 
-    def tangent(self, tangents: dict[nn.Parameter, torch.Tensor], first_tangent: torch.Tensor | None = None) -> torch.Tensor:
+    def tangent(
+        self, tangents: dict[nn.Parameter, torch.Tensor], first_tangent: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """d output along ``tangents``; ``first_tangent``: that of the first layer traced apart, if any."""
         features = [self.streams[0].tangent(tangents, first_tangent)]
         features += [s.tangent(tangents, None) for s in self.streams[1:]]
@@ -238,34 +245,32 @@ class GaussNewtonFisher:
     The constructor runs one forward pass; each call then costs one tangent pass and one backward pass
     through both networks, over the activations of that forward pass.
 
-    Why both passes are written out here instead of left to autograd. Measured on the rgbd policy (both
-    networks, 114k parameters, batch 200, one thread, CPU time on the shared machine): the double backward
-    costs 0.94 s per product; this form 0.17 s, plus 0.52 s once per update (its forward pass and the
-    unfolded image). The double backward (and the "double-vjp" trick that gets J v from two backward
-    passes) goes through the convolutions' double-backward kernels, which also compute terms nobody
-    needs (for the first convolution, a transposed convolution back onto the image); forward-mode AD
-    (``torch.func.jvp``) recomputes the whole forward pass, input normalisation included, for every v
-    (1.36 s per product with an autograd backward); ``torch.func.linearize`` avoids that but spends
-    seconds tracing the networks at every update. And the weight gradient of the first convolution, the
-    largest layer, is ~4x cheaper as one batched matrix product with the image patches, unfolded once
-    per update, than with ``convolution_backward``.
+    Why both passes are written out here instead of left to autograd. The double backward (and the
+    "double-vjp" trick that gets J v from two backward passes) goes through the convolutions'
+    double-backward kernels, which also compute terms nobody needs (for the first convolution, a transposed
+    convolution back onto the image); forward-mode AD (``torch.func.jvp``) recomputes the whole forward pass,
+    input normalisation included, for every v; ``torch.func.linearize`` avoids that but traces the networks
+    again at every update. And the weight gradient of the first convolution, the largest layer, is cheaper as
+    one batched matrix product with the image patches, unfolded once per update, than with
+    ``convolution_backward``. The costs of each way on the rgbd policy: docs/results.md, "The Gauss-Newton
+    Fisher's form".
 
     mu's and sigma's first convolutions read the same image (:func:`vdtutorial.fast.policy.prepare_inputs`
     normalises it once for both): the forward and tangent passes run them as one convolution with both
     filter banks (:func:`vdtutorial.fast.policy.fused_conv2d`, bit for bit the same outputs), and the patches are
     unfolded once for both. Their two weight gradients stay two matrix products: one product with both
-    filter banks would read the patches once (27 ms instead of 44 ms on a batch of 200), but it sums in
-    another order, and conjugate gradient magnifies that last-bit difference to 1e-5 relative in F s within
-    one update; every speed-up here keeps TRPO's numbers bit for bit (tests/test_regeneration.py).
+    filter banks would read the patches once, but it sums in another order, and conjugate gradient magnifies
+    that last-bit difference within one update; every speed-up here keeps TRPO's numbers bit for bit
+    (tests/test_regeneration.py).
     """
 
     def __init__(self, policy: GaussianPolicy, obs, old: Normal, params: list[nn.Parameter]):
         if not supports(policy):
             raise TypeError("GaussNewtonFisher needs a GaussianPolicy of Linear/Conv2d/ReLU/Tanh/Flatten layers "
-                            "with its sparse-VD layers pruned or in eval mode; use trust_region.fisher_vector_product")
+                            "with its sparse-VD layers pruned or in eval mode; use trust_region.double_backward_fvp")
         self.params = params
         with torch.no_grad():
-            inputs = prepare_inputs(policy, obs)
+            inputs = policy.prepare(obs) if isinstance(policy, FastGaussianPolicy) else prepare_inputs(policy, obs)
             firsts = fused_first_layers(policy, inputs)
             self.first = None if firsts is None else _FirstConvolutions(firsts, inputs.mu[0])
             first_outputs = [None, None] if self.first is None else self.first.outputs
@@ -279,7 +284,8 @@ class GaussNewtonFisher:
         # d sigma / d (sigma network output), and M per output (1/N: the KL is a mean over the batch)
         self.dstd = torch.sigmoid(self.sigma.output)
         variance = old.variance.detach()
-        self.m_mean, self.m_std = 1 / (variance * len(variance)), 2 / (variance * len(variance))
+        self.m_mean = 1 / (variance * len(variance))
+        self.m_std = 2 / (variance * len(variance))
 
     @torch.no_grad()
     def __call__(self, v: torch.Tensor) -> torch.Tensor:
@@ -288,18 +294,22 @@ class GaussNewtonFisher:
         tangents = {p: piece.view_as(p) for p, piece in zip(self.params, pieces)}
         grads = {}
         first_tangents = [None, None] if self.first is None else self.first.tangent(tangents)
-        g_mu = self.mu.backward(self.m_mean * self.mu.tangent(tangents, first_tangents[0]), grads)
-        g_sigma = self.sigma.backward(self.dstd * self.m_std * self.dstd * self.sigma.tangent(tangents, first_tangents[1]),
-                                      grads)
+        mu_tangent = self.mu.tangent(tangents, first_tangents[0])
+        sigma_tangent = self.sigma.tangent(tangents, first_tangents[1])
+        g_mu = self.mu.backward(self.m_mean * mu_tangent, grads)
+        g_sigma = self.sigma.backward(self.dstd * self.m_std * self.dstd * sigma_tangent, grads)
         if self.first is not None:
             self.first.backward([g_mu, g_sigma], grads)
         return torch.cat([grads[p].reshape(-1) if p in grads else v.new_zeros(p.numel()) for p in self.params])
 
 
-def gauss_newton_fvp(policy: GaussianPolicy, params: list[nn.Parameter], obs, old: Normal, damping: float,
-                     dist: Normal | None = None):
-    """v -> (F + damping * I) v in Gauss-Newton form (:class:`GaussNewtonFisher`), with the signature of
-    :func:`vdtutorial.trust_region.double_backward_fvp`: pass it as ``TRPO(fvp=gauss_newton_fvp)``. ``dist`` is
-    not needed (the products run over their own forward pass). A TypeError if :func:`supports` fails."""
+def gauss_newton_fvp(policy: nn.Module, params: list[nn.Parameter], obs, old: Normal, damping: float,
+                     dist: Normal | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
+    """v -> (F + damping * I) v, with the signature of :func:`vdtutorial.trust_region.double_backward_fvp`: pass it
+    as ``TRPO(fvp=gauss_newton_fvp)``. For a policy that :func:`supports` accepts, in Gauss-Newton form
+    (:class:`GaussNewtonFisher`, which runs its own forward pass: ``dist`` is not needed); for any other policy,
+    the double backward itself, the same matrix by the generic route."""
+    if not supports(policy):
+        return double_backward_fvp(policy, params, obs, old, damping, dist)
     product = GaussNewtonFisher(policy, obs, old, params)
     return lambda v: product(v) + damping * v

@@ -12,9 +12,9 @@ Fused first convolutions
     the same patches, so the outputs are the separate convolutions' outputs, but the image, the network's
     largest tensor, is read once instead of twice.
 
-:class:`FastGaussianPolicy` is a :class:`~vdtutorial.policy.GaussianPolicy` that uses both (same modules, same
-``state_dict``); :func:`fast_policy` turns a policy into one in place. The experiments fine-tune with it and
-with :func:`vdtutorial.fast.fisher.gauss_newton_fvp`, which reads the same prepared inputs.
+:class:`FastGaussianPolicy` is a :class:`~vdtutorial.policy.GaussianPolicy` that uses both; :func:`fast_policy`
+makes one around a policy's own networks (same parameters, same ``state_dict``). The experiments fine-tune with it
+and with :func:`vdtutorial.fast.fisher.gauss_newton_fvp`, which reads the same prepared inputs.
 
 Taught in chapter 06b.
 """
@@ -63,7 +63,9 @@ def fusable_convolutions(layers) -> bool:
                for layer in layers) and conv_geometry(first)[3] == 1
 
 
-def fused_conv2d(layers, x: torch.Tensor, weights: list[torch.Tensor], biases: list[torch.Tensor | None]) -> list[torch.Tensor]:
+def fused_conv2d(
+    layers, x: torch.Tensor, weights: list[torch.Tensor], biases: list[torch.Tensor | None]
+) -> list[torch.Tensor]:
     """The convolutions ``layers`` (:func:`fusable_convolutions`) of the same input ``x`` with the given
     weights and biases, computed as one convolution with all their filters stacked, then split per layer."""
     stride, padding, dilation, _ = conv_geometry(layers[0])
@@ -88,7 +90,8 @@ def same_inputs(net: PolicyNet, other: PolicyNet) -> bool:
     normalisation), so that both can read one prepared copy."""
     if net.kind != other.kind:
         return False
-    mine, theirs = dict(net.named_buffers(recurse=False)), dict(other.named_buffers(recurse=False))
+    mine = dict(net.named_buffers(recurse=False))
+    theirs = dict(other.named_buffers(recurse=False))
     return mine.keys() == theirs.keys() and all(torch.equal(mine[k], theirs[k]) for k in mine)
 
 
@@ -127,13 +130,51 @@ def net_from_inputs(net: PolicyNet, inputs: list[torch.Tensor], first_scene_outp
     return net.head(torch.cat(features, dim=-1))
 
 
+def _batch_tensors(obs) -> tuple[tuple[torch.Tensor, int], ...] | None:
+    """The tensors of a batch of observations with their version counters (which in-place writes advance), or None
+    when ``obs`` is not made of tensors that track versions (nothing is then reused)."""
+    tensors = [obs] if isinstance(obs, torch.Tensor) else list(obs.values()) if isinstance(obs, dict) else []
+    if not tensors or not all(isinstance(t, torch.Tensor) and not t.is_inference() for t in tensors):
+        return None
+    return tuple((t, t._version) for t in tensors)
+
+
+def _same_batch(a, b) -> bool:
+    return len(a) == len(b) and all(x is y and vx == vy for (x, vx), (y, vy) in zip(a, b))
+
+
 class FastGaussianPolicy(GaussianPolicy):
-    """:class:`~vdtutorial.policy.GaussianPolicy` with its inputs prepared once (:meth:`prepare`, which TRPO's
-    update calls when a policy has it) and its first convolutions fused: the same distribution, bit for bit."""
+    """A :class:`~vdtutorial.policy.GaussianPolicy` built around the modules of another one (:func:`fast_policy`):
+    the same parameters, buffers and ``state_dict`` keys, and the same distribution bit for bit, computed with the
+    inputs of the batch it last read kept (:meth:`prepare`) and its first convolutions fused.
+
+    TRPO's update hands the policy the same batch object about a dozen times (the surrogate, the Fisher products,
+    the line search): the first call prepares its inputs, the others reuse them. The batch is recognised by its
+    tensors' identity and version counters, so a tensor written in place is prepared afresh."""
+
+    def __init__(self, policy: GaussianPolicy):
+        nn.Module.__init__(self)  # not GaussianPolicy's: the networks are ``policy``'s own, not new ones
+        self.config = policy.config
+        self.min_std = policy.min_std
+        self.mu = policy.mu
+        self.sigma = policy.sigma
+        self.train(policy.training)
+        self._last_batch: tuple[tuple, PreparedObs] | None = None
+
+    @classmethod
+    def from_config(cls, config: dict) -> "FastGaussianPolicy":
+        return cls(GaussianPolicy.from_config(config))
 
     def prepare(self, obs) -> PreparedObs:
-        """:func:`prepare_inputs`: pass the result to :meth:`distribution` in place of ``obs`` to reuse it."""
-        return prepare_inputs(self, obs)
+        """:func:`prepare_inputs` of ``obs``, reused when ``obs`` is the batch the last call prepared."""
+        if isinstance(obs, PreparedObs):
+            return obs
+        tensors = _batch_tensors(obs)
+        if tensors is not None and self._last_batch is not None and _same_batch(tensors, self._last_batch[0]):
+            return self._last_batch[1]
+        inputs = prepare_inputs(self, obs)
+        self._last_batch = None if tensors is None else (tensors, inputs)
+        return inputs
 
     def outputs(self, obs) -> tuple[torch.Tensor, torch.Tensor]:
         """mu and the sigma network's output before the softplus, for a batch of observations or its
@@ -142,7 +183,8 @@ class FastGaussianPolicy(GaussianPolicy):
         firsts = fused_first_layers(self, inputs)
         if firsts is None:
             return net_from_inputs(self.mu, inputs.mu), net_from_inputs(self.sigma, inputs.sigma)
-        weights, biases = [applied_weight(layer)[0] for layer in firsts], [layer.bias for layer in firsts]
+        weights = [applied_weight(layer)[0] for layer in firsts]
+        biases = [layer.bias for layer in firsts]
         mu_first, sigma_first = fused_conv2d(firsts, inputs.mu[0], weights, biases)
         return net_from_inputs(self.mu, inputs.mu, mu_first), net_from_inputs(self.sigma, inputs.sigma, sigma_first)
 
@@ -152,8 +194,10 @@ class FastGaussianPolicy(GaussianPolicy):
 
 
 def fast_policy(policy: GaussianPolicy) -> FastGaussianPolicy:
-    """``policy`` itself, made a :class:`FastGaussianPolicy` in place (same object, modules and parameters)."""
-    if not isinstance(policy, GaussianPolicy) or type(policy) not in (GaussianPolicy, FastGaussianPolicy):
+    """A :class:`FastGaussianPolicy` that shares ``policy``'s networks: training one trains the other, and either's
+    ``state_dict`` loads into both. ``policy`` itself is left as it is; a fast policy is returned as it is."""
+    if isinstance(policy, FastGaussianPolicy):
+        return policy
+    if type(policy) is not GaussianPolicy:  # a subclass may compute its distribution otherwise
         raise TypeError(f"fast_policy needs a GaussianPolicy, got {type(policy).__name__}")
-    policy.__class__ = FastGaussianPolicy
-    return policy
+    return FastGaussianPolicy(policy)

@@ -15,4 +15,14 @@ from vdtutorial.runner.grid import GridJob, SavedInStateDir, run_grid
 from vdtutorial.runner.resume import ResumeError
 from vdtutorial.runner.rows import read_rows, results_file, stored_rows, write_csv
 
-__all__ = ["GridJob", "ResumeError", "SavedInStateDir", "read_rows", "results_file", "run_grid", "run_jobs", "stored_rows", "write_csv"]
+__all__ = [
+    "GridJob",
+    "ResumeError",
+    "SavedInStateDir",
+    "read_rows",
+    "results_file",
+    "run_grid",
+    "run_jobs",
+    "stored_rows",
+    "write_csv",
+]

@@ -65,8 +65,8 @@ def _drive(fn, job, report):
 
 def run_jobs(fn, jobs: list, workers: int = 2, backend: str = "local", address: str | None = None,
              listener=None) -> list:
-    """``[result of fn(job) for job in jobs]`` on ``backend`` (module docstring, "Where the runs of a grid execute"); ``fn`` must be a
-    module-level function. ``listener`` receives the reports (see below).
+    """``[result of fn(job) for job in jobs]`` on ``backend``
+    (module docstring, "Where the runs of a grid execute"); ``fn`` must be a module-level function. ``listener`` receives the reports (see below).
 
     A job function is a generator function: it yields progress reports (any picklable value) and its
     ``return`` value is the run's result. :func:`run_jobs` hands each report to ``listener.report(index,
@@ -112,7 +112,8 @@ _parent: int | None = None
 
 def _init_worker(reports, parent: int) -> None:
     global _reports, _parent
-    _reports, _parent = reports, parent
+    _reports = reports
+    _parent = parent
     torch.set_num_threads(1)
     # Ctrl-C reaches the whole process group: the parent alone answers it (it terminates the pool), so that
     # the user sees one line instead of a traceback from every worker
@@ -148,7 +149,9 @@ def _run_pool(fn, jobs, workers, listener) -> list:
     which a pool would otherwise replace silently, leaving the grid waiting for ever."""
     context = multiprocessing.get_context("spawn")
     reports = context.Queue()
-    results, running, failures = {}, {}, []
+    results = {}
+    running = {}
+    failures = []
     with context.Pool(min(workers, len(jobs)), initializer=_init_worker, initargs=(reports, os.getpid())) as pool:
         for i, job in enumerate(jobs):
             pool.apply_async(_pool_task, ((fn, i, job),), error_callback=failures.append)
@@ -200,12 +203,13 @@ def _import_ray():
     try:
         import ray
     except ImportError as exc:
-        raise ImportError("the Ray backend needs Ray: pip install -e \".[cluster]\" (or pip install 'ray>=2.9')") from exc
+        message = "the Ray backend needs Ray: pip install -e \".[cluster]\" (or pip install 'ray>=2.9')"
+        raise ImportError(message) from exc
     return ray
 
 
 #: Tries to start a private local Ray. On a heavily loaded machine its raylet gives up when the dashboard
-#: agent takes more than 15 s to start (ray-project/ray issue 65983); a later try may find the machine less busy.
+#: agent is slow to start (ray-project/ray issue 65983); a later try may find the machine less busy.
 LOCAL_RAY_ATTEMPTS = 3
 
 

@@ -60,7 +60,8 @@ class SavedInStateDir:
 def _result(job: GridJob, rows: list[dict], seconds: float, resumed_at: int | None = 0) -> dict:
     """A job's rows labelled with its tags, its compute time, and a one-line summary. ``resumed_at``: the
     iteration this invocation continued it from (0: started now; None: found finished, its history is
-    that of earlier invocations). The rows are rounded as a CSV stores them (:func:`~vdtutorial.runner.rows.stored_rows`)."""
+    that of earlier invocations). The rows are rounded as a CSV stores them
+    (:func:`~vdtutorial.runner.rows.stored_rows`)."""
     tags = job.tags()
     # rounded as the CSVs store them: an experiment derives what its shipped CSV gives back (runner.rows)
     return {"rows": stored_rows([{**tags, **row} for row in rows]), "seconds": seconds, "resumed_at": resumed_at,
@@ -98,7 +99,10 @@ def run_grid(name: str, jobs: list[GridJob], workers: int = 2, backend: str = "l
     waited for rather than computed twice. Progress: :class:`GridProgress`.
     """
     results: list[dict | None] = [None] * len(jobs)
-    pending, left, partial, problems = [], [], 0, []
+    pending = []
+    left = []
+    partial = 0
+    problems = []
     for i, job in enumerate(jobs):
         if restart:
             job.state_path.unlink(missing_ok=True)
@@ -126,12 +130,14 @@ def run_grid(name: str, jobs: list[GridJob], workers: int = 2, backend: str = "l
     # runs that another grid is computing now go last: by the time a worker reaches them they may be finished
     busy = {i for i in pending if holder_alive(lock_path(jobs[i].state_path))}
     order = sorted(range(len(pending)), key=lambda k: pending[k] in busy)
-    pending, left = [pending[k] for k in order], [left[k] for k in order]
+    pending = [pending[k] for k in order]
+    left = [left[k] for k in order]
     bar = GridProgress(name, [jobs[i].name for i in pending], left, len(jobs) - len(pending), len(jobs), progress)
     try:
         elsewhere = f", {len(busy)} of them being computed by another grid (waited for last)" if busy else ""
+        states = Path(os.path.commonpath([job.state_path.parent for job in jobs]))
         bar.note(f"{len(jobs)} runs: {len(jobs) - len(pending)} found finished, {partial} to resume, "
-                 f"{len(pending) - partial} to start{elsewhere} (states saved in {Path(os.path.commonpath([job.state_path.parent for job in jobs]))})")
+                 f"{len(pending) - partial} to start{elsewhere} (states saved in {states})")
         for i, result in zip(pending, run_jobs(run_job, [jobs[i] for i in pending], workers, backend, address, bar)):
             results[i] = result
     finally:

@@ -37,12 +37,16 @@ class GridProgress:
     names: the name of each pending run (in the order of the jobs).
     steps: the env steps each pending run still has to do.
     done, total: runs already finished before this start (skipped), and all runs of the grid.
-    progress: None (default: live line where it makes sense: module docstring, "It is on by default only there"), True or False.
+    progress: None (default: live line where it makes sense: module docstring, "It is on by default only there"), True
+    or False.
     """
 
     def __init__(self, name: str, names: list[str], steps: list[int], done: int, total: int,
                  progress: bool | None = None):
-        self.name, self.names, self.done, self.total = name, names, done, total
+        self.name = name
+        self.names = names
+        self.done = done
+        self.total = total
         self.lines = progress is not False
         live = live_by_default() if progress is None else progress
         self.bar = tqdm(total=sum(steps), unit="step", unit_scale=True, dynamic_ncols=True, disable=not live,

@@ -14,9 +14,9 @@ its state is :meth:`TRPO.checkpoint <vdtutorial.trpo.TRPO.checkpoint>`, see
 
 Writes go to a temporary file and are moved into place with ``os.replace``, so a run killed at any moment
 (SIGKILL included) leaves the previous state or the new one, never half a file. The file is
-``torch.save``'s format compressed with gzip (a pruned VD policy's zeros and one-byte masks compress
-well: an image VD run's state shrinks from 1.26 MB to 0.51 MB, which matters when a long grid's states
-are committed as it goes). Uncompressed states are still read.
+``torch.save``'s format compressed with gzip: a pruned VD policy's zeros and one-byte masks compress well
+(docs/results.md, "Compressed run states"), which matters when a long grid's states are committed as it goes.
+Uncompressed states are still read.
 Taught in chapter 07.
 """
 from __future__ import annotations

@@ -4,14 +4,12 @@ A path ending in ``.gz`` is gzip-compressed. The combined results of an experime
 (:func:`results_file`); the compression is deterministic (no time stamp in the header), so the same rows give
 the same bytes.
 
-Floats are stored to :data:`SIGNIFICANT_DIGITS` significant digits (:func:`stored_rows`): a relative rounding of
-at most 5e-8, below the 1e-6 within which a re-run is compared with the shipped rows (tests/test_regeneration.py),
-and it shrinks the shipped CSVs by 41% (with all 17 digits: 12.0 MB; with 8: 7.1 MB; 7 would give 6.4 MB;
-measured 2026-12-03 on the results then shipped). The timing columns are stored to 3 digits
-(:data:`TIMING_COLUMNS`): all shipped CSVs together took 10.4 MB with them at 8 digits and 8.7 MB at 3
-(measured 2026-12-03). The grid
-hands experiments their rows already rounded (:func:`vdtutorial.runner.grid.run_grid`), so what an experiment
-derives from its rows is what :func:`read_rows` gives back from its CSV.
+Floats are stored to :data:`SIGNIFICANT_DIGITS` significant digits (:func:`stored_rows`): a relative rounding
+below the tolerance within which a re-run is compared with the shipped rows (tests/test_regeneration.py), and it
+makes the shipped CSVs markedly smaller (docs/results.md, "Stored digits of the shipped rows"). A column of
+seconds (:func:`is_timing_column`) is stored to :data:`TIMING_DIGITS` digits. The grid hands experiments their
+rows already rounded (:func:`vdtutorial.runner.grid.run_grid`), so what an experiment derives from its rows is
+what :func:`read_rows` gives back from its CSV.
 
 Taught in chapter 07.
 """
@@ -30,12 +28,18 @@ def results_file(folder: str | Path, name: str) -> Path:
 
 #: Significant digits of a stored float (module docstring, "Floats are stored to").
 SIGNIFICANT_DIGITS = 8
-#: The columns that time a row (TRPO's seconds collecting and updating, and the run's seconds so far). They
-#: measure the machine's load, which moves them by far more than a part in a thousand from one run to the next,
-#: so they are stored to :data:`TIMING_DIGITS` significant digits; no result is derived from them, and the
-#: regeneration tests leave them out.
-TIMING_COLUMNS = ("collect_s", "update_s", "wall_time")
+#: Significant digits of a column of seconds (:func:`is_timing_column`).
 TIMING_DIGITS = 3
+#: The endings of a column's name that say it holds seconds.
+TIMING_SUFFIXES = ("_s", "_time")
+
+
+def is_timing_column(name: str) -> bool:
+    """Whether the column ``name`` holds seconds, by its name's ending (:data:`TIMING_SUFFIXES`), as TRPO's
+    ``collect_s``, ``update_s`` and ``wall_time`` do. Seconds measure the machine's load, which moves them by far
+    more than a part in a thousand from one run to the next: no result is derived from them, and the regeneration
+    tests leave them out, so they are stored to :data:`TIMING_DIGITS` digits."""
+    return name.endswith(TIMING_SUFFIXES)
 
 
 def stored_value(value, digits: int = SIGNIFICANT_DIGITS):
@@ -46,9 +50,12 @@ def stored_value(value, digits: int = SIGNIFICANT_DIGITS):
 
 def stored_rows(rows: list[dict]) -> list[dict]:
     """``rows`` as :func:`write_csv` stores them and :func:`read_rows` reads them back (:func:`stored_value`;
-    :data:`TIMING_COLUMNS` to :data:`TIMING_DIGITS` digits)."""
-    return [{key: stored_value(value, TIMING_DIGITS if key in TIMING_COLUMNS else SIGNIFICANT_DIGITS)
-             for key, value in row.items()} for row in rows]
+    columns of seconds to :data:`TIMING_DIGITS` digits)."""
+    stored = []
+    for row in rows:
+        digits = {key: TIMING_DIGITS if is_timing_column(key) else SIGNIFICANT_DIGITS for key in row}
+        stored.append({key: stored_value(value, digits[key]) for key, value in row.items()})
+    return stored
 
 
 def write_csv(path: Path, rows: list[dict]) -> Path:

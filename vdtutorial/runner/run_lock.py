@@ -42,7 +42,8 @@ def lock_path(state_path: str | os.PathLike) -> Path:
 
 
 def holder_alive(path: Path, stale_s: float = STALE_S) -> bool:
-    """Whether the lock at ``path`` exists and its holder may still be running (module docstring, "A lock whose holder has died")."""
+    """Whether the lock at ``path`` exists and its holder may still be running
+    (module docstring, "A lock whose holder has died")."""
     try:
         age = time.time() - path.stat().st_mtime
         holder = json.loads(path.read_text())
@@ -62,7 +63,8 @@ class RunLock:
 
     def __init__(self, state_path: str | os.PathLike, heartbeat_s: float = HEARTBEAT_S, stale_s: float = STALE_S):
         self.path = lock_path(state_path)
-        self.heartbeat_s, self.stale_s = heartbeat_s, stale_s
+        self.heartbeat_s = heartbeat_s
+        self.stale_s = stale_s
         self.token = uuid.uuid4().hex
         self._stop: threading.Event | None = None
 

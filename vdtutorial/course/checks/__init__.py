@@ -1,7 +1,7 @@
 """Trusted checks: an exercise's points are decided outside the student's kernel.
 
 A submission's code runs in its kernel, and so did the tests that scored it: code in an answer cell could change
-what the tests compare (issue 43). Here every exercise has a :class:`Check` of three parts, split where trust ends:
+what the tests compare. Here every exercise has a :class:`Check` of three parts, split where trust ends:
 
 * ``inputs(rng)`` -- in the grading process: fresh test inputs, as plain arrays, drawn from a seed the grader picks
   for each submission (so that no answer can be computed in advance);
