@@ -584,6 +584,8 @@ def _cmd_grade(args) -> None:
     for name, value in (("--memory", args.memory), ("--cpu-minutes", args.cpu_minutes), ("--timeout", args.timeout),
                         ("--workers", args.workers), ("--wall-minutes", wall)):
         _positive(name, value)
+    if args.workers != int(args.workers):
+        raise ClassroomError(f"--workers must be a whole number, got {args.workers:g}")
     why = None if args.no_sandbox else sandbox.available()
     if why is not None:
         raise ClassroomError(f"no sandbox for the students' code ({why}): {sandbox.SAFE_ROUTES}; or pass "
@@ -596,8 +598,6 @@ def _cmd_grade(args) -> None:
     if args.address is not None and args.backend == "local":
         raise ClassroomError("--address names a Ray cluster: use it with --backend ray")
     backend = args.backend or ("ray" if args.address is not None else "local")
-    if args.workers != int(args.workers):
-        raise ClassroomError(f"--workers must be a whole number, got {args.workers:g}")
     scores = grade(args.submissions, args.out, Path(args.source), math.ceil(args.timeout), quick=not args.full,
                    limits=limits, workers=int(args.workers), backend=backend, address=args.address,
                    log=lambda line: print(line, file=sys.stderr), static_check=not args.no_static_check)
