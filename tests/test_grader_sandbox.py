@@ -145,7 +145,7 @@ def test_a_graded_cell_is_confined(tmp_path):
     secret = course / "source" / classroom.ASSIGNMENT / "00_start_here.ipynb"
     cell = f"SECRET = {str(secret)!r}\n" + PROBE
     folder = _hand_in(tmp_path / "in", "mallory", "00_start_here", _chapter_with("00_start_here", extra_cell=cell))
-    classroom.grade([folder], course, timeout=120)
+    classroom.grade([folder], course, timeout=120, static_check=False)   # the sandbox alone, not the static check
     ran = nbformat.read(course / "autograded" / "mallory" / classroom.ASSIGNMENT / "00_start_here.ipynb", 4)
     printed = "".join(o.get("text", "") for c in ran.cells if c.cell_type == "code" for o in c.get("outputs", []))
     found = _probe_result(printed)
@@ -193,3 +193,53 @@ def test_one_student_never_stops_the_class(tmp_path):
     assert {r["student"] for r in rows if r["refused"].startswith("grading did not finish")} == {"hanger"}
     assert "grading did not finish" in classroom.table(scores)
     assert took < 3 * wall_minutes * 60, took   # five submissions, two at a time, none past its budget
+
+
+def _npz_bomb(path: Path, gigabytes: float) -> None:
+    """A zip64 ``.npz`` whose one array is ``gigabytes`` of float64 zeros: a few MB on disk."""
+    import zipfile
+
+    import numpy as np
+
+    count = int(gigabytes * 2**30) // 8
+    header = {"descr": "<f8", "fortran_order": False, "shape": (count,)}
+    chunk = bytes(64 << 20)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        with archive.open("log_alpha.npy", "w", force_zip64=True) as fh:
+            np.lib.format.write_array_header_2_0(fh, header)
+            for start in range(0, count * 8, len(chunk)):
+                fh.write(chunk[:min(len(chunk), count * 8 - start)])
+
+
+def test_an_outputs_bomb_is_refused_before_it_is_decompressed(tmp_path):
+    """A kernel's outputs file of a few MB that decompresses to 1.5 GB: the grader refuses it from the sizes the
+    archive and the array declare, and its own memory does not grow by the bomb's size."""
+    import resource
+
+    from vdtutorial.course import checks
+
+    _npz_bomb(checks.outputs_path(tmp_path, "ch04_svdo_layer"), 1.5)
+    assert checks.outputs_path(tmp_path, "ch04_svdo_layer").stat().st_size < 16 << 20
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    assert classroom._outputs(tmp_path, "ch04_svdo_layer") is None
+    grown = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) << 10   # Linux: kB
+    assert grown < 256 << 20, grown
+    checks.save(checks.outputs_path(tmp_path, "ch04_svdo_layer"), {"log_alpha": [[1.0, 2.0]]})
+    assert classroom._outputs(tmp_path, "ch04_svdo_layer")["log_alpha"].shape == (1, 2)   # an honest one is read
+
+
+def test_a_students_error_message_is_text_not_markup_in_the_feedback_page(tmp_path):
+    """An answer that raises with HTML and Markdown in its message: the student's page shows it as written."""
+    from vdtutorial.course import feedback
+
+    hostile = "<script>alert(1)</script> [prize](http://example.com) **bold** `code` | table |"
+    cell = nbformat.v4.new_code_cell("raise ValueError(...)", metadata={"nbgrader": {"grade_id": "ch10_holm"}})
+    cell.outputs = [nbformat.v4.new_output("error", ename="ValueError", evalue=hostile, traceback=[])]
+    autograded = tmp_path / "autograded" / "eve" / classroom.ASSIGNMENT / "10_what_reproduced.ipynb"
+    autograded.parent.mkdir(parents=True)
+    nbformat.write(nbformat.v4.new_notebook(cells=[cell]), autograded)
+    scores = [classroom.Score("eve", "10_what_reproduced", "ch10_holm_tests", 0.0, 3.0, failed=("[x](y)",))]
+    page = feedback.write_reports(scores, tmp_path)[0].read_text()
+    assert "<script>" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
+    assert "[prize](" not in page and r"\[prize\](http://example.com)" in page
+    assert r"\*\*bold\*\* \`code\` \| table \|" in page and r"\[x\](y)" in page

@@ -48,6 +48,8 @@ ASSIGNMENT = "vdtutorial"
 #: Seconds a single cell may run during autograding before nbgrader interrupts it. Quick-mode cells take
 #: seconds; the longest (a live TRPO run) about a minute on a busy 2-core machine.
 CELL_TIMEOUT = 300
+#: The largest notebook the grader parses (a submission, or a graded one with its outputs): bytes.
+MAX_NOTEBOOK_BYTES = 64 << 20
 #: The wall-clock budget (minutes) of one submission's grading with ``--full`` (chapters with live training runs).
 FULL_WALL_MINUTES = 360.0
 SAFETY_NOTE = ("the submissions run with your rights to files, network and processes. Grade in a container or "
@@ -97,6 +99,8 @@ def grade_ids(path: Path) -> list[str]:
     """The ``grade_id`` of every nbgrader cell of a notebook, in order."""
     import nbformat
 
+    if Path(path).stat().st_size > MAX_NOTEBOOK_BYTES:
+        raise ClassroomError(f"{path} is larger than {MAX_NOTEBOOK_BYTES >> 20} MB: no chapter notebook is")
     try:
         nb = nbformat.read(path, as_version=4)
     except Exception as exc:  # nbformat raises several types for files that are not notebooks
@@ -450,6 +454,8 @@ def grade_one(job: GradingJob) -> Graded:
         failures = {exercise: tuple(checks.judge(checks.check(exercise), given, _outputs(exchange, exercise)))
                     for exercise, given in inputs.items()}
         autograded = course / "autograded" / job.student / ASSIGNMENT / f"{job.chapter}.ipynb"
+        if autograded.is_file() and autograded.stat().st_size > MAX_NOTEBOOK_BYTES:   # outputs the kernel flooded
+            return Graded(failures, None, f"the graded notebook is larger than {MAX_NOTEBOOK_BYTES >> 20} MB")
         return Graded(failures, autograded.read_bytes() if autograded.is_file() else None, error)
 
 
@@ -459,13 +465,40 @@ def _exercises(chapter: Path) -> list[str]:
 
 
 def _outputs(exchange: Path, exercise: str) -> dict | None:
-    """What the kernel sent back for ``exercise``'s check, or ``None`` (nothing, or not a plain ``.npz``)."""
+    """What the kernel sent back for ``exercise``'s check, or ``None`` (nothing, or not a plain ``.npz`` whose
+    arrays fit in :data:`~vdtutorial.course.checks.MAX_OUTPUTS_BYTES` once decompressed)."""
     from vdtutorial.course import checks
 
+    path = checks.outputs_path(exchange, exercise)
     try:
-        return checks.load(checks.outputs_path(exchange, exercise))
+        _check_npz_sizes(path, checks.MAX_OUTPUTS_BYTES)
+        return checks.load(path)
     except Exception:  # missing, a link, too big, not an npz, or pickled objects: the kernel gave no usable answer
         return None
+
+
+def _check_npz_sizes(path: Path, limit: int) -> None:
+    """Raise ``ValueError`` unless the ``.npz`` at ``path`` holds only ``.npy`` members whose sizes, as the
+    archive declares them and as each array's header declares its shape, add up to at most ``limit`` bytes:
+    read before anything is decompressed (a few MB of zeros can declare gigabytes), and binding, since Python's
+    ``zipfile`` stops a member at its declared size."""
+    import zipfile
+
+    import numpy as np
+
+    if not path.is_file() or path.is_symlink() or path.stat().st_size > limit:
+        raise ValueError(f"{path.name} is not a plain file of at most {limit} bytes")
+    with zipfile.ZipFile(path) as archive:
+        members = archive.infolist()
+        if sum(m.file_size for m in members) > limit or not all(m.filename.endswith(".npy") for m in members):
+            raise ValueError(f"{path.name} declares more than {limit} bytes, or holds more than arrays")
+        for member in members:
+            with archive.open(member) as fh:
+                version = np.lib.format.read_magic(fh)
+                shape, _, dtype = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0) else
+                                   np.lib.format.read_array_header_2_0(fh))
+            if dtype.hasobject or int(np.prod(shape, dtype=object)) * dtype.itemsize > member.file_size:
+                raise ValueError(f"{member.filename} declares more data than it holds, or objects")
 
 
 class _GradingLog:

@@ -17,10 +17,22 @@ Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classr
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 #: The longest error message quoted from the student's notebook (characters).
 MESSAGE_CHARS = 300
+#: Characters that Markdown reads as syntax (emphasis, code, links, images, headings, tables, strikethrough).
+_MARKDOWN = re.compile(r"([\\`*_\[\]#|~!{}])")
+
+
+def as_text(note: str) -> str:
+    """``note`` as literal text on a Markdown page: one line, HTML's ``& < >`` as entities (no tag, no script)
+    and Markdown's syntax characters escaped, so that what a student's code printed or raised shows as written
+    instead of becoming markup."""
+    note = " ".join(note.splitlines())
+    note = note.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    return _MARKDOWN.sub(r"\\\1", note)
 
 
 def notebook_errors(autograded: Path | None) -> dict[str, list[str]]:
@@ -59,7 +71,7 @@ def report(student: str, chapter: str, scores: list, errors: dict[str, list[str]
         elif s.score < s.max_score:
             notes += [f"hidden check failed: {failure}" for failure in s.failed]
         if notes:
-            lines += ["", f"## {exercise}", ""] + [f"- {note}" for note in notes]
+            lines += ["", f"## {exercise}", ""] + [f"- {as_text(note)}" for note in notes]
     return "\n".join(lines) + "\n"
 
 
