@@ -225,24 +225,24 @@ def _bounded_kernels(scratch: Path, limits: Limits, writable: list[Path] = ()) -
     if os.name != "posix":
         return {}
     homes, runtime, spec = scratch / "homes", scratch / "runtime", scratch / "kernels" / "python3"
-    for folder in (homes, runtime, spec):
+    for folder in (homes, runtime, spec, scratch / "empty"):
         folder.mkdir(parents=True)
     kernel = [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"]
     argv = sandbox.command(kernel, max(1, int(limits.memory_gb * 2**30)), max(1, int(limits.cpu_minutes * 60)),
-                           home_under=homes,
-                           read_only=[*sandbox.python_paths(), *_library_mounts()], writable=[runtime, *writable],
-                           given=["{connection_file}"], sandboxed=limits.sandbox)
+                           home_under=homes, read_only=[*sandbox.python_paths(), *_library_mounts(scratch / "empty")],
+                           writable=[runtime, *writable], given=["{connection_file}"], sandboxed=limits.sandbox)
     (spec / "kernel.json").write_text(json.dumps({"argv": argv, "display_name": "Python 3 (bounded grading)",
                                                   "language": "python"}))
     search = [str(scratch)] + [p for p in os.environ.get("JUPYTER_PATH", "").split(os.pathsep) if p]
     return {"JUPYTER_PATH": os.pathsep.join(search), "JUPYTER_RUNTIME_DIR": str(runtime)}
 
 
-def _library_mounts() -> list[tuple[Path, Path]]:
+def _library_mounts(empty: Path) -> list[tuple[Path, Path]]:
     """What a kernel sees of the course package, as (source, destination) pairs for the sandbox: the package
     folder at its own path, and the shipped data the chapters read (a clone's ``data/`` with the
-    ``pyproject.toml`` that marks the clone, or the installed copy's ``book/data``); never the teacher's
-    notebooks (a clone's ``notebooks/``, or ``book/notebooks``), nor anything else of the clone."""
+    ``pyproject.toml`` that marks the clone); never the teacher's notebooks (a clone's ``notebooks/`` is not
+    shown, an installed copy's ``book/notebooks`` is covered by the empty folder ``empty``), nor anything else
+    of the clone."""
     import vdtutorial
     from vdtutorial.settings import INSTALLED_COPY
 
@@ -251,8 +251,8 @@ def _library_mounts() -> list[tuple[Path, Path]]:
     if shipped_dir() == package.parent:
         mounts += [(package.parent / "data", package.parent / "data"),
                    (package.parent / "pyproject.toml", package.parent / "pyproject.toml")]
-    elif (INSTALLED_COPY / "notebooks").is_dir():
-        mounts += [(INSTALLED_COPY / "data", INSTALLED_COPY / "data")] if (INSTALLED_COPY / "data").is_dir() else []
+    if (INSTALLED_COPY / "notebooks").is_dir():
+        mounts.append((empty, INSTALLED_COPY / "notebooks"))
     return mounts
 
 
@@ -613,7 +613,9 @@ _LARGEST = {"--memory": 2.0**33, "--cpu-minutes": 2.0**40, "--timeout": 2.0**31,
 def _cmd_grade(args) -> None:
     from vdtutorial.course import sandbox
 
-    wall = args.wall_minutes if args.wall_minutes is not None else FULL_WALL_MINUTES if args.full else Limits.wall_minutes
+    wall = args.wall_minutes
+    if wall is None:
+        wall = FULL_WALL_MINUTES if args.full else Limits.wall_minutes
     for name, value in (("--memory", args.memory), ("--cpu-minutes", args.cpu_minutes), ("--timeout", args.timeout),
                         ("--workers", args.workers), ("--wall-minutes", wall)):
         _positive(name, value)
