@@ -354,6 +354,9 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
                     dest.write_bytes(data)
             if result.error is not None:
                 print(f"warning: nbgrader could not grade {sub.student}: {result.error}", file=sys.stderr)
+            if result.unfinished is not None:
+                print(f"warning: the grading of {sub.student} {sub.chapter} did not finish: {result.unfinished}",
+                      file=sys.stderr)
         scores = _record(api, subs, results, refused, out, sandboxed=limits.sandbox)
     write_reports(scores, out)
     return scores

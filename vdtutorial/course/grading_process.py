@@ -32,7 +32,7 @@ def did_not_finish(why: str):
     """The result of a submission whose grading process ended without one: no check passed, and why."""
     from vdtutorial.course.classroom import Graded
 
-    return Graded({}, None, f"grading did not finish: {why}")
+    return Graded({}, None, None, unfinished=why)
 
 
 def _why(returncode: int | None, budget: float) -> str:

@@ -115,7 +115,7 @@ def available() -> str | None:
     with tempfile.TemporaryDirectory(prefix="vdtutorial_sandbox_probe_") as scratch:
         os.chmod(scratch, 0o755)
         probe = command(["/bin/sh", "-c", "exit 0"], 1 << 30, 60, home_under=Path(scratch))
-        run = subprocess.run(probe, capture_output=True, text=True)
+        run = subprocess.run(probe, capture_output=True, text=True, check=False)
     if run.returncode != 0:
         return "bubblewrap cannot make a sandbox here: " + (run.stderr.strip().splitlines() or ["?"])[-1]
     return None
