@@ -11,15 +11,16 @@ points, visible asserts and hidden tests. This module lays out an nbgrader cours
   timeout, errors in a cell are recorded in that cell. An exercise's points are decided outside that kernel:
   its hidden tests only run the student's function on inputs the grader drew for this submission, and the
   grader compares the results with the library's in its own process (:mod:`vdtutorial.course.checks`).
-  Submissions are graded several at once, each in a course folder of its own (local worker processes, or Ray
-  tasks), and their points are written into the one gradebook by the grading process alone. Before anything
+  Submissions are graded several at once, each in a course folder of its own (a process of its own under a
+  wall-clock budget, :mod:`vdtutorial.course.grading_process`, or a Ray task), and their points are written into the one gradebook by the grading process alone. Before anything
   runs, the answer cells are read (:func:`refusals`, :mod:`vdtutorial.course.answer_rules`): an answer that
   uses the library's piece its exercise rebuilds scores 0 there; one that could change the tests makes the
   whole notebook score 0. Each student gets a report without the hidden checks (:mod:`vdtutorial.course.feedback`).
 
-Each kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): memory and CPU-time caps, a throwaway
-home, and on Linux, where user namespaces are allowed, no network and read-only files outside it (else
-``classroom grade`` says so, :data:`SAFETY_NOTE`); kernels talk to nbgrader over Unix sockets.
+Each kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): memory and CPU-time caps, in a
+bubblewrap sandbox that shows it the Python environment and the package read-only, a private home, and nothing
+else (where no sandbox can be made, ``classroom grade`` refuses unless told ``--no-sandbox``, :data:`SAFETY_NOTE`);
+kernels talk to nbgrader over Unix sockets.
 Command line: ``python -m vdtutorial classroom release OUT`` and ``... classroom grade SUBMISSIONS...``.
 
 Not taught in a chapter: the teacher's tool (notebooks/TEACHING.md).
