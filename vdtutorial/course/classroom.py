@@ -325,6 +325,7 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
     from vdtutorial.course.grading_process import run_each
     from vdtutorial.runner.backends import run_jobs
 
+    _refuse_without_sandbox(limits)
     source = Path(source) if source is not None else notebooks_dir()
     out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
@@ -361,6 +362,15 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
         scores = _record(api, subs, results, refused, out, sandboxed=limits.sandbox)
     write_reports(scores, out)
     return scores
+
+
+def _refuse_without_sandbox(limits: Limits) -> None:
+    """A :class:`ClassroomError` naming the safe routes, where the kernels should be sandboxed and cannot be."""
+    from vdtutorial.course import sandbox
+
+    if limits.sandbox and (why := sandbox.available()) is not None:
+        raise ClassroomError(f"no sandbox for the students' code ({why}): {sandbox.SAFE_ROUTES}; or pass "
+                             "--no-sandbox to run their code with your rights (the table then says so)")
 
 
 def refusals(path: Path, teacher: Path) -> tuple[str | None, dict[str, str]]:
@@ -615,8 +625,6 @@ _LARGEST = {"--memory": 2.0**33, "--cpu-minutes": 2.0**40, "--timeout": 2.0**31,
 
 
 def _cmd_grade(args) -> None:
-    from vdtutorial.course import sandbox
-
     wall = args.wall_minutes
     if wall is None:
         wall = FULL_WALL_MINUTES if args.full else Limits.wall_minutes
@@ -625,11 +633,8 @@ def _cmd_grade(args) -> None:
         _positive(name, value)
     if args.workers != int(args.workers):
         raise ClassroomError(f"--workers must be a whole number, got {args.workers:g}")
-    why = None if args.no_sandbox else sandbox.available()
-    if why is not None:
-        raise ClassroomError(f"no sandbox for the students' code ({why}): {sandbox.SAFE_ROUTES}; or pass "
-                             "--no-sandbox to run their code with your rights (the table then says so)")
     limits = Limits(args.memory, args.cpu_minutes, sandbox=not args.no_sandbox, wall_minutes=wall)
+    _refuse_without_sandbox(limits)
     print(f"each submission's kernel: at most {limits.memory_gb:g} GB of memory and {limits.cpu_minutes:g} CPU "
           "minutes, " + ("in a sandbox (bubblewrap): no network, no file of this machine but the Python "
                          "environment, read-only" if limits.sandbox else f"NO SANDBOX: {SAFETY_NOTE}"),
