@@ -11,15 +11,16 @@ points, visible asserts and hidden tests. This module lays out an nbgrader cours
   timeout, errors in a cell are recorded in that cell. An exercise's points are decided outside that kernel:
   its hidden tests only run the student's function on inputs the grader drew for this submission, and the
   grader compares the results with the library's in its own process (:mod:`vdtutorial.course.checks`).
-  Submissions are graded several at once, each in a course folder of its own (local worker processes, or Ray
-  tasks), and their points are written into the one gradebook by the grading process alone. Before anything
+  Submissions are graded several at once, each in a course folder of its own (a process of its own under a
+  wall-clock budget, :mod:`vdtutorial.course.grading_process`, or a Ray task), and their points are written into the one gradebook by the grading process alone. Before anything
   runs, the answer cells are read (:func:`refusals`, :mod:`vdtutorial.course.answer_rules`): an answer that
   uses the library's piece its exercise rebuilds scores 0 there; one that could change the tests makes the
   whole notebook score 0. Each student gets a report without the hidden checks (:mod:`vdtutorial.course.feedback`).
 
-Each kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): memory and CPU-time caps, a throwaway
-home, and on Linux, where user namespaces are allowed, no network and read-only files outside it (else
-``classroom grade`` says so, :data:`SAFETY_NOTE`); kernels talk to nbgrader over Unix sockets.
+Each kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): memory and CPU-time caps, in a
+bubblewrap sandbox that shows it the Python environment and the package read-only, a private home, and nothing
+else (where no sandbox can be made, ``classroom grade`` refuses unless told ``--no-sandbox``, :data:`SAFETY_NOTE`);
+kernels talk to nbgrader over Unix sockets.
 Command line: ``python -m vdtutorial classroom release OUT`` and ``... classroom grade SUBMISSIONS...``.
 
 Not taught in a chapter: the teacher's tool (notebooks/TEACHING.md).
@@ -30,6 +31,7 @@ import argparse
 import contextlib
 import csv
 import json
+import math
 import os
 import re
 import secrets
@@ -47,18 +49,24 @@ ASSIGNMENT = "vdtutorial"
 #: Seconds a single cell may run during autograding before nbgrader interrupts it. Quick-mode cells take
 #: seconds; the longest (a live TRPO run) about a minute on a busy 2-core machine.
 CELL_TIMEOUT = 300
-SAFETY_NOTE = ("the submissions run with your rights to files and network. Grade in a container or a throwaway "
-               "account, as nbgrader's documentation advises.")
+#: The largest notebook the grader parses (a submission, or a graded one with its outputs): bytes.
+MAX_NOTEBOOK_BYTES = 64 << 20
+#: The wall-clock budget (minutes) of one submission's grading with ``--full`` (chapters with live training runs).
+FULL_WALL_MINUTES = 360.0
+SAFETY_NOTE = ("the submissions run with your rights to files, network and processes. Grade in a container or "
+               "a throwaway account, as nbgrader's documentation advises.")
 
 
 @dataclass(frozen=True)
 class Limits:
-    """What one submission's kernel may use. ``isolate``: no network and a read-only file system outside the
-    kernel's throwaway folder (``None``: wherever the system allows it, see :func:`sandbox.isolation_available`)."""
+    """What one submission's kernel may use: memory and CPU time, and ``sandbox``: whether it runs in the
+    bubblewrap sandbox (:mod:`vdtutorial.course.sandbox`; ``False`` only when the teacher asked for
+    ``--no-sandbox``)."""
 
     memory_gb: float = 4.0
     cpu_minutes: float = 60.0
-    isolate: bool | None = None
+    sandbox: bool = True
+    wall_minutes: float = 30.0   # one submission's grading, all of it, measured from outside
 
 
 class ClassroomError(Exception):
@@ -92,6 +100,8 @@ def grade_ids(path: Path) -> list[str]:
     """The ``grade_id`` of every nbgrader cell of a notebook, in order."""
     import nbformat
 
+    if Path(path).stat().st_size > MAX_NOTEBOOK_BYTES:
+        raise ClassroomError(f"{path} is larger than {MAX_NOTEBOOK_BYTES >> 20} MB: no chapter notebook is")
     try:
         nb = nbformat.read(path, as_version=4)
     except Exception as exc:  # nbformat raises several types for files that are not notebooks
@@ -206,24 +216,45 @@ def collect(paths, source: Path | None = None) -> list[Submission]:
 def _bounded_kernels(scratch: Path, limits: Limits, writable: list[Path] = ()) -> dict[str, str]:
     """Make the ``python3`` kernel that nbgrader starts a bounded one: a kernelspec in ``scratch`` whose
     command is the :mod:`vdtutorial.course.sandbox` launcher in front of ipykernel, each kernel in its own folder
-    under ``scratch/homes``; ``writable``: more folders it may write. Returns the environment that makes Jupyter find it first and keep its
-    connection files and sockets in ``scratch/runtime`` (which the kernels may write, to make their sockets).
-    Windows has no ``setrlimit``: there the kernels run unbounded (``classroom grade`` says so)."""
+    under ``scratch/homes``; ``writable``: more folders it may write. The sandbox shows the kernel this Python's
+    environment and the course package (:func:`_library_mounts`), read-only, and nothing else of this machine's
+    files. Returns the environment that makes Jupyter find the kernelspec first and keep its connection files
+    and sockets in ``scratch/runtime`` (which the kernels may write, to make their sockets). Windows has no
+    ``setrlimit``: there the kernels run unbounded (``classroom grade`` refuses unless told ``--no-sandbox``)."""
     from vdtutorial.course import sandbox
 
     if os.name != "posix":
         return {}
     homes, runtime, spec = scratch / "homes", scratch / "runtime", scratch / "kernels" / "python3"
-    for folder in (homes, runtime, spec):
+    for folder in (homes, runtime, spec, scratch / "empty"):
         folder.mkdir(parents=True)
     kernel = [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"]
-    argv = sandbox.command(kernel, int(limits.memory_gb * 2**30), int(limits.cpu_minutes * 60), home_under=homes,
-                           writable=[runtime, *writable],
-                           isolate=sandbox.isolation_available() if limits.isolate is None else limits.isolate)
+    argv = sandbox.command(kernel, max(1, int(limits.memory_gb * 2**30)), max(1, int(limits.cpu_minutes * 60)),
+                           home_under=homes, read_only=[*sandbox.python_paths(), *_library_mounts(scratch / "empty")],
+                           writable=[runtime, *writable], given=["{connection_file}"], sandboxed=limits.sandbox)
     (spec / "kernel.json").write_text(json.dumps({"argv": argv, "display_name": "Python 3 (bounded grading)",
                                                   "language": "python"}))
     search = [str(scratch)] + [p for p in os.environ.get("JUPYTER_PATH", "").split(os.pathsep) if p]
     return {"JUPYTER_PATH": os.pathsep.join(search), "JUPYTER_RUNTIME_DIR": str(runtime)}
+
+
+def _library_mounts(empty: Path) -> list[tuple[Path, Path]]:
+    """What a kernel sees of the course package, as (source, destination) pairs for the sandbox: the package
+    folder at its own path, and the shipped data the chapters read (a clone's ``data/`` with the
+    ``pyproject.toml`` that marks the clone); never the teacher's notebooks (a clone's ``notebooks/`` is not
+    shown, an installed copy's ``book/notebooks`` is covered by the empty folder ``empty``), nor anything else
+    of the clone."""
+    import vdtutorial
+    from vdtutorial.settings import INSTALLED_COPY
+
+    package = Path(vdtutorial.__file__).resolve().parent
+    mounts = [(package, package)]
+    if shipped_dir() == package.parent:
+        mounts += [(package.parent / "data", package.parent / "data"),
+                   (package.parent / "pyproject.toml", package.parent / "pyproject.toml")]
+    if (INSTALLED_COPY / "notebooks").is_dir():
+        mounts.append((empty, INSTALLED_COPY / "notebooks"))
+    return mounts
 
 
 @contextlib.contextmanager
@@ -269,6 +300,7 @@ class Score:
     max_score: float
     refused: str = ""   # why the grader gave 0 whatever the tests said (vdtutorial.course.answer_rules), or ""
     failed: tuple[str, ...] = ()   # the trusted check's failures, in words (vdtutorial.course.checks)
+    sandboxed: bool = True   # False: graded with --no-sandbox
 
 
 def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_TIMEOUT, quick: bool = True,
@@ -290,8 +322,10 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
     ``out/feedback/STUDENT/CHAPTER.md`` (:func:`vdtutorial.course.feedback.write_reports`).
     """
     from vdtutorial.course.feedback import write_reports
+    from vdtutorial.course.grading_process import run_each
     from vdtutorial.runner.backends import run_jobs
 
+    _refuse_without_sandbox(limits)
     source = Path(source) if source is not None else notebooks_dir()
     out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
@@ -307,8 +341,12 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
         jobs = [GradingJob(subs[k].student, subs[k].chapter, subs[k].path.read_bytes(),
                            (out / "source" / ASSIGNMENT / f"{subs[k].chapter}.ipynb").read_bytes(), gradebook, timeout,
                            quick, limits, secrets.randbits(63)) for k in run]
-        graded = dict(zip(run, run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address,
-                                        listener=_GradingLog(jobs, log) if log else None)))
+        listener = _GradingLog(jobs, log) if log else None
+        if backend == "local":
+            done = run_each(jobs, workers, limits.wall_minutes * 60, listener.finished if listener else None)
+        else:
+            done = run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address, listener=listener)
+        graded = dict(zip(run, done))
         results = [graded.get(k, Graded({}, None, None)) for k in range(len(subs))]
         for sub, result in zip(subs, results):
             for folder, data in (("submitted", sub.path.read_bytes()), ("autograded", result.autograded)):
@@ -318,9 +356,21 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
                     dest.write_bytes(data)
             if result.error is not None:
                 print(f"warning: nbgrader could not grade {sub.student}: {result.error}", file=sys.stderr)
-        scores = _record(api, subs, results, refused, out)
+            if result.unfinished is not None:
+                print(f"warning: the grading of {sub.student} {sub.chapter} did not finish: {result.unfinished}",
+                      file=sys.stderr)
+        scores = _record(api, subs, results, refused, out, sandboxed=limits.sandbox)
     write_reports(scores, out)
     return scores
+
+
+def _refuse_without_sandbox(limits: Limits) -> None:
+    """A :class:`ClassroomError` naming the safe routes, where the kernels should be sandboxed and cannot be."""
+    from vdtutorial.course import sandbox
+
+    if limits.sandbox and (why := sandbox.available()) is not None:
+        raise ClassroomError(f"no sandbox for the students' code ({why}): {sandbox.SAFE_ROUTES}; or pass "
+                             "--no-sandbox to run their code with your rights (the table then says so)")
 
 
 def refusals(path: Path, teacher: Path) -> tuple[str | None, dict[str, str]]:
@@ -385,6 +435,7 @@ class Graded:
     failures: dict
     autograded: bytes | None
     error: str | None
+    unfinished: str | None = None   # why its grading process ended without a result (grading_process)
 
 
 def grade_one(job: GradingJob) -> Graded:
@@ -417,6 +468,8 @@ def grade_one(job: GradingJob) -> Graded:
         failures = {exercise: tuple(checks.judge(checks.check(exercise), given, _outputs(exchange, exercise)))
                     for exercise, given in inputs.items()}
         autograded = course / "autograded" / job.student / ASSIGNMENT / f"{job.chapter}.ipynb"
+        if autograded.is_file() and autograded.stat().st_size > MAX_NOTEBOOK_BYTES:   # outputs the kernel flooded
+            return Graded(failures, None, f"the graded notebook is larger than {MAX_NOTEBOOK_BYTES >> 20} MB")
         return Graded(failures, autograded.read_bytes() if autograded.is_file() else None, error)
 
 
@@ -426,13 +479,40 @@ def _exercises(chapter: Path) -> list[str]:
 
 
 def _outputs(exchange: Path, exercise: str) -> dict | None:
-    """What the kernel sent back for ``exercise``'s check, or ``None`` (nothing, or not a plain ``.npz``)."""
+    """What the kernel sent back for ``exercise``'s check, or ``None`` (nothing, or not a plain ``.npz`` whose
+    arrays fit in :data:`~vdtutorial.course.checks.MAX_OUTPUTS_BYTES` once decompressed)."""
     from vdtutorial.course import checks
 
+    path = checks.outputs_path(exchange, exercise)
     try:
-        return checks.load(checks.outputs_path(exchange, exercise))
+        _check_npz_sizes(path, checks.MAX_OUTPUTS_BYTES)
+        return checks.load(path)
     except Exception:  # missing, a link, too big, not an npz, or pickled objects: the kernel gave no usable answer
         return None
+
+
+def _check_npz_sizes(path: Path, limit: int) -> None:
+    """Raise ``ValueError`` unless the ``.npz`` at ``path`` holds only ``.npy`` members whose sizes, as the
+    archive declares them and as each array's header declares its shape, add up to at most ``limit`` bytes:
+    read before anything is decompressed (a few MB of zeros can declare gigabytes), and binding, since Python's
+    ``zipfile`` stops a member at its declared size."""
+    import zipfile
+
+    import numpy as np
+
+    if not path.is_file() or path.is_symlink() or path.stat().st_size > limit:
+        raise ValueError(f"{path.name} is not a plain file of at most {limit} bytes")
+    with zipfile.ZipFile(path) as archive:
+        members = archive.infolist()
+        if sum(m.file_size for m in members) > limit or not all(m.filename.endswith(".npy") for m in members):
+            raise ValueError(f"{path.name} declares more than {limit} bytes, or holds more than arrays")
+        for member in members:
+            with archive.open(member) as fh:
+                version = np.lib.format.read_magic(fh)
+                shape, _, dtype = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0) else
+                                   np.lib.format.read_array_header_2_0(fh))
+            if dtype.hasobject or int(np.prod(shape, dtype=object)) * dtype.itemsize > member.file_size:
+                raise ValueError(f"{member.filename} declares more data than it holds, or objects")
 
 
 class _GradingLog:
@@ -455,7 +535,8 @@ class _GradingLog:
                  "exercises pass their checks" + ("" if result.error is None else " (the notebook stopped early)"))
 
 
-def _record(api, subs: list[Submission], results: list[Graded], refused: list[tuple], out: Path) -> list[Score]:
+def _record(api, subs: list[Submission], results: list[Graded], refused: list[tuple], out: Path,
+            sandboxed: bool = True) -> list[Score]:
     """Write every submission's points into the gradebook and into ``out/grades.csv``; returns them. An exercise
     scores its points when its trusted check passed and :func:`refusals` did not refuse it, else 0; the reason (the
     refusal, or the checks that failed) becomes the answer cell's comment, which nbgrader's formgrader shows."""
@@ -466,7 +547,8 @@ def _record(api, subs: list[Submission], results: list[Graded], refused: list[tu
             gb.update_or_create_submission(ASSIGNMENT, sub.student)
             for name in sorted(_test_cells(gb, sub.chapter)):
                 exercise, top = name.removesuffix("_tests"), _max_points(gb, sub.chapter, name)
-                why = whole or each.get(name, "")
+                why = whole or each.get(name, "") or (f"grading did not finish: {result.unfinished}"
+                                                      if result.unfinished else "")
                 failed = result.failures.get(exercise, ("the notebook was not run",))
                 score = 0.0 if why or failed else top
                 cell = gb.find_grade(name, sub.chapter, ASSIGNMENT, sub.student)
@@ -476,7 +558,7 @@ def _record(api, subs: list[Submission], results: list[Graded], refused: list[tu
                         comment = gb.find_comment(exercise, sub.chapter, ASSIGNMENT, sub.student)
                         comment.manual_comment = (f"refused by the grader: {why}" if why else
                                                   "hidden checks failed: " + "; ".join(failed))
-                scores.append(Score(sub.student, sub.chapter, name, score, top, why, tuple(failed)))
+                scores.append(Score(sub.student, sub.chapter, name, score, top, why, tuple(failed), sandboxed))
             gb.db.commit()
     write_csv(scores, out / "grades.csv")
     return scores
@@ -492,12 +574,13 @@ def _max_points(gb, chapter: str, cell: str) -> float:
 
 def write_csv(scores: list[Score], path: Path) -> Path:
     """One row per student and exercise: student, chapter, exercise, score, max_score, refused (why the grader
-    gave 0 whatever the tests said, or empty)."""
+    gave 0 whatever the tests said, or empty), sandbox (``yes``, or ``NO`` when graded with ``--no-sandbox``)."""
     with open(path, "w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow(["student", "chapter", "exercise", "score", "max_score", "refused"])
+        writer.writerow(["student", "chapter", "exercise", "score", "max_score", "refused", "sandbox"])
         for s in scores:
-            writer.writerow([s.student, s.chapter, s.exercise, s.score, s.max_score, s.refused])
+            writer.writerow([s.student, s.chapter, s.exercise, s.score, s.max_score, s.refused,
+                             "yes" if s.sandboxed else "NO"])
     return path
 
 
@@ -514,6 +597,9 @@ def table(scores: list[Score]) -> str:
     totals = [sum(s.score for s in scores if s.student == st) for st in students]
     possible = [sum(s.max_score for s in scores if s.student == st) for st in students]
     lines.append(f"{'total':<{width}} {'':>5} " + " ".join(f"{f'{t:g}/{p:g}':>12}" for t, p in zip(totals, possible)))
+    if any(not s.sandboxed for s in scores):
+        lines.insert(0, "graded WITHOUT a sandbox (--no-sandbox): the submissions' code ran with the grader's rights "
+                        "to files, network and processes, and could have changed these points\n")
     reasons = sorted({(s.student, s.chapter, s.refused) for s in scores if s.refused})
     if reasons:
         lines.append("\n0! refused: the grader gave 0 whatever the tests said, because")
@@ -526,28 +612,38 @@ def _cmd_release(args) -> None:
     print(f"wrote the student edition of {len(written)} chapters to {Path(args.out)}/ (nbgrader generate_assignment)")
 
 
-def _cmd_grade(args) -> None:
-    from vdtutorial.course.sandbox import isolation_available
+def _positive(name: str, value: float) -> None:
+    """A limit must be a finite number above 0 (``inf``, ``nan`` and ``1e300`` CPU minutes included)."""
+    if not (math.isfinite(value) and 0 < value <= _LARGEST[name]):
+        raise ClassroomError(f"{name} must be a number above 0 and at most {_LARGEST[name]:g}, got {value:g}")
 
-    if args.memory <= 0 or args.cpu_minutes <= 0:
-        raise ClassroomError("--memory and --cpu-minutes must be positive")
-    limits = Limits(args.memory, args.cpu_minutes, isolate=isolation_available())
-    if os.name != "posix":
-        print(f"warning: this system has no per-process limits (setrlimit): {SAFETY_NOTE}", file=sys.stderr)
-    else:
-        print(f"each submission's kernel: at most {limits.memory_gb:g} GB of memory and "
-              f"{limits.cpu_minutes:g} CPU minutes, in a throwaway folder"
-              + (", no network, read-only files outside that folder" if limits.isolate else ""), file=sys.stderr)
-    if os.name == "posix" and not limits.isolate:
-        print(f"warning: this system allows no user namespaces, so the kernels cannot be cut off from the "
-              f"network and the files: {SAFETY_NOTE}", file=sys.stderr)
-    if args.workers < 1:
-        raise ClassroomError("--workers must be at least 1")
+
+#: The largest value each option takes: past them a limit no longer fits the system's (64-bit) counters, or
+#: means no limit at all.
+_LARGEST = {"--memory": 2.0**33, "--cpu-minutes": 2.0**40, "--timeout": 2.0**31, "--workers": 4096,
+            "--wall-minutes": 2.0**31}
+
+
+def _cmd_grade(args) -> None:
+    wall = args.wall_minutes
+    if wall is None:
+        wall = FULL_WALL_MINUTES if args.full else Limits.wall_minutes
+    for name, value in (("--memory", args.memory), ("--cpu-minutes", args.cpu_minutes), ("--timeout", args.timeout),
+                        ("--workers", args.workers), ("--wall-minutes", wall)):
+        _positive(name, value)
+    if args.workers != int(args.workers):
+        raise ClassroomError(f"--workers must be a whole number, got {args.workers:g}")
+    limits = Limits(args.memory, args.cpu_minutes, sandbox=not args.no_sandbox, wall_minutes=wall)
+    _refuse_without_sandbox(limits)
+    print(f"each submission's kernel: at most {limits.memory_gb:g} GB of memory and {limits.cpu_minutes:g} CPU "
+          "minutes, " + ("in a sandbox (bubblewrap): no network, no file of this machine but the Python "
+                         "environment, read-only" if limits.sandbox else f"NO SANDBOX: {SAFETY_NOTE}"),
+          file=sys.stderr)
     if args.address is not None and args.backend == "local":
         raise ClassroomError("--address names a Ray cluster: use it with --backend ray")
     backend = args.backend or ("ray" if args.address is not None else "local")
-    scores = grade(args.submissions, args.out, Path(args.source), args.timeout, quick=not args.full, limits=limits,
-                   workers=args.workers, backend=backend, address=args.address,
+    scores = grade(args.submissions, args.out, Path(args.source), math.ceil(args.timeout), quick=not args.full,
+                   limits=limits, workers=int(args.workers), backend=backend, address=args.address,
                    log=lambda line: print(line, file=sys.stderr), static_check=not args.no_static_check)
     print(table(scores))
     print(f"\ngradebook {Path(args.out) / 'gradebook.db'}, table {Path(args.out) / 'grades.csv'}, "
@@ -582,14 +678,17 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("submissions", nargs="+", help="STUDENT/NN_chapter.ipynb files or STUDENT/ folders")
     g.add_argument("--out", default="grades", help="nbgrader course folder with gradebook.db and grades.csv "
                                                    "(default: %(default)s)")
-    g.add_argument("--timeout", type=int, default=CELL_TIMEOUT, help="seconds per cell (default: %(default)s)")
+    g.add_argument("--timeout", type=float, default=CELL_TIMEOUT, help="seconds per cell (default: %(default)s)")
     g.add_argument("--full", action="store_true", help="run the submissions with full budgets (default: quick mode)")
     g.add_argument("--memory", type=float, default=Limits.memory_gb, metavar="GB",
                    help="memory cap (GB) of each submission's kernel (default: %(default)s)")
     g.add_argument("--cpu-minutes", type=float, default=Limits.cpu_minutes, metavar="MIN",
                    help="CPU-time cap of each submission's kernel; past it the kernel is killed (default: %(default)s)")
+    g.add_argument("--wall-minutes", type=float, default=None, metavar="MIN",
+                   help="wall-clock budget of each submission's whole grading, past which it scores 0 "
+                        f"(default: {Limits.wall_minutes:g}, or {FULL_WALL_MINUTES:g} with --full)")
     g.add_argument("--source", default=str(notebooks_dir()), help="the teacher's notebooks (default: %(default)s)")
-    g.add_argument("--workers", type=int, default=available_cores(), metavar="N",
+    g.add_argument("--workers", type=float, default=available_cores(), metavar="N",
                    help="submissions graded at once, each on its own kernel (default: the cores available, %(default)s)")
     g.add_argument("--backend", choices=("local", "ray"), default=None,
                    help="where the submissions are graded: local processes (default), or Ray, one task per "
@@ -597,6 +696,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--address", default=None,
                    help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); its nodes need "
                         "the same install (a submission travels with its job: no shared folder)")
+    g.add_argument("--no-sandbox", action="store_true",
+                   help="where no sandbox can be made (no bubblewrap, no user namespaces): run the submissions' "
+                        "code with your rights to files, network and processes; the table says so")
     g.add_argument("--no-static-check", action="store_true",
                    help="do not refuse answers for what their code reads like (answer_rules); the points still "
                         "come from the trusted checks alone")

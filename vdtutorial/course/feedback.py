@@ -17,12 +17,24 @@ Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classr
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from vdtutorial.course.checks import NO_ANSWER
 
 #: The longest error message quoted from the student's notebook (characters).
 MESSAGE_CHARS = 300
+#: Characters that Markdown reads as syntax (emphasis, code, links, images, headings, tables, strikethrough).
+_MARKDOWN = re.compile(r"([\\`*_\[\]#|~!{}])")
+
+
+def as_text(note: str) -> str:
+    """``note`` as literal text on a Markdown page: one line, HTML's ``& < >`` as entities (no tag, no script)
+    and Markdown's syntax characters escaped, so that what a student's code printed or raised shows as written
+    instead of becoming markup."""
+    note = " ".join(note.splitlines())
+    note = note.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    return _MARKDOWN.sub(r"\\\1", note)
 
 
 #: How numpy.testing's comparisons begin their message, before the test's ``err_msg`` (``Not equal to tolerance
@@ -86,7 +98,7 @@ def report(student: str, chapter: str, scores: list, errors: dict[str, list[str]
             notes += [f"hidden check failed: {failure}" for failure in s.failed
                       if not (failure == NO_ANSWER and errors.get(exercise))]
         if notes:
-            lines += ["", f"## {exercise}", ""] + [f"- {note}" for note in notes]
+            lines += ["", f"## {exercise}", ""] + [f"- {as_text(note)}" for note in notes]
     return "\n".join(lines) + "\n"
 
 

@@ -1,32 +1,39 @@
-"""Run one command with limits: the launcher that ``classroom grade`` puts in front of each submission's kernel.
+"""Run one command in a sandbox: the launcher that ``classroom grade`` puts in front of each submission's kernel.
 
-A student's notebook runs arbitrary code. Before the kernel starts, this launcher
+A student's notebook runs arbitrary code, so its kernel is given as little as it needs to run a chapter. This
+launcher caps the memory (on Linux ``RLIMIT_DATA``, the private writable mappings: a ``bytearray(30 << 30)``
+raises ``MemoryError`` in that cell instead of taking the machine's memory; not the address space, which PyPI's
+CUDA build of torch fills past 4 GB with its libraries on import) and the CPU time (``RLIMIT_CPU``: the kernel is
+killed when it has used that many CPU seconds), soft and hard, so the kernel cannot raise them again; then it hands
+the command to bubblewrap (``bwrap``, a maintained tool made for this, Debian's ``bubblewrap``), which runs it
 
-* caps the memory (on Linux ``RLIMIT_DATA``, the private writable mappings: a ``bytearray(30 << 30)``
-  raises ``MemoryError`` in that cell instead of taking the machine's memory; not the address space, which
-  PyPI's CUDA build of torch fills past 4 GB with its libraries on import, GPU or not) and the CPU time
-  (``RLIMIT_CPU``: the kernel is killed when it has used that many CPU seconds), soft and hard, so the
-  kernel cannot raise them again;
-* on Linux, where unprivileged user namespaces are allowed, moves the process into new user, mount and
-  network namespaces: no network interface but a loopback that is down, and every file system mounted
-  read-only except the folders it is told are writable (the notebook's folder, a throwaway home) and a
-  private ``/dev/shm``. Inside, the kernel is ``nobody`` (the grader's uid outside), so it keeps no
-  capability after ``exec`` and cannot undo the mounts.
+* in new PID, IPC, UTS, network and mount namespaces (and a new user namespace when the grader is not root):
+  its own ``/proc``, in which it sees only its own processes; when ``bwrap`` (the namespace's first process)
+  ends, every process the kernel started ends with it;
+* as an unprivileged uid: ``nobody`` outside the sandbox when the grader is root (bwrap sets the namespaces up
+  as root, then ``setpriv`` drops every capability and the uid before the command starts), and the grader's own
+  uid, mapped to ``nobody`` in a user namespace, when it is not (an unprivileged user has no other uid to give);
+* on a root file system made of nothing but: the system's programs and libraries (``/usr`` and its links) and
+  the Python environment, read-only; a minimal ``/dev`` (null, zero, random, a private pts and shm); no
+  ``/sys`` and no cgroup file system; a few files of ``/etc`` that libraries read; the folders it is given
+  (read-only or writable, at the same paths); a private home, and a private ``/tmp`` of
+  :data:`TMP_BYTES`.
 
-Where namespaces are not allowed (macOS, Windows, containers that forbid them) only the limits apply;
-:func:`isolation_available` tells the caller so, and ``classroom grade`` says it plainly.
+:func:`available` tells whether bwrap works on this machine (Linux with bubblewrap installed, and user namespaces
+allowed when the grader is not root); where it does not, ``classroom grade`` refuses to run submissions unless the
+teacher passes ``--no-sandbox``, in which case this launcher applies the limits alone.
 
 The launcher is run as a script (``python -I sandbox.py ...``), never imported as ``vdtutorial.course.sandbox`` in
-the launched process: importing the package loads numpy, whose threads would forbid ``unshare(CLONE_NEWUSER)``
-(a process must be single-threaded to enter a new user namespace). It uses only the standard library.
+the launched process: it uses only the standard library, and nothing of the package needs to load before the
+sandbox is made.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
 """
 from __future__ import annotations
 
 import argparse
-import ctypes
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -34,32 +41,58 @@ from pathlib import Path
 
 #: This file, run by path as the launcher.
 LAUNCHER = Path(__file__).resolve()
+#: The uid and gid the sandboxed command runs as (``nobody``).
+NOBODY = 65534
+#: The system's programs and libraries, read-only in the sandbox (those that exist: links stay links).
+SYSTEM = ("/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32")
+#: Files and folders of ``/etc`` that the dynamic linker, fonts, time zones, TLS and user look-ups read.
+ETC = ("/etc/ld.so.cache", "/etc/ld.so.conf", "/etc/ld.so.conf.d", "/etc/alternatives", "/etc/fonts",
+       "/etc/localtime", "/etc/ssl", "/etc/mime.types", "/etc/nsswitch.conf", "/etc/passwd", "/etc/group")
+#: The environment variables the command keeps (any other, a token or a password among them, is not passed on).
+KEPT_ENV = ("PATH", "LANG", "LANGUAGE", "TZ", "TERM", "PYTHONPATH", "MPLBACKEND", "OMP_NUM_THREADS",
+            "MKL_NUM_THREADS")
+KEPT_ENV_PREFIXES = ("LC_", "VDTUTORIAL_", "JUPYTER_")
+#: The size of the sandbox's ``/tmp`` (a file system in memory, which the memory cap does not count).
+TMP_BYTES = 256 << 20
+#: What ``classroom grade`` says where no sandbox can be made.
+SAFE_ROUTES = ("grade on Linux with bubblewrap installed (apt-get install bubblewrap) and user namespaces allowed, "
+               "or in a Linux container or VM that has them")
 
-_CLONE_NEWNS, _CLONE_NEWUSER, _CLONE_NEWNET = 0x00020000, 0x10000000, 0x40000000
-_MS_RDONLY, _MS_REMOUNT, _MS_BIND, _MS_REC, _MS_PRIVATE = 1, 32, 4096, 16384, 1 << 18
-#: The id the kernel has inside its user namespace (the grader's own uid and gid outside it).
-_NOBODY = 65534
-#: Mount flags a remount inside a user namespace must keep (the kernel refuses to clear them): these
-#: ``statvfs`` flags have the same values as the ``MS_*`` mount flags.
-_KEPT_FLAGS = (os.ST_NOSUID | os.ST_NODEV | os.ST_NOEXEC | os.ST_NOATIME | os.ST_NODIRATIME
-               | os.ST_RELATIME) if hasattr(os, "ST_NOSUID") else 0
-#: Kernel file systems that hold no user files: left as they are (``/proc``, ``/sys``, ``/dev``...).
-_PSEUDO_FS = {"proc", "sysfs", "cgroup", "cgroup2", "devpts", "devtmpfs", "mqueue", "debugfs", "tracefs",
-              "securityfs", "pstore", "bpf", "configfs", "fusectl", "hugetlbfs", "binfmt_misc", "autofs",
-              "efivarfs", "nsfs", "rpc_pipefs"}
 
-
-def command(cmd: list[str], memory_bytes: int, cpu_seconds: int, home_under: Path | None = None,
-            writable: list[Path] = (), isolate: bool = False) -> list[str]:
-    """``cmd`` prefixed with the launcher, which applies the limits (and, with ``isolate``, the namespaces
-    with the folders ``writable``) and then replaces itself with ``cmd``. With ``home_under``, ``cmd`` runs in
-    a new empty folder there, which is also its ``HOME`` and holds its ``TMPDIR`` (and is writable)."""
-    head = [sys.executable, "-I", str(LAUNCHER), "--memory", str(memory_bytes), "--cpu", str(cpu_seconds)]
-    if home_under is not None:
-        head += ["--home-under", str(home_under)]
-    if isolate:
-        head += ["--isolate"] + [arg for folder in writable for arg in ("--writable", str(folder))]
+def command(cmd: list[str], memory_bytes: int, cpu_seconds: int, home_under: Path, read_only: list = (),
+            writable: list[Path] = (), given: list[str] = (), sandboxed: bool = True) -> list[str]:
+    """``cmd`` prefixed with the launcher, which applies the limits and then replaces itself with ``cmd`` in the
+    sandbox (with ``sandboxed=False``, the limits alone). ``cmd`` runs in a new empty folder made under
+    ``home_under``, its ``HOME``. ``read_only``: paths, or ``(source, destination)`` pairs, to
+    show it read-only; ``writable``: folders it may write (same paths inside); ``given``: files handed to ``cmd``,
+    which names them by path: each is copied into its home, readable by the sandbox's uid alone, and ``cmd``
+    names the copy instead (a kernel's connection file, which Jupyter writes readable by its owner alone, wherever
+    it likes; Jupyter's ``{connection_file}`` may stand for it)."""
+    head = [sys.executable, "-I", str(LAUNCHER), "--memory", str(memory_bytes), "--cpu", str(cpu_seconds),
+            "--home-under", str(home_under)]
+    for item in read_only:
+        source, dest = (item, item) if isinstance(item, (str, Path)) else item
+        head += ["--ro", str(source), str(dest)]
+    head += [arg for folder in writable for arg in ("--rw", str(folder))]
+    head += [arg for path in given for arg in ("--give", str(path))]
+    if not sandboxed:
+        head.append("--no-sandbox")
     return head + ["--"] + list(cmd)
+
+
+def python_paths() -> list[Path]:
+    """The folders this Python needs, to show read-only to a kernel started with it: its prefixes (a venv's
+    and the interpreter's it was made from) and every other folder on ``sys.path`` (e.g. ``PYTHONPATH``). A
+    folder that holds the course package's own source checkout is left out: the caller shows the package alone."""
+    checkout = LAUNCHER.parents[2]
+    found = []
+    for entry in [sys.prefix, sys.base_prefix, sys.exec_prefix, *sys.path]:
+        path = Path(entry).resolve() if entry else None
+        if path is None or not path.is_dir() or path == checkout or checkout.is_relative_to(path):
+            continue
+        if not any(path.is_relative_to(other) for other in found):
+            found = [other for other in found if not other.is_relative_to(path)] + [path]
+    return found
 
 
 def memory_limit() -> int:
@@ -71,91 +104,97 @@ def memory_limit() -> int:
     return resource.RLIMIT_DATA if sys.platform.startswith("linux") else resource.RLIMIT_AS
 
 
-def isolation_available() -> bool:
-    """Whether this machine lets an unprivileged process enter its own user, mount and network namespaces
-    (tried once in a child process: Linux only, and some containers and distributions forbid it)."""
+def available() -> str | None:
+    """``None`` when this machine can run a command in the sandbox, else why not (one line): tried once in a
+    child process with a trivial command."""
     if not sys.platform.startswith("linux"):
-        return False
-    probe = command(["/bin/sh", "-c", "exit 0"], 1 << 30, 60, isolate=True)
-    return subprocess.run(probe, capture_output=True).returncode == 0
+        return f"{sys.platform} has no bubblewrap sandbox"
+    missing = [tool for tool in ("bwrap", "setpriv") if shutil.which(tool) is None]
+    if missing:
+        return f"{' and '.join(missing)} not found"
+    with tempfile.TemporaryDirectory(prefix="vdtutorial_sandbox_probe_") as scratch:
+        os.chmod(scratch, 0o755)
+        probe = command(["/bin/sh", "-c", "exit 0"], 1 << 30, 60, home_under=Path(scratch))
+        run = subprocess.run(probe, capture_output=True, text=True, check=False)
+    if run.returncode != 0:
+        return "bubblewrap cannot make a sandbox here: " + (run.stderr.strip().splitlines() or ["?"])[-1]
+    return None
 
 
-def _libc():
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.mount.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_ulong, ctypes.c_void_p]
-    return libc
-
-
-def _check(result: int, what: str) -> None:
-    if result != 0:
-        errno = ctypes.get_errno()
-        raise OSError(errno, f"{what}: {os.strerror(errno)}")
-
-
-def _mounts() -> list[tuple[str, str, bool]]:
-    """(mount point, file system type, read-only) of every mount this process sees."""
-    found = []
-    for line in Path("/proc/self/mountinfo").read_text().splitlines():
-        fields = line.split()
-        tail = fields[fields.index("-") + 1:]
-        point = fields[4].encode().decode("unicode_escape")   # spaces etc. are written as octal escapes
-        found.append((point, tail[0], "ro" in fields[5].split(",")))
-    return found
-
-
-def _enter_namespaces() -> None:
-    """New user, mount and network namespaces, in which the process is ``nobody`` (never root, even when
-    the grader is: the capabilities that made the mounts are dropped at ``exec``)."""
-    uid, gid = os.getuid(), os.getgid()
-    _check(_libc().unshare(_CLONE_NEWUSER | _CLONE_NEWNS | _CLONE_NEWNET), "unshare")
-    Path("/proc/self/setgroups").write_text("deny")
-    Path("/proc/self/uid_map").write_text(f"{_NOBODY} {uid} 1")
-    Path("/proc/self/gid_map").write_text(f"{_NOBODY} {gid} 1")
-
-
-def _read_only_except(writable: list[Path]) -> None:
-    """Every file system read-only but the folders ``writable`` (bound onto themselves first, so they stay
-    separate writable mounts) and a fresh private ``/dev/shm``."""
-    libc = _libc()
-    _check(libc.mount(None, b"/", None, _MS_REC | _MS_PRIVATE, None), "make mounts private")
-    keep = {str(Path(folder).resolve()) for folder in writable}
-    for folder in sorted(keep):
-        _check(libc.mount(folder.encode(), folder.encode(), None, _MS_BIND | _MS_REC, None), f"bind {folder}")
-    for point, fstype, read_only in _mounts():
-        if read_only or fstype in _PSEUDO_FS or point in keep or point == "/dev/shm":
-            continue
-        flags = _MS_REMOUNT | _MS_BIND | _MS_RDONLY | (os.statvfs(point).f_flag & _KEPT_FLAGS)
-        _check(libc.mount(None, point.encode(), None, flags, None), f"remount {point} read-only")
-    if Path("/dev/shm").is_dir():
-        _check(libc.mount(b"tmpfs", b"/dev/shm", b"tmpfs", 0, None), "private /dev/shm")
+def _bwrap(cmd: list[str], home: Path, read_only: list[tuple[str, str]], writable: list[str]) -> list[str]:
+    """The bubblewrap command line that runs ``cmd`` as described in the module's docstring."""
+    root = os.getuid() == 0
+    argv = ["bwrap", "--die-with-parent", "--new-session", "--unshare-pid", "--unshare-net", "--unshare-ipc",
+            "--unshare-uts", "--unshare-cgroup-try", "--hostname", "sandbox"]
+    if root:   # namespaces made as root, then the uid dropped inside: never root, not even in a user namespace
+        argv += ["--cap-add", "CAP_SETUID", "--cap-add", "CAP_SETGID"]
+        cmd = ["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups", "--inh-caps=-all",
+               "--bounding-set=-all", "--no-new-privs", "--"] + cmd
+    else:
+        argv += ["--unshare-user", "--uid", str(NOBODY), "--gid", str(NOBODY)]
+    argv += ["--proc", "/proc", "--dev", "/dev"]
+    for path in SYSTEM:
+        if os.path.islink(path):
+            argv += ["--symlink", os.readlink(path), path]
+        elif os.path.isdir(path):
+            argv += ["--ro-bind", path, path]
+    mounts = [("--ro-bind", path, path) for path in ETC if os.path.exists(path)]
+    mounts += [("--ro-bind", source, dest) for source, dest in read_only]
+    mounts += [("--bind", folder, folder) for folder in writable + [str(home)]]
+    argv += ["--perms", "1777", "--size", str(TMP_BYTES), "--tmpfs", "/tmp"]
+    made = {"/", "/proc", "/dev", "/tmp", *SYSTEM}
+    for _, _, dest in mounts:   # the folders above a mount point: created readable by all (bwrap makes them 0700)
+        for parent in reversed(Path(dest).parents):
+            if str(parent) not in made:
+                made.add(str(parent))
+                argv += ["--perms", "0755", "--dir", str(parent)]
+    for flag, source, dest in mounts:
+        argv += [flag, source, dest]
+    argv += ["--clearenv", "--setenv", "HOME", str(home), "--setenv", "TMPDIR", "/tmp", "--setenv", "USER", "nobody"]
+    for name, value in os.environ.items():
+        if name in KEPT_ENV or name.startswith(KEPT_ENV_PREFIXES):
+            argv += ["--setenv", name, value]
+    if "JPY_PARENT_PID" in os.environ:   # a kernel's parent, which it watches: in its PID namespace, bwrap (pid 1)
+        argv += ["--setenv", "JPY_PARENT_PID", "1"]
+    return argv + ["--chdir", str(home), "--"] + cmd
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description="run a command with a memory and a CPU-time cap, "
-                                                 "optionally without network and with a read-only file system")
+    parser = argparse.ArgumentParser(description="run a command with a memory and a CPU-time cap in a sandbox")
     parser.add_argument("--memory", type=int, required=True, help="memory cap in bytes (see memory_limit)")
     parser.add_argument("--cpu", type=int, required=True, help="CPU-time cap in seconds")
-    parser.add_argument("--isolate", action="store_true", help="new user, mount and network namespaces")
-    parser.add_argument("--writable", action="append", default=[], help="a folder that stays writable")
-    parser.add_argument("--home-under", default=None, help="run in a new folder made here, which is also HOME")
+    parser.add_argument("--home-under", required=True, help="run in a new folder made here, which is also HOME")
+    parser.add_argument("--ro", nargs=2, action="append", default=[], metavar=("SOURCE", "DEST"),
+                        help="show SOURCE read-only at DEST")
+    parser.add_argument("--rw", action="append", default=[], help="a folder the command may write")
+    parser.add_argument("--give", action="append", default=[], help="a file handed to the command: copied into "
+                                                                     "its home, and named by the copy's path")
+    parser.add_argument("--no-sandbox", action="store_true", help="the limits alone")
     parser.add_argument("cmd", nargs=argparse.REMAINDER, help="-- then the command")
     args = parser.parse_args(argv)
     cmd = args.cmd[1:] if args.cmd[:1] == ["--"] else args.cmd
     import resource
 
-    writable = [Path(folder) for folder in args.writable]
-    if args.home_under:
-        home = Path(tempfile.mkdtemp(prefix="home_", dir=args.home_under))
+    home = Path(tempfile.mkdtemp(prefix="home_", dir=args.home_under))
+    for k, path in enumerate(args.give):
+        copy = home / f"given_{k}_{Path(path).name}"
+        shutil.copyfile(path, copy)
+        os.chmod(copy, 0o600)
+        cmd = [str(copy) if arg == path else arg for arg in cmd]
+        if os.getuid() == 0 and not args.no_sandbox:
+            os.chown(copy, NOBODY, NOBODY)
+    if os.getuid() == 0 and not args.no_sandbox:
+        for path in [home, *args.rw]:
+            os.chown(path, NOBODY, NOBODY)
+    resource.setrlimit(memory_limit(), (args.memory, args.memory))
+    resource.setrlimit(resource.RLIMIT_CPU, (args.cpu, args.cpu))
+    if args.no_sandbox:
         (home / "tmp").mkdir()
         os.environ.update(HOME=str(home), TMPDIR=str(home / "tmp"))
         os.chdir(home)
-        writable.append(home)
-    if args.isolate:
-        _enter_namespaces()
-        _read_only_except(writable)
-    resource.setrlimit(memory_limit(), (args.memory, args.memory))
-    resource.setrlimit(resource.RLIMIT_CPU, (args.cpu, args.cpu))
-    os.execvp(cmd[0], cmd)
+        os.execvp(cmd[0], cmd)
+    full = _bwrap(cmd, home, [tuple(pair) for pair in args.ro], args.rw)
+    os.execvp(full[0], full)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,244 @@
+"""The grader against a hostile class: the sandbox seen from inside a kernel, one student who tries to stop the
+grading, the options of ``classroom grade``. The commands that grade whole notebooks are ``pipeline`` tests."""
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import nbformat
+import pytest
+
+from vdtutorial.__main__ import main
+from vdtutorial.course import classroom, sandbox
+
+needs_sandbox = pytest.mark.skipif(sandbox.available() is not None, reason=f"no sandbox here: {sandbox.available()}")
+
+#: What a kernel reports about its sandbox, as one JSON line (the same probe runs under the launcher and in a
+#: graded cell). ``SECRET`` is a file of the grader's that it tries to read.
+PROBE = """
+import json, os
+def _try(action):
+    try:
+        action()
+        return "done"
+    except OSError as exc:
+        return type(exc).__name__
+def _write(path):
+    with open(path, "w") as fh:
+        fh.write("x")
+_found = {
+    "uid": os.getuid(),
+    "dev": _try(lambda: _write("/dev/vdtutorial_probe")),
+    "proc_sys": [p for p in ("/proc/sys/kernel/core_pattern", "/proc/sys/vm/overcommit_ratio")
+                 if os.access(p, os.W_OK)],
+    "sys": os.path.exists("/sys") and os.listdir("/sys"),
+    "pids": sorted(int(p) for p in os.listdir("/proc") if p.isdigit()),
+    "secret": _try(lambda: open(SECRET).read()),
+    "cgroup": [line.split()[1] for line in open("/proc/self/mounts") if line.split()[2].startswith("cgroup")],
+}
+print("PROBE " + json.dumps(_found))
+"""
+
+
+def _probe_result(text: str) -> dict:
+    return json.loads(next(line for line in text.splitlines() if line.startswith("PROBE "))[len("PROBE "):])
+
+
+def _assert_confined(found: dict) -> None:
+    assert found["dev"] != "done" and not Path("/dev/vdtutorial_probe").exists()
+    assert found["proc_sys"] == [] and not found["sys"] and found["cgroup"] == []
+    assert found["secret"] in ("FileNotFoundError", "PermissionError")
+    assert max(found["pids"]) < 10, found["pids"]   # its own PID namespace: bwrap, the kernel and its children
+    assert found["uid"] == sandbox.NOBODY
+    if os.getuid() == 0:   # graded as root: the kernel's files are nobody's outside, not root's
+        assert found["uid"] != 0
+
+
+@needs_sandbox
+def test_the_launcher_confines_a_command(tmp_path):
+    """The sandbox alone, as the probe sees it: no host /dev, /proc/sys, /sys or cgroup fs, its own PID namespace,
+    nothing of the grader's files; a process it leaves running ends with it."""
+    secret = tmp_path / "source" / "solutions.txt"
+    secret.parent.mkdir()
+    secret.write_text("the teacher's")
+    marker = f"{600 + os.getpid() % 1000}.25"   # a sleep no other process runs
+    code = (f"SECRET = {str(secret)!r}\n" + PROBE
+            + f"import subprocess\nsubprocess.Popen(['sleep', '{marker}'], start_new_session=True)\n")
+    cmd = sandbox.command([sys.executable, "-c", code], 2 << 30, 60, home_under=tmp_path,
+                          read_only=sandbox.python_paths())
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+    _assert_confined(_probe_result(run.stdout))
+    time.sleep(1)
+    left = [p for p in os.listdir("/proc") if p.isdigit() and marker in _cmdline(p)]
+    assert not left, "a process the sandboxed command started outlived it"
+
+
+def _cmdline(pid: str) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+@pytest.mark.parametrize("option, value", [("--memory", "inf"), ("--memory", "nan"), ("--memory", "0"),
+                                           ("--cpu-minutes", "1e300"), ("--cpu-minutes", "-1"),
+                                           ("--timeout", "-5"), ("--timeout", "nan"), ("--workers", "0"),
+                                           ("--workers", "1.5"), ("--wall-minutes", "inf")])
+def test_a_limit_that_is_not_finite_and_positive_is_one_error_line_before_anything_is_written(
+        option, value, tmp_path, capsys):
+    (tmp_path / "ann").mkdir()
+    (tmp_path / "ann" / "10_what_reproduced.ipynb").write_bytes(classroom.chapters()["10_what_reproduced"].read_bytes())
+    with pytest.raises(SystemExit) as stop:
+        main(["classroom", "grade", str(tmp_path / "ann"), "--out", str(tmp_path / "course"), option, value])
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if not line.startswith("[quick mode")]
+    assert stop.value.code == 2 and len(err) == 1 and err[0].startswith(f"error: {option} must be"), err
+    assert not (tmp_path / "course").exists()
+
+
+def test_without_a_sandbox_grading_is_refused_unless_the_teacher_opts_out(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(sandbox, "available", lambda: "bwrap not found")
+    (tmp_path / "ann").mkdir()
+    (tmp_path / "ann" / "10_what_reproduced.ipynb").write_bytes(classroom.chapters()["10_what_reproduced"].read_bytes())
+    with pytest.raises(SystemExit) as stop:
+        main(["classroom", "grade", str(tmp_path / "ann"), "--out", str(tmp_path / "course")])
+    err = [line for line in capsys.readouterr().err.strip().splitlines() if not line.startswith("[quick mode")]
+    assert stop.value.code == 2 and len(err) == 1 and "bwrap not found" in err[0] and "--no-sandbox" in err[0]
+    assert sandbox.SAFE_ROUTES in err[0] and not (tmp_path / "course").exists()
+
+
+def test_a_table_graded_without_a_sandbox_says_so(tmp_path):
+    scores = [classroom.Score("ann", "10_what_reproduced", "ch10_holm_tests", 3.0, 3.0, sandboxed=False)]
+    assert classroom.table(scores).startswith("graded WITHOUT a sandbox (--no-sandbox)")
+    with open(classroom.write_csv(scores, tmp_path / "grades.csv")) as fh:
+        assert [row["sandbox"] for row in csv.DictReader(fh)] == ["NO"]
+
+
+def _chapter_with(chapter: str, code_before_answers: dict[str, str] = (), extra_cell: str | None = None,
+                  at: int = 3):
+    """The teacher's ``chapter`` (solved), with code put in front of some answers, and one more cell."""
+    nb = nbformat.read(classroom.chapters()[chapter], as_version=4)
+    for cell in nb.cells:
+        grading = cell.metadata.get("nbgrader", {})
+        if grading.get("solution") and grading.get("grade_id") in dict(code_before_answers):
+            cell.source = dict(code_before_answers)[grading["grade_id"]] + "\n" + cell.source
+    if extra_cell is not None:
+        nb.cells.insert(at, nbformat.v4.new_code_cell(extra_cell))
+    return nb
+
+
+def _hand_in(folder: Path, student: str, chapter: str, nb) -> Path:
+    (folder / student).mkdir(parents=True)
+    nbformat.write(nb, folder / student / f"{chapter}.ipynb")
+    return folder / student
+
+
+@needs_sandbox
+@pytest.mark.pipeline
+def test_a_graded_cell_is_confined(tmp_path):
+    """The probe as a cell of a submission of chapter 00, graded (as root where the tests run as root): the
+    kernel cannot create a file in the host's /dev, write under /proc/sys or /sys, see a process outside its
+    PID namespace, or read the course's source folder (the teacher's notebooks that ``grade`` copies there)."""
+    course = tmp_path / "course"
+    secret = course / "source" / classroom.ASSIGNMENT / "00_start_here.ipynb"
+    cell = f"SECRET = {str(secret)!r}\n" + PROBE
+    folder = _hand_in(tmp_path / "in", "mallory", "00_start_here", _chapter_with("00_start_here", extra_cell=cell))
+    classroom.grade([folder], course, timeout=120, static_check=False)   # the sandbox alone, not the static check
+    ran = nbformat.read(course / "autograded" / "mallory" / classroom.ASSIGNMENT / "00_start_here.ipynb", 4)
+    printed = "".join(o.get("text", "") for c in ran.cells if c.cell_type == "code" for o in c.get("outputs", []))
+    found = _probe_result(printed)
+    assert secret.is_file()   # there, outside the sandbox
+    _assert_confined(found)
+
+
+#: Chapter 10 handed in by a class of five: two honest students (the teacher's solutions), and three who try to
+#: stop the grading from a cell of their own: kill the process that runs their kernel, stop it, and hang past any
+#: cell timeout (SIGINT ignored, so that no interrupt ends the cell).
+CLASS_OF_FIVE = {
+    "honest1": None,
+    "honest2": None,
+    "killer": "import os, subprocess\nprint(subprocess.run(['kill', '-9', str(os.getppid())]).returncode)\n",
+    "stopper": "import os, subprocess\nprint(subprocess.run(['kill', '-STOP', str(os.getppid())]).returncode)\n",
+    "hanger": "import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nwhile True:\n    time.sleep(1)\n",
+}
+
+
+@needs_sandbox
+@pytest.mark.pipeline
+def test_one_student_never_stops_the_class(tmp_path):
+    """With two workers, a class of five in which one kills, one stops and one hangs is graded to the end within the
+    per-submission budget: the honest students get full points, and so do the killer and the stopper, whose
+    signals reach no process outside their sandbox; the hanger is cut off by its budget, with the reason in the
+    table and grades.csv."""
+    chapter = "10_what_reproduced"
+    for student, cell in CLASS_OF_FIVE.items():
+        _hand_in(tmp_path / "in", student, chapter, _chapter_with(chapter, extra_cell=cell, at=4))
+    wall_minutes = 6.0
+    start = time.monotonic()
+    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", timeout=600, workers=2,
+                             limits=classroom.Limits(wall_minutes=wall_minutes), static_check=False)
+    took = time.monotonic() - start
+    totals = {st: sum(s.score for s in scores if s.student == st) for st in CLASS_OF_FIVE}
+    possible = sum(s.max_score for s in scores if s.student == "honest1")
+    assert possible > 0
+    assert totals["honest1"] == totals["honest2"] == totals["killer"] == totals["stopper"] == possible, totals
+    assert totals["hanger"] == 0
+    assert all(s.refused.startswith("grading did not finish: ") and "budget" in s.refused
+               for s in scores if s.student == "hanger")
+    with open(tmp_path / "course" / "grades.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["student"] for r in rows if r["refused"].startswith("grading did not finish")} == {"hanger"}
+    assert "grading did not finish" in classroom.table(scores)
+    assert took < 3 * wall_minutes * 60, took   # five submissions, two at a time, none past its budget
+
+
+def _npz_bomb(path: Path, gigabytes: float) -> None:
+    """A zip64 ``.npz`` whose one array is ``gigabytes`` of float64 zeros: a few MB on disk."""
+    import zipfile
+
+    import numpy as np
+
+    count = int(gigabytes * 2**30) // 8
+    header = {"descr": "<f8", "fortran_order": False, "shape": (count,)}
+    chunk = bytes(64 << 20)
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive, \
+            archive.open("log_alpha.npy", "w", force_zip64=True) as fh:
+        np.lib.format.write_array_header_2_0(fh, header)
+        for start in range(0, count * 8, len(chunk)):
+            fh.write(chunk[:min(len(chunk), count * 8 - start)])
+
+
+def test_an_outputs_bomb_is_refused_before_it_is_decompressed(tmp_path):
+    """A kernel's outputs file of a few MB that decompresses to 1.5 GB: the grader refuses it from the sizes the
+    archive and the array declare, and its own memory does not grow by the bomb's size."""
+    import resource
+
+    from vdtutorial.course import checks
+
+    _npz_bomb(checks.outputs_path(tmp_path, "ch04_svdo_layer"), 1.5)
+    assert checks.outputs_path(tmp_path, "ch04_svdo_layer").stat().st_size < 16 << 20
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    assert classroom._outputs(tmp_path, "ch04_svdo_layer") is None
+    grown = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) << 10   # Linux: kB
+    assert grown < 256 << 20, grown
+    checks.save(checks.outputs_path(tmp_path, "ch04_svdo_layer"), {"log_alpha": [[1.0, 2.0]]})
+    assert classroom._outputs(tmp_path, "ch04_svdo_layer")["log_alpha"].shape == (1, 2)   # an honest one is read
+
+
+def test_a_students_error_message_is_text_not_markup_in_the_feedback_page(tmp_path):
+    """An answer that raises with HTML and Markdown in its message: the student's page shows it as written."""
+    from vdtutorial.course import feedback
+
+    hostile = "<script>alert(1)</script> [prize](http://example.com) **bold** `code` | table |"
+    cell = nbformat.v4.new_code_cell("raise ValueError(...)", metadata={"nbgrader": {"grade_id": "ch10_holm"}})
+    cell.outputs = [nbformat.v4.new_output("error", ename="ValueError", evalue=hostile, traceback=[])]
+    autograded = tmp_path / "autograded" / "eve" / classroom.ASSIGNMENT / "10_what_reproduced.ipynb"
+    autograded.parent.mkdir(parents=True)
+    nbformat.write(nbformat.v4.new_notebook(cells=[cell]), autograded)
+    scores = [classroom.Score("eve", "10_what_reproduced", "ch10_holm_tests", 0.0, 3.0, failed=("[x](y)",))]
+    page = feedback.write_reports(scores, tmp_path)[0].read_text()
+    assert "<script>" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
+    assert "[prize](" not in page and r"\[prize\](http://example.com)" in page
+    assert r"\*\*bold\*\* \`code\` \| table \|" in page and r"\[x\](y)" in page
