@@ -15,7 +15,7 @@ An entry (:class:`Method`) answers five questions:
 - **Picture**: ``label`` and ``colour`` of its curves.
 
 ``pretrains`` is False for the two entries that are no pre-training: "none" (RL from a fresh network, sigma
-fixed) and "expert" (the IK expert, measured as the reference line, not trained: ``finetuned`` False).
+fixed) and "expert" (the IK expert's reference line, scored but not trained: ``finetuned`` False).
 
 Register a new method with :func:`register` (an instance of :class:`Method` or of a subclass overriding
 :meth:`Method.penalty`); the experiments, the plots and ``--methods`` then know it by its name. A method
@@ -26,6 +26,7 @@ Taught in chapters 05 and 11.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
 from torch import Tensor, nn
@@ -128,3 +129,20 @@ def method(name: str) -> Method:
 def pretraining_methods() -> tuple[str, ...]:
     """The names of the entries that pre-train, in the table's order."""
     return tuple(name for name, entry in METHODS.items() if entry.pretrains)
+
+
+class _Labels(Mapping):
+    """The table's labels by name, read at each look-up, so that a method registered later has its label too."""
+
+    def __getitem__(self, name: str) -> str:
+        return METHODS[name].label
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(METHODS)
+
+    def __len__(self) -> int:
+        return len(METHODS)
+
+
+#: Each method's label, by name (a live view of :data:`METHODS`).
+METHOD_LABELS: Mapping[str, str] = _Labels()

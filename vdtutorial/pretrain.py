@@ -46,7 +46,7 @@ from vdtutorial.settings import budget
 #: ``PretrainConfig.initial_sigma`` and the sigma of the checkpoints that experiments cache (mu is the same under
 #: every option, which they apply on top) and of checkpoints made before the option existed.
 PAPER_SIGMA_OPTION = "0.3"
-#: The options of ``PretrainConfig.initial_sigma`` that fit sigma after cloning (:mod:`vdtutorial.beyond.initial_sigma`);
+#: The options of ``PretrainConfig.initial_sigma`` that fit sigma after cloning (:mod:`vdtutorial.experiments.initial_sigma`);
 #: any other option is a number, a fixed sigma.
 SIGMA_FITS = ("demos", "spread")
 
@@ -93,7 +93,7 @@ class PretrainConfig:
         across data sets of different sizes (Table I); the paper does not say which it used.
     initial_sigma: sigma at the start of RL, set after mu is cloned: a number (option (a), that fixed sigma;
         default: the paper's 0.3), or a fit, "demos" (b) or "spread" (c), which
-        :func:`vdtutorial.beyond.initial_sigma.pretrain_with_sigma` runs. It does not change mu.
+        :func:`vdtutorial.experiments.initial_sigma.pretrain_with_sigma` runs. It does not change mu.
     patience: stop on the held-out loss. ``None`` (the default, the shipped checkpoints' setting): run all
         ``epochs``. A number P: ``epochs`` becomes a cap, and cloning stops once the held-out MSE of the mean action
         has not improved for P epochs; mu is then the best epoch's. For VD the count starts when the KL warm-up is
@@ -200,7 +200,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     loss, the held-out mean squared error of the (deterministic, pruned) mean action and what the method records
     (:meth:`~vdtutorial.methods.Method.epoch_record`: for VD, the fraction of weights of ``mu`` with log alpha > 3).
 
-    A fitted initial sigma ("demos", "spread") is beyond the paper: :func:`vdtutorial.beyond.initial_sigma.pretrain_with_sigma`.
+    A fitted initial sigma ("demos", "spread") is beyond the paper: :func:`vdtutorial.experiments.initial_sigma.pretrain_with_sigma`.
     """
     cfg = config or PretrainConfig()
     entry = method(cfg.reg)
@@ -208,7 +208,7 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
         raise ValueError(f"method {cfg.reg!r} does not pre-train")
     if cfg.initial_sigma in SIGMA_FITS:
         raise ValueError(f"initial_sigma={cfg.initial_sigma!r} is fitted after cloning: use "
-                         "vdtutorial.beyond.initial_sigma.pretrain_with_sigma (pretrain fixes sigma only)")
+                         "vdtutorial.experiments.initial_sigma.pretrain_with_sigma (pretrain fixes sigma only)")
     device = torch_device(device)  # refused before any work when this machine has no such device
     torch.manual_seed(seed)
     task = demos.meta["task"]
