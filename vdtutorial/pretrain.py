@@ -117,7 +117,10 @@ class PretrainConfig:
         if self.epochs is None:
             self.epochs = budget(150, 4)
         self.initial_sigma = sigma_option(self.initial_sigma)
-        method(self.reg)  # a method of the table (ValueError otherwise)
+        try:
+            method(self.reg)
+        except ValueError as exc:
+            raise ValueError(f"reg: {exc}") from None
         if self.obs_mode not in ("state", "rgbd"):
             raise ValueError(f"obs_mode must be 'state' or 'rgbd', got {self.obs_mode!r}")
         if self.epochs < 1 or self.batch_size < 1 or not 0 <= self.val_fraction < 1:

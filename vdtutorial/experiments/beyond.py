@@ -216,7 +216,7 @@ class RLJob(SavedInStateDir):
     """One variant and seed's RL stage as a grid job: TRPO with the paper's settings (:func:`default_trpo_config`)
     for ``steps`` env steps from the policy cloned on the variant's data set (:func:`cloned_policy`'s checkpoint),
     with the start sigma and, for VD, the pruning of the figures' runs
-    (:func:`~vdtutorial.experiments.runs.finetune_policy`). The run is that of
+    (:func:`~vdtutorial.experiments.pipeline.finetune_policy`). The run is that of
     :func:`~vdtutorial.experiments.runs.finetune_steps`: its state saved every ``checkpoint_every`` iterations, a
     rerun continues it to the rows of an uninterrupted run, a larger ``steps`` extends it. ``start_sigma``: the
     sigma RL starts from (an :class:`~vdtutorial.experiments.initial_sigma.InitialSigma` spelling; None: the figures')."""

@@ -439,7 +439,7 @@ def claims_overview(records: dict[str, dict], measures: tuple[str, ...] = ("fina
 def demo_seed_of(record: dict) -> int:
     """The draw of the demonstrations a figure's record was pre-trained on (its runs' ``demo_seed``; records made
     before runs had one used the shipped draw, 0)."""
-    seeds = {run.get("demo_seed", 0) for run in record["runs"] if run["method"] in ("vd", "l2")}
+    seeds = {run.get("demo_seed", 0) for run in record["runs"] if run.get("samples") is not None}  # pre-trained
     if len(seeds) != 1:
         raise ValueError(f"a record pre-trained on {len(seeds)} draws of the data: expected one")
     return seeds.pop()

@@ -163,10 +163,11 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
     start = time.perf_counter()
     rows = [row for result in run_jobs(_run, jobs, workers) for row in result]
     pre_rl = run_jobs(_mean_action_job, [(m, s) for s in seeds for m in ("vd", "l2")], workers)
-    for option in options:  # "none" rows copied to every option with the same starting sigma
+    for option in options:  # no pre-training's rows copied to every option with the same starting sigma
         source = starts.get(InitialSigma.parse(option).value, option)
         if source != option:
-            rows += [{**r, "option": option} for r in rows if r["option"] == source and r["method"] == "none"]
+            rows += [{**r, "option": option} for r in rows
+                     if r["option"] == source and not method_entry(r["method"]).pretrains]
     wall = time.perf_counter() - start
     rows = stored_rows(rows)  # the summary is what the shipped CSV gives back (runner.rows)
     out.mkdir(parents=True, exist_ok=True)
