@@ -21,7 +21,7 @@ Register a new method with :func:`register` (an instance of :class:`Method` or o
 :meth:`Method.penalty`); the experiments, the plots and ``--methods`` then know it by its name. A method
 registered in a running Python is known to that process only: run its experiments with one worker.
 
-Taught in chapters 05 and 11.
+Taught in chapter 05.
 """
 from __future__ import annotations
 
@@ -47,8 +47,8 @@ class CloningStep:
 
 @dataclass(frozen=True)
 class Method:
-    """One row of the table (module docstring). The base class adds no penalty: a method that only changes
-    the layers, or pruning, needs no subclass."""
+    """One row of the table: the module docstring, "five questions". The base class adds no penalty: a method that
+    only changes the layers, or pruning, needs no subclass."""
 
     name: str
     label: str

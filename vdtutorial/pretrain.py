@@ -8,9 +8,7 @@ from the untrained sigma network. With sparse VD the whole policy is in training
 network's layers draw weight noise too: its parameters stay fixed, but each minibatch sees sigma
 through fresh noise (a few per cent; what it changes: docs/results.md, "Measurements behind the code").
 
-``reg`` names the method (:mod:`vdtutorial.methods`): its entry says how the layers are built and which term
-is added to the likelihood. The paper's two:
-
+``reg`` names the method (:mod:`vdtutorial.methods`: its layers and the term added to the likelihood).
 ``reg="vd"`` -- sparse variational dropout. ``mu`` has SVDO layers and the loss is the negative ELBO of
 eqs. 1-3 divided by N (the scale of one sample; the optimum is unchanged):
 

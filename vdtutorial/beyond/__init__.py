@@ -4,5 +4,5 @@ Modules, one idea each: :mod:`~vdtutorial.beyond.imitation_rounds` (cloning in r
 states, Ross et al. 2011), and :mod:`~vdtutorial.beyond.value_baseline` (a value network for TRPO's baseline,
 as sb3-contrib uses). They build on the core, and nothing in the core needs them.
 
-Taught in chapters 07 and 09.
+Taught in chapter 09.
 """

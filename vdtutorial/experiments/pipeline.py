@@ -11,7 +11,7 @@ from its entry in :mod:`vdtutorial.methods`; how a checkpoint is named, found an
 :mod:`~vdtutorial.experiments.checkpoints`, and how the start sigma is fitted is
 :mod:`~vdtutorial.experiments.initial_sigma`. Neither calls back into this module.
 
-Taught in chapters 05, 07 and 11.
+Taught in chapter 07.
 """
 from __future__ import annotations
 
@@ -138,7 +138,7 @@ def finetune_policy(method: str, env: gym.Env | gym.vector.VectorEnv, demos: Dem
                   obs_mode: str = "state", seed: int = 0, config: PretrainConfig | None = None, *,
                   checkpoints_root: Path | None = None, progress: bool = False, resumed: bool = False,
                   source: str | Path | None = None) -> GaussianPolicy:
-    """The policy RL starts from, for ``method`` on ``env``: the steps of the module docstring.
+    """The policy RL starts from, for ``method`` on ``env``: the steps of the module docstring, "in the order they run".
 
     A method that pre-trains: the policy pre-trained on ``demos`` with ``config`` (:func:`pretrained_policy`)
     with its start sigma ``config.initial_sigma`` (the sigma study's choice by default), made ready for RL
