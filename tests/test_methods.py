@@ -109,6 +109,15 @@ def test_an_unknown_method_is_a_one_line_error(capsys):
     assert "no method 'l3'" in capsys.readouterr().err
 
 
+def test_a_registered_method_asks_for_one_worker(table, tmp_path, capsys):
+    """Spawned workers start from the shipped table: a method registered here would be unknown there."""
+    register(L1("l1", "L1", "tab:purple"))
+    assert main(["experiment", "fig4", "--methods", "l1", "--seeds", "0", "--workers", "2",
+                 "--out", str(tmp_path)]) == 2
+    assert "l1: registered in this process only" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
 def _compares_a_name(node: ast.AST) -> bool:
     """``x == "vd"``, ``x != "none"``, ``x in ("vd", "l2")``: a comparison with a method's name."""
     if not isinstance(node, ast.Compare):

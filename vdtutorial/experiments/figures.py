@@ -8,7 +8,7 @@ from vdtutorial.experiments.curves import vd_reaches_l2_final
 from vdtutorial.experiments.jobs import RunSpec
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
 from vdtutorial.experiments.runs import default_seeds, default_total_steps, default_trpo_config
-from vdtutorial.methods import METHOD_LABELS, method
+from vdtutorial.methods import METHOD_LABELS, SHIPPED, method
 
 
 #: Each figure's runs: (title, methods, task, data sets (samples, Sigma) of the pre-trained methods, the
@@ -82,6 +82,10 @@ def _figure(name: str, seeds, total_steps, obs_mode, out, workers, methods=None,
             sigmas=None, **kwargs) -> ExperimentResult:
     """The runs of figure ``name`` (:func:`figure_specs`) handed to :func:`run_experiment`."""
     specs = figure_specs(name, seeds, total_steps, obs_mode, methods, demo_seed, samples, sigmas)
+    registered = sorted({spec.method for spec in specs} - {entry.name for entry in SHIPPED})
+    if registered and workers > 1:
+        raise ValueError(f"{', '.join(registered)}: registered in this process only, which other workers do not "
+                         "share: run with one worker")
     trpo_config = kwargs.get("trpo_config")
     fvp_subsample = None  # in the command only when it is not the default
     if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config().fvp_subsample:
