@@ -22,7 +22,6 @@ from vdtutorial.demos import demo_path
 from vdtutorial.experiments import finetune
 from vdtutorial.runner import resume as resume_module
 from vdtutorial.experiments import pipeline as pipeline_module
-from vdtutorial.experiments import runs as runs_module
 from vdtutorial.runner.resume import GZIP_MAGIC, read_run_state, settings_differences
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import is_quick
