@@ -1,4 +1,5 @@
-"""Sigma at the start of RL: the three options of vdtutorial.experiments.initial_sigma, alone and inside pre-training."""
+"""Sigma at the start of RL: the three options of vdtutorial.experiments.initial_sigma, alone and inside
+pre-training."""
 import gymnasium as gym
 import numpy as np
 import pytest

@@ -44,7 +44,8 @@ from vdtutorial.settings import budget
 #: ``PretrainConfig.initial_sigma`` and the sigma of the checkpoints that experiments cache (mu is the same under
 #: every option, which they apply on top) and of checkpoints made before the option existed.
 PAPER_SIGMA_OPTION = "0.3"
-#: The options of ``PretrainConfig.initial_sigma`` that fit sigma after cloning (:mod:`vdtutorial.experiments.initial_sigma`);
+#: The options of ``PretrainConfig.initial_sigma`` that fit sigma after cloning
+#: (:mod:`vdtutorial.experiments.initial_sigma`);
 #: any other option is a number, a fixed sigma.
 SIGMA_FITS = ("demos", "spread")
 
@@ -201,7 +202,8 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     loss, the held-out mean squared error of the (deterministic, pruned) mean action and what the method records
     (:meth:`~vdtutorial.methods.Method.epoch_record`: for VD, the fraction of weights of ``mu`` with log alpha > 3).
 
-    A fitted initial sigma ("demos", "spread") is beyond the paper: :func:`vdtutorial.experiments.initial_sigma.pretrain_with_sigma`.
+    A fitted initial sigma ("demos", "spread") is beyond the paper:
+    :func:`vdtutorial.experiments.initial_sigma.pretrain_with_sigma`.
     """
     cfg = config or PretrainConfig()
     entry = method(cfg.reg)

@@ -4,8 +4,8 @@ their evidence: Figs. 4-6 and the sigma study in chapter 07, Table I in chapter 
 Modules, one idea each: :mod:`~vdtutorial.experiments.pipeline` (demonstrations -> pre-trained policy ->
 policy ready for RL), :mod:`~vdtutorial.experiments.checkpoints` (the pre-trained policies' files, beside it),
 :mod:`~vdtutorial.experiments.initial_sigma` (the sigma RL starts from), :mod:`~vdtutorial.experiments.runs`
-(one run: TRPO from that policy, the expert's reference), :mod:`~vdtutorial.experiments.jobs` (runs as jobs of the grid runner,
-:mod:`vdtutorial.runner`), :mod:`~vdtutorial.experiments.measures` (what a point of a curve measures),
+(one run: TRPO from that policy, the expert's reference), :mod:`~vdtutorial.experiments.jobs` (runs as jobs of the
+grid runner, :mod:`vdtutorial.runner`), :mod:`~vdtutorial.experiments.measures` (what a point of a curve measures),
 :mod:`~vdtutorial.experiments.curves` (smoothing, bands, "steps to reach"),
 :mod:`~vdtutorial.experiments.effects` (claims as effect sizes), :mod:`~vdtutorial.experiments.plots`
 (the figure), :mod:`~vdtutorial.experiments.results` (an experiment's files),

@@ -219,7 +219,8 @@ class RLJob(SavedInStateDir):
     (:func:`~vdtutorial.experiments.pipeline.finetune_policy`). The run is that of
     :func:`~vdtutorial.experiments.runs.finetune_steps`: its state saved every ``checkpoint_every`` iterations, a
     rerun continues it to the rows of an uninterrupted run, a larger ``steps`` extends it. ``start_sigma``: the
-    sigma RL starts from (an :class:`~vdtutorial.experiments.initial_sigma.InitialSigma` spelling; None: the figures')."""
+    sigma RL starts from (an :class:`~vdtutorial.experiments.initial_sigma.InitialSigma` spelling; None: the
+    figures')."""
 
     variant: Variant
     seed: int

@@ -124,14 +124,16 @@ def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> 
 
 
 #: The conventional file name of :func:`checkpoint_path`, read back to fill in a make-it hint.
-_NAME = re.compile(DATA_SET_PATTERN + r"(?:_demos(?P<draw>\d+))?_(?P<reg>\w+?)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
+_NAME = re.compile(DATA_SET_PATTERN
+                   + r"(?:_demos(?P<draw>\d+))?_(?P<reg>\w+?)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
 
 
 def _make_hint(path: Path) -> str:
     """The command that makes the checkpoint ``path``, with the real values when the name is conventional."""
     match = _NAME.fullmatch(path.name)
     if not match:
-        return "Make it with: python -m vdtutorial pretrain --reg METHOD --demos FILE --seed SEED --obs {state,rgbd} --out " + str(path)
+        return ("Make it with: python -m vdtutorial pretrain --reg METHOD --demos FILE --seed SEED --obs {state,rgbd} "
+                f"--out {path}")
     demos = demo_path(match["task"], int(match["samples"]), float(match["noise"]), int(match["draw"] or 0))
     return (f"Make it with: {pretrain_command(match['reg'], demos, int(match['seed']), match['obs'])} --out {path}")
 

@@ -6,8 +6,9 @@ Why it matters
     trained in this stage, while those of sigma_psi(s) remain fixed". RL therefore starts from whatever
     sigma the initialisation gives, here ``init_std`` = 0.3 rad for every state. The cloned means reach the
     cup often, but sampled with sigma = 0.3 they rarely do, so the first TRPO iterations -- which sample --
-    start almost from scratch (the numbers: ``docs/results.md``, "Measurements behind the code"). The paper's Section VI names the gap: "the pre-training procedure trains only the mean
-    function mu_phi(s) of the policy, and leaves the SD function sigma_psi(s) untouched. Since mu_phi(s)
+    start almost from scratch (the numbers: ``docs/results.md``, "Measurements behind the code"). The paper's
+    Section VI names the gap: "the pre-training procedure trains only the mean function mu_phi(s) of the policy, and
+    leaves the SD function sigma_psi(s) untouched. Since mu_phi(s)
     is a dropout model, it inherently contains information about its own uncertainty. There is potential
     to use this uncertainty information to learn an appropriate SD function."
 
@@ -83,9 +84,10 @@ class InitialSigma:
         biases move (a VD sigma network's log sigma^2 gets no gradient in eval mode and is frozen in RL
         anyway). State inputs: full batch (the sets are small, <= 8000 state vectors, so the fit is exact and
         deterministic). Image inputs: one full-batch step through the convolutional sigma network over 7200
-        RGBD images is slow enough on a CPU that 500 of them would take hours; the fit then
-        uses a seeded subset of ``IMAGE_FIT_STATES`` training states (chosen in :func:`set_initial_sigma`) and seeded minibatches of ``IMAGE_FIT_BATCH`` (minutes per policy). Both
-        numbers are our choices, made for cost; the paper has no such fit.
+        RGBD images is slow enough on a CPU that 500 of them would take hours; the fit then uses a seeded subset
+        of ``IMAGE_FIT_STATES`` training states (chosen in :func:`set_initial_sigma`) and seeded minibatches of
+        ``IMAGE_FIT_BATCH`` (minutes per policy). Both numbers are our choices, made for cost; the paper has no such
+        fit.
 
     """
 

@@ -102,7 +102,8 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
         policy.pretrain_info["config"] = asdict(cfg)
     else:
         policy, _ = pretrain(demos, cfg, seed=seed, progress=progress)
-    save_checkpoint(policy, path, extra={"command": pretrain_command(reg, made_from, seed, obs_mode, cfg.initial_sigma)})
+    command = pretrain_command(reg, made_from, seed, obs_mode, cfg.initial_sigma)
+    save_checkpoint(policy, path, extra={"command": command})
     return load_checkpoint(path)
 
 

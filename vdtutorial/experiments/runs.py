@@ -174,7 +174,8 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
     receives the rows as they come.
 
     demos: the data set of the pre-training (a :class:`Demos` or a path; default the task's shipped
-        8000-sample set); ignored by a method that does not pre-train. A set made in rounds (DART's, DAgger's) is given by its path,
+        8000-sample set); ignored by a method that does not pre-train. A set made in rounds (DART's, DAgger's) is
+        given by its path,
         which names its checkpoints and its runs' settings.
     pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
         ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.
