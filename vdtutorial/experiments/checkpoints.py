@@ -91,11 +91,12 @@ def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, ro
     return Path(root or data_dir()) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
 
 
-def reusable_checkpoint(candidates: list[Path], expected: dict, seed: int, root: Path) -> GaussianPolicy | None:
+def reusable_checkpoint(candidates: list[Path], expected: dict, seed: int, root: Path,
+                        label: str) -> GaussianPolicy | None:
     """The first of ``candidates`` that exists and holds the policy ``expected`` (:func:`load_checkpoint`'s entries)
-    pre-trained with ``seed``; None if none does. A file that is another pre-training is named in one plain line
-    (expected whenever a budget differs from the checkpoint's: a quick run beside a shipped checkpoint), saying
-    that the last candidate, under ``root``, will be replaced."""
+    pre-trained with ``seed``; None if none does. A file that is another pre-training is named in one plain line:
+    the last candidate, under ``root``, will be replaced; an earlier one (the shipped checkpoint beside a run at a
+    budget of its own, the usual case) is progress, the method ``label`` pre-trained into ``root``."""
     for candidate in candidates:
         if not candidate.exists():
             continue
@@ -106,9 +107,12 @@ def reusable_checkpoint(candidates: list[Path], expected: dict, seed: int, root:
             reason = f"seed={policy.pretrain_info.get('seed')!r}, expected {seed!r}"
         except CheckpointError as exc:
             reason = exc.difference or str(exc)
-        last = candidate == candidates[-1]
-        action = "pre-training again to replace it" if last else f"pre-training under {recorded_path(root)}"
-        print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): {action}", flush=True)
+        if candidate == candidates[-1]:
+            print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): pre-training again to "
+                  "replace it", flush=True)
+        else:
+            print(f"pre-training {label}, seed {seed}, into {recorded_path(root)} (the shipped "
+                  f"{recorded_path(candidate)} has other settings: {reason})", flush=True)
     return None
 
 

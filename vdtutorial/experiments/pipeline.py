@@ -88,7 +88,7 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     shipped = checkpoint_path(meta, reg, obs_mode, seed, **names)
     candidates = [shipped] if budget(True, False) and shipped != path and data_name is None else []
     expected = {**{k: meta[k] for k in DATA_SET_KEYS if k in meta}, **asdict(cfg)}
-    policy = reusable_checkpoint([*candidates, path], expected, seed, root)
+    policy = reusable_checkpoint([*candidates, path], expected, seed, root, method_entry(reg).label)
     if policy is not None:
         return policy
     made_from = Path(source) if data_name else demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
