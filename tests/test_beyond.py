@@ -14,7 +14,7 @@ from vdtutorial.experiments import runs as runs_module
 from vdtutorial.experiments.beyond import comparisons, variants
 from vdtutorial.experiments.checkpoints import checkpoint_path, default_config
 from vdtutorial.experiments.curves import CONFIDENCE
-from vdtutorial.experiments.runs import pretrained_policy
+from vdtutorial.experiments.pipeline import pretrained_policy
 from vdtutorial.pretrain import PAPER_SIGMA_OPTION
 from vdtutorial.runner.resume import ResumeError, check_resumable, read_run_state
 from vdtutorial.runner.rows import read_rows, results_file

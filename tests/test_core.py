@@ -17,8 +17,8 @@ import vdtutorial
 
 PACKAGE = Path(vdtutorial.__file__).parent
 #: The method, in the order the chapters teach it.
-CORE = ("settings", "envs", "expert", "demos", "vd", "policy", "pretrain", "trust_region", "baselines", "rollout",
-        "trpo")
+CORE = ("settings", "envs", "expert", "demos", "vd", "policy", "methods", "pretrain", "trust_region", "baselines",
+        "rollout", "trpo")
 #: Top-level modules that are not the method and still wait for their subpackage.
 NOT_YET_MOVED: set[str] = set()
 #: Imports from a core module to outside the core that are still to be cut: (module, what it imports).

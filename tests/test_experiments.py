@@ -368,12 +368,12 @@ def test_shipped_table1_rows_are_the_shipped_checkpoints(folder):
 
 def test_quick_mode_never_replaces_shipped_checkpoints(monkeypatch, tmp_path):
     """With no checkpoints_root, quick mode looks up and saves checkpoints under runs/quick, not data/."""
-    from vdtutorial.experiments import runs
+    from vdtutorial.experiments import pipeline
 
     monkeypatch.setenv("VDTUTORIAL_RUNS", str(tmp_path))
-    monkeypatch.setattr(runs, "budget", lambda full, quick: quick)
+    monkeypatch.setattr(pipeline, "budget", lambda full, quick: quick)
     demos = generate_demos("reach", 40, 0.3, seed=1, progress=False)
-    runs.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
+    pipeline.pretrained_policy("l2", demos, "state", 0, PretrainConfig(reg="l2", epochs=1))
     saved = list(tmp_path.rglob("*.pt"))
     assert [p.name for p in saved] == ["reach_n40_sigma0.3_demos1_l2_state_seed0.pt"]  # demonstrations of seed 1
 

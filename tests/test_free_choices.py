@@ -10,7 +10,7 @@ from vdtutorial.experiments import free_choices as fc
 from vdtutorial.experiments import read_rows
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.results import results_file
-from vdtutorial.experiments.runs import METHOD_LABELS
+from vdtutorial.methods import METHOD_LABELS
 from vdtutorial.settings import data_dir, is_quick
 from conftest import require_locked
 

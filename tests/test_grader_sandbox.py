@@ -238,7 +238,7 @@ def test_a_students_error_message_is_text_not_markup_in_the_feedback_page(tmp_pa
     autograded.parent.mkdir(parents=True)
     nbformat.write(nbformat.v4.new_notebook(cells=[cell]), autograded)
     scores = [classroom.Score("eve", "10_what_reproduced", "ch10_holm_tests", 0.0, 3.0, failed=("[x](y)",))]
-    page = feedback.write_reports(scores, tmp_path)[0].read_text()
+    page = feedback.write_reports(scores, tmp_path, classroom.ASSIGNMENT)[0].read_text()
     assert "<script>" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
     assert "[prize](" not in page and r"\[prize\](http://example.com)" in page
     assert r"\*\*bold\*\* \`code\` \| table \|" in page and r"\[x\](y)" in page

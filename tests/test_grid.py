@@ -21,7 +21,7 @@ from vdtutorial.experiments import (SUBSAMPLED_FISHER_CONFIG, Curve, ExperimentR
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments import finetune
 from vdtutorial.runner import resume as resume_module
-from vdtutorial.experiments import runs as runs_module
+from vdtutorial.experiments import pipeline as pipeline_module
 from vdtutorial.runner.resume import GZIP_MAGIC, read_run_state, settings_differences
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import is_quick
@@ -163,7 +163,7 @@ def test_a_resumed_run_does_not_fit_its_start_sigma_again(tmp_path, monkeypatch)
     def no_fit(*args, **kwargs):
         raise AssertionError("the start sigma was fitted again for a resumed run")
 
-    monkeypatch.setattr(runs_module, "set_initial_sigma", no_fit)
+    monkeypatch.setattr(pipeline_module, "set_initial_sigma", no_fit)
     resumed = run(800, tmp_path / "state.pt")
     assert len(resumed) == 4 and _without_wall_time(resumed) == _without_wall_time(whole)
     assert not fitted[0].exists()

@@ -1,11 +1,12 @@
-"""Sigma at the start of RL: the three options of vdtutorial.beyond.initial_sigma, alone and inside pre-training."""
+"""Sigma at the start of RL: the three options of vdtutorial.experiments.initial_sigma, alone and inside
+pre-training."""
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 
 from vdtutorial.__main__ import build_parser
-from vdtutorial.beyond.initial_sigma import (InitialSigma, apply_initial_sigma, gaussian_nll, pretrain_with_sigma,
+from vdtutorial.experiments.initial_sigma import (InitialSigma, apply_initial_sigma, gaussian_nll, pretrain_with_sigma,
                                              vd_spread)
 from vdtutorial.demos import generate_demos
 from vdtutorial.experiments.checkpoints import checkpoint_path
@@ -132,7 +133,7 @@ def test_pretraining_with_demos_sigma_raises_the_likelihood_of_the_demonstration
 def test_image_policies_fit_sigma_on_a_seeded_subset_in_minibatches(option, monkeypatch):
     """RGBD: the fit renders only a seeded subset of the training states (IMAGE_FIT_STATES) and steps
     through it in minibatches (IMAGE_FIT_BATCH); the same seed gives the same sigma network."""
-    import vdtutorial.beyond.initial_sigma as initial_sigma
+    import vdtutorial.experiments.initial_sigma as initial_sigma
 
     monkeypatch.setattr(initial_sigma, "IMAGE_FIT_STATES", 24)
     monkeypatch.setattr(initial_sigma, "IMAGE_FIT_BATCH", 8)

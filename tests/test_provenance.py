@@ -13,7 +13,7 @@ from vdtutorial.cli.commands import demos_output, pretrain_output
 from vdtutorial.cli.parser import build_parser
 from vdtutorial.experiments import sigma_study
 from vdtutorial.experiments.results import NOT_RECORDED
-from vdtutorial.experiments.runs import made_in_rounds
+from vdtutorial.experiments.pipeline import made_in_rounds
 from vdtutorial.settings import data_dir
 
 DATA = data_dir()

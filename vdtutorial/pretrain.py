@@ -8,6 +8,7 @@ from the untrained sigma network. With sparse VD the whole policy is in training
 network's layers draw weight noise too: its parameters stay fixed, but each minibatch sees sigma
 through fresh noise (a few per cent; what it changes: docs/results.md, "Measurements behind the code").
 
+``reg`` names the method (:mod:`vdtutorial.methods`: its layers and the term added to the likelihood).
 ``reg="vd"`` -- sparse variational dropout. ``mu`` has SVDO layers and the loss is the negative ELBO of
 eqs. 1-3 divided by N (the scale of one sample; the optimum is unchanged):
 
@@ -35,16 +36,16 @@ from tqdm.auto import tqdm
 
 from vdtutorial.demos import Demos
 from vdtutorial.envs import ENV_IDS
+from vdtutorial.methods import CloningStep, method
 from vdtutorial.policy import GaussianPolicy, make_policy, map_obs, obs_to_tensor, on_device, torch_device
 from vdtutorial.settings import budget
-from vdtutorial.vd import model_kl, pruned_fraction
 
-REGULARISERS = ("vd", "l2")
 #: The paper's initial-sigma option, as a config spells it: sigma fixed at 0.3, option (a). The default of
 #: ``PretrainConfig.initial_sigma`` and the sigma of the checkpoints that experiments cache (mu is the same under
 #: every option, which they apply on top) and of checkpoints made before the option existed.
 PAPER_SIGMA_OPTION = "0.3"
-#: The options of ``PretrainConfig.initial_sigma`` that fit sigma after cloning (:mod:`vdtutorial.beyond.initial_sigma`);
+#: The options of ``PretrainConfig.initial_sigma`` that fit sigma after cloning
+#: (:mod:`vdtutorial.experiments.initial_sigma`);
 #: any other option is a number, a fixed sigma.
 SIGMA_FITS = ("demos", "spread")
 
@@ -76,6 +77,7 @@ def set_fixed_sigma(policy: GaussianPolicy, value: float) -> dict:
 class PretrainConfig:
     """Hyperparameters of behavioural cloning.
 
+    reg: the method, a name in the table of :mod:`vdtutorial.methods` that pre-trains (default: sparse VD).
     epochs: passes over the training split; ``None`` (the default) takes 150, or a few in quick mode, when
         the config is made.
     batch_size: M in eq. 3.
@@ -90,7 +92,7 @@ class PretrainConfig:
         across data sets of different sizes (Table I); the paper does not say which it used.
     initial_sigma: sigma at the start of RL, set after mu is cloned: a number (option (a), that fixed sigma;
         default: the paper's 0.3), or a fit, "demos" (b) or "spread" (c), which
-        :func:`vdtutorial.beyond.initial_sigma.pretrain_with_sigma` runs. It does not change mu.
+        :func:`vdtutorial.experiments.initial_sigma.pretrain_with_sigma` runs. It does not change mu.
     patience: stop on the held-out loss. ``None`` (the default, the shipped checkpoints' setting): run all
         ``epochs``. A number P: ``epochs`` becomes a cap, and cloning stops once the held-out MSE of the mean action
         has not improved for P epochs; mu is then the best epoch's. For VD the count starts when the KL warm-up is
@@ -114,8 +116,10 @@ class PretrainConfig:
         if self.epochs is None:
             self.epochs = budget(150, 4)
         self.initial_sigma = sigma_option(self.initial_sigma)
-        if self.reg not in REGULARISERS:
-            raise ValueError(f"reg must be one of {REGULARISERS}, got {self.reg!r}")
+        try:
+            method(self.reg)
+        except ValueError as exc:
+            raise ValueError(f"reg: {exc}") from None
         if self.obs_mode not in ("state", "rgbd"):
             raise ValueError(f"obs_mode must be 'state' or 'rgbd', got {self.obs_mode!r}")
         if self.epochs < 1 or self.batch_size < 1 or not 0 <= self.val_fraction < 1:
@@ -186,7 +190,7 @@ class HeldOutStop:
 
 def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
              observations=None, device: torch.device | str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
-    """Behavioural cloning of ``demos`` with the chosen regulariser (default: ``PretrainConfig()``, the paper's
+    """Behavioural cloning of ``demos`` with the method ``config.reg`` (default: ``PretrainConfig()``, the paper's
     setting; the experiments pass ``experiments.checkpoints.default_config``), then sigma fixed at
     ``config.initial_sigma`` (:func:`set_fixed_sigma`). Returns the policy (in eval mode, sigma trainable again;
     a VD policy is not yet pruned: call ``policy.prune_()`` to start RL) and one log row per epoch.
@@ -195,20 +199,24 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
 
     Both use Adam, minibatches of ``batch_size``, a held-out split by whole episodes (samples of one
     trajectory are strongly correlated; splitting by sample would leak), and log per epoch the training
-    loss, the held-out mean squared error of the (deterministic, pruned) mean action and, for VD, the
-    fraction of weights of ``mu`` with log alpha > 3.
+    loss, the held-out mean squared error of the (deterministic, pruned) mean action and what the method records
+    (:meth:`~vdtutorial.methods.Method.epoch_record`: for VD, the fraction of weights of ``mu`` with log alpha > 3).
 
-    A fitted initial sigma ("demos", "spread") is beyond the paper: :func:`vdtutorial.beyond.initial_sigma.pretrain_with_sigma`.
+    A fitted initial sigma ("demos", "spread") is beyond the paper:
+    :func:`vdtutorial.experiments.initial_sigma.pretrain_with_sigma`.
     """
     cfg = config or PretrainConfig()
+    entry = method(cfg.reg)
+    if not entry.pretrains:
+        raise ValueError(f"method {cfg.reg!r} does not pre-train")
     if cfg.initial_sigma in SIGMA_FITS:
         raise ValueError(f"initial_sigma={cfg.initial_sigma!r} is fitted after cloning: use "
-                         "vdtutorial.beyond.initial_sigma.pretrain_with_sigma (pretrain fixes sigma only)")
+                         "vdtutorial.experiments.initial_sigma.pretrain_with_sigma (pretrain fixes sigma only)")
     device = torch_device(device)  # refused before any work when this machine has no such device
     torch.manual_seed(seed)
     task = demos.meta["task"]
     space = observation_space(task, cfg.obs_mode, cfg.image_size)
-    policy = make_policy(space, demos.actions.shape[1], variational=cfg.reg == "vd")
+    policy = make_policy(space, demos.actions.shape[1], variational=entry.variational)
     policy.sigma.requires_grad_(False)
     obs = observations if observations is not None else demo_observations(demos, cfg.obs_mode, cfg.image_size, progress)
     actions = torch.as_tensor(demos.actions, dtype=torch.float32)
@@ -216,14 +224,12 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     n_train = len(train_idx)
     with on_device(policy, device):  # the cloning only: sigma is set, and the policy returned, on the CPU
         params = list(policy.mu.parameters())
-        weights = [p for name, p in policy.mu.named_parameters() if name.endswith("weight")]
         optimiser = torch.optim.Adam(params, lr=cfg.lr)
         generator = torch.Generator().manual_seed(seed)
         history = []
         bar = tqdm(range(cfg.epochs), desc=f"pre-training ({cfg.reg}, {cfg.obs_mode})", disable=not progress)
         step, total_steps = 0, cfg.epochs * math.ceil(n_train / cfg.batch_size)
-        warmup_epochs = math.ceil(cfg.beta_warmup * cfg.epochs) if cfg.reg == "vd" else 0
-        stop = None if cfg.patience is None else HeldOutStop(cfg.patience, warmup_epochs)
+        stop = None if cfg.patience is None else HeldOutStop(cfg.patience, entry.warmup_epochs(cfg))
         for epoch in bar:
             policy.train()
             losses = []
@@ -231,20 +237,15 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
                 idx = train_idx[batch.numpy()]
                 o, a = observation_rows(obs, idx, device), actions[idx].to(device)
                 nll = -policy.log_prob(o, a).mean()
-                if cfg.reg == "vd":
-                    beta = min(1.0, step / max(1.0, cfg.beta_warmup * total_steps))
-                    loss = nll + beta * model_kl(policy.mu) / (cfg.kl_divisor or n_train)
-                else:
-                    loss = nll + cfg.l2 * sum((w ** 2).sum() for w in weights)
+                penalty = entry.penalty(policy.mu, CloningStep(step, total_steps, n_train, cfg))
+                loss = nll if penalty is None else nll + penalty
                 optimiser.zero_grad()
                 loss.backward()
                 optimiser.step()
                 losses.append(loss.item())
                 step += 1
             row = {"epoch": epoch + 1, "train_loss": float(np.mean(losses)),
-                   **evaluate_imitation(policy, obs, actions, val_idx)}
-            if cfg.reg == "vd":
-                row["weights_pruned"] = pruned_fraction(policy.mu)
+                   **evaluate_imitation(policy, obs, actions, val_idx), **entry.epoch_record(policy.mu)}
             history.append(row)
             bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
             if stop is not None and stop.should_stop(epoch + 1, row["val_mse"], policy.mu):

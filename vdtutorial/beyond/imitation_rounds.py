@@ -21,11 +21,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
 from vdtutorial.demos import ARRAYS, FORMAT_VERSION, Demos, collect, success_rate
-from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.policy import GaussianPolicy
-from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig
+from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig, pretrain
 
 
 def concatenate_demos(parts: list[Demos], meta: dict) -> Demos:
@@ -70,14 +68,15 @@ def round_seed(seed: int, k: int) -> int:
 
 
 def cloning_config(reg: str, config: PretrainConfig | None = None) -> PretrainConfig:
-    """The pre-training settings of every round: the experiments' defaults for ``reg`` with sigma left at
-    the paper's fixed value (the rounds need only the mean action; the start sigma of RL is set later)."""
-    return replace(config or default_config(reg), reg=reg, initial_sigma=PAPER_SIGMA_OPTION)
+    """The pre-training settings of every round: ``config`` (default ``PretrainConfig()``, the experiments' state
+    settings) for ``reg`` with sigma left at the paper's fixed value (the rounds need only the mean action; the
+    start sigma of RL is set later)."""
+    return replace(config or PretrainConfig(), reg=reg, initial_sigma=PAPER_SIGMA_OPTION)
 
 
 def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed: int, plan,
                config: PretrainConfig | None = None, progress: bool = False) -> RoundsResult:
-    """``rounds`` rounds of collect -> aggregate -> re-train with ``reg`` ("vd" or "l2").
+    """``rounds`` rounds of collect -> aggregate -> re-train with the method ``reg`` (:mod:`vdtutorial.methods`).
 
     ``plan(k, policy, demos)`` is called at the start of round ``k`` with the policy of the round before
     and the data aggregated so far (both None in round 0) and returns ``(behaviour, record)``: the
@@ -93,7 +92,7 @@ def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed
                 "rounds_done": k + 1}
         demos = concatenate_demos(parts, meta)
         start = time.perf_counter()
-        policy, history = pretrain_with_sigma(demos, cfg, seed=seed, progress=progress)
+        policy, history = pretrain(demos, cfg, seed=seed, progress=progress)
         records.append({"round": k, **record, "labels": size, "labels_total": len(demos),
                         "expert_queries": rollout["expert_queries"], "expert_seconds": rollout["expert_seconds"],
                         "episodes": rollout["episodes"], "rollout_success_rate": success_rate(rollout),

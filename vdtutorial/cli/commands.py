@@ -54,6 +54,19 @@ def cmd_expert(args) -> None:
               f"(mean episode length {mean_len:.2f} steps)")
 
 
+def _pretraining_method(name: str):
+    """The table's entry of the method ``name`` (:mod:`vdtutorial.methods`), which must pre-train."""
+    from vdtutorial.methods import method, pretraining_methods
+
+    try:
+        entry = method(name)
+    except ValueError:
+        entry = None
+    if entry is None or not entry.pretrains:
+        raise CommandError(f"--reg {name}: not a pre-training method (they are {', '.join(pretraining_methods())})")
+    return entry
+
+
 def cmd_pretrain(args) -> None:
     import torch
 
@@ -61,9 +74,10 @@ def cmd_pretrain(args) -> None:
     from vdtutorial.experiments.checkpoints import (CheckpointError, checkpoint_path, default_config, load_checkpoint,
                                                     pretrain_command, save_checkpoint, with_held_out_stop)
     from vdtutorial.analysis.sparsity import sparsity_report
-    from vdtutorial.beyond.initial_sigma import pretrain_with_sigma
+    from vdtutorial.experiments.initial_sigma import pretrain_with_sigma
     from vdtutorial.experiments.paths import runs_dir
 
+    entry = _pretraining_method(args.reg)
     device = device_of(args)  # before any work
     torch.set_num_threads(1)
     demos = Demos.load(args.demos)
@@ -75,14 +89,16 @@ def cmd_pretrain(args) -> None:
     config = dataclasses.replace(config, initial_sigma=args.sigma)
     out = output_path(args.out, pretrain_output(args, demos.meta), args.force)
     spread_net = None
-    if args.reg == "l2" and config.initial_sigma == "spread":  # L2 has no noise model: follow the VD network's
-        # the VD checkpoint pre-trained alike (same data, seed and stop), shipped or made by pretrain --reg vd
-        vd = [checkpoint_path(demos.meta, "vd", args.obs, args.seed, root=root, patience=args.patience)
-              for root in (None, runs_dir())]
+    follows = entry.spread_from
+    if config.initial_sigma == "spread" and follows not in (None, args.reg):  # no noise model: follow another's
+        # its checkpoint pre-trained alike (same data, seed and stop), shipped or made by pretrain --reg FOLLOWS
+        paths = [checkpoint_path(demos.meta, follows, args.obs, args.seed, root=root, patience=args.patience)
+                 for root in (None, runs_dir())]
         try:
-            spread_net = load_checkpoint(next((p for p in vd if p.exists()), vd[0]), variational=True).mu
+            spread_net = load_checkpoint(next((p for p in paths if p.exists()), paths[0]), variational=True).mu
         except CheckpointError as exc:
-            raise CommandError(f"--sigma spread for L2 follows the VD network pre-trained alike: {exc}") from exc
+            raise CommandError(f"--sigma spread for {args.reg} follows the {follows} network pre-trained alike: "
+                               f"{exc}") from exc
     policy, history = pretrain_with_sigma(demos, config, seed=args.seed, progress=progress_of(args), spread_net=spread_net,
                                           device=device)
     command = (pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
@@ -97,7 +113,7 @@ def cmd_pretrain(args) -> None:
         print(f"stopped on the held-out MSE after {info['epochs_run']} of at most {config.epochs} epochs; "
               f"mu is epoch {info['best_epoch']}'s")
     print(f"held-out imitation MSE {kept['val_mse']:.4f}")
-    if args.reg == "vd":
+    if entry.variational:
         print(sparsity_report(policy.mu))
     print(f"wrote {out}")
 
@@ -236,6 +252,7 @@ def _figure_options(args) -> dict:
     from vdtutorial.demos import demo_command, demo_path
     from vdtutorial.experiments.figures import FIGURES, figure_data_sets, figure_methods
     from vdtutorial.experiments.paths import recorded_path
+    from vdtutorial.methods import method
 
     options = {"methods": args.methods, "samples": args.samples, "sigmas": args.sigmas, "demo_seed": args.demo_seed}
     given = [f"--{key.replace('_', '-')}" for key, value in options.items() if value not in (None, 0)]
@@ -250,7 +267,7 @@ def _figure_options(args) -> dict:
         raise CommandError(str(exc)) from exc
     task = FIGURES[args.name][2]
     missing = [(n, sigma) for n, sigma in datasets if args.demo_seed and not demo_path(task, n, sigma, args.demo_seed).exists()]
-    if missing and set(figure_methods(args.name, args.methods)) & {"vd", "l2"}:
+    if missing and any(method(m).pretrains for m in figure_methods(args.name, args.methods)):
         n, sigma = missing[0]
         raise CommandError(f"no demonstrations of seed {args.demo_seed} for {n} samples at Sigma {sigma:g}: make them with "
                            f"{demo_command(task, n, sigma, args.demo_seed)} --out {recorded_path(demo_path(task, n, sigma, args.demo_seed))}")

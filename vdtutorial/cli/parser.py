@@ -58,7 +58,8 @@ def _add_pipeline_commands(sub) -> None:
 
     p = sub.add_parser("pretrain", help="behavioural cloning with sparse VD or L2 (eqs. 1-4)")
     add_exact_kernels(p)
-    p.add_argument("--reg", choices=("vd", "l2"), required=True, help="regulariser: sparse variational dropout or L2")
+    p.add_argument("--reg", required=True, metavar="METHOD",
+                   help="a pre-training method of vdtutorial.methods: vd (sparse variational dropout) or l2")
     p.add_argument("--demos", required=True, help="a demonstrations file (python -m vdtutorial demos ...)")
     p.add_argument("--seed", type=nonnegative_int, default=0,
                    help="seeds the initialisation, the held-out split and the batches (default 0)")
@@ -148,9 +149,10 @@ def _add_experiment_commands(sub) -> None:
     p.add_argument("name", choices=("fig4", "fig5", "fig6", "fig7", "table1", *STATE_ONLY, *GRID_ONLY),
                    help="which figure or table")
     p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, help="default: 0 1 2 (table1: 0; beyond: 0-4)")
-    p.add_argument("--methods", nargs="+", choices=("vd", "l2", "none", "expert"), default=None,
-                   help="figures only: run only these of the figure's methods (default: all; e.g. more seeds of "
-                        "vd and l2, merged later with rederive --add)")
+    p.add_argument("--methods", nargs="+", default=None, metavar="METHOD",
+                   help="figures only: run only these of the figure's methods (vd, l2, none, expert; default: all; "
+                        "e.g. more seeds of vd and l2, merged later with rederive --add), or beside them a method "
+                        "registered in vdtutorial.methods that pre-trains")
     p.add_argument("--samples", type=positive_int, nargs="+", default=None, metavar="N",
                    help="figures only: run only the data sets of these sizes (e.g. fig5 --samples 2000)")
     p.add_argument("--sigmas", type=nonnegative_float, nargs="+", default=None, metavar="SIGMA",

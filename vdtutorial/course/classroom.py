@@ -343,7 +343,7 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
                            quick, limits, secrets.randbits(63)) for k in run]
         listener = _GradingLog(jobs, log) if log else None
         if backend == "local":
-            done = run_each(jobs, workers, limits.wall_minutes * 60, listener.finished if listener else None)
+            done = run_each(jobs, workers, limits.wall_minutes * 60, did_not_finish, listener.finished if listener else None)
         else:
             done = run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address, listener=listener)
         graded = dict(zip(run, done))
@@ -360,7 +360,7 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
                 print(f"warning: the grading of {sub.student} {sub.chapter} did not finish: {result.unfinished}",
                       file=sys.stderr)
         scores = _record(api, subs, results, refused, out, sandboxed=limits.sandbox)
-    write_reports(scores, out)
+    write_reports(scores, out, ASSIGNMENT)
     return scores
 
 
@@ -436,6 +436,11 @@ class Graded:
     autograded: bytes | None
     error: str | None
     unfinished: str | None = None   # why its grading process ended without a result (grading_process)
+
+
+def did_not_finish(why: str) -> Graded:
+    """The result of a submission whose grading process ended without one: no check passed, and why."""
+    return Graded({}, None, None, unfinished=why)
 
 
 def grade_one(job: GradingJob) -> Graded:

@@ -102,15 +102,13 @@ def report(student: str, chapter: str, scores: list, errors: dict[str, list[str]
     return "\n".join(lines) + "\n"
 
 
-def write_reports(scores: list, out: Path) -> list[Path]:
+def write_reports(scores: list, out: Path, assignment: str) -> list[Path]:
     """One page per student and chapter under ``out/feedback/`` (``out``: the course folder of ``classroom grade``,
-    whose ``autograded/`` notebooks supply the errors the student saw); returns their paths."""
-    from vdtutorial.course.classroom import ASSIGNMENT
-
+    whose ``autograded/`` notebooks of ``assignment`` supply the errors the student saw); returns their paths."""
     written = []
     for student, chapter in sorted({(s.student, s.chapter) for s in scores}):
         rows = [s for s in scores if (s.student, s.chapter) == (student, chapter)]
-        errors = notebook_errors(out / "autograded" / student / ASSIGNMENT / f"{chapter}.ipynb")
+        errors = notebook_errors(out / "autograded" / student / assignment / f"{chapter}.ipynb")
         path = out / "feedback" / student / f"{chapter}.md"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(report(student, chapter, rows, errors))

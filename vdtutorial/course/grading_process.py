@@ -28,13 +28,6 @@ from pathlib import Path
 POLL_SECONDS = 0.5
 
 
-def did_not_finish(why: str):
-    """The result of a submission whose grading process ended without one: no check passed, and why."""
-    from vdtutorial.course.classroom import Graded
-
-    return Graded({}, None, None, unfinished=why)
-
-
 def _why(returncode: int | None, budget: float) -> str:
     if returncode is None:
         return f"it was still running after its budget of {budget / 60:g} minutes (hung or stopped)"
@@ -52,29 +45,34 @@ def _kill(process: subprocess.Popen) -> None:
     process.wait()
 
 
-def run_each(jobs: list, workers: int, budget_seconds: float, finished=None) -> list:
-    """``classroom.grade_one(job)`` for every job, each in its own process and session, ``workers`` at a time;
-    returns the results in the order of the jobs. ``finished(index, result)`` is called as each one ends."""
+def run_each(jobs: list, workers: int, budget_seconds: float, did_not_finish, finished=None,
+             worker: str = "vdtutorial.course.grading_worker") -> list:
+    """The module ``worker`` run (``python -m``) on every job, each in its own process and session, ``workers`` at
+    a time; returns the results in the order of the jobs, ``did_not_finish(why)`` for a job whose process ended
+    without one. ``finished(index, result)`` is called as each one ends. The worker is named, not imported, so this
+    supervisor knows nothing of what a job is."""
     results: list = [None] * len(jobs)
     with tempfile.TemporaryDirectory(prefix="vdtutorial_grading_") as folder:
         folder = Path(folder)
         waiting, running = list(range(len(jobs))), {}
         try:
-            _supervise(jobs, workers, budget_seconds, finished, folder, waiting, running, results)
+            callbacks = (worker, did_not_finish, finished)
+            _supervise(jobs, workers, budget_seconds, callbacks, folder, waiting, running, results)
         finally:   # interrupted (Ctrl-C): no grading process outlives the grader
             for process, _ in running.values():
                 _kill(process)
     return results
 
 
-def _supervise(jobs, workers, budget_seconds, finished, folder, waiting, running, results) -> None:
+def _supervise(jobs, workers, budget_seconds, callbacks, folder, waiting, running, results) -> None:
     """:func:`run_each`'s loop: start processes while there is room, collect or kill those that are done or out
     of budget (``waiting``, ``running`` and ``results`` are updated in place, for the caller's clean-up)."""
+    worker, did_not_finish, finished = callbacks
     while waiting or running:
         while waiting and len(running) < workers:
             k = waiting.pop(0)
             (folder / f"{k}.job").write_bytes(pickle.dumps(jobs[k]))
-            process = subprocess.Popen([sys.executable, "-m", "vdtutorial.course.grading_process",
+            process = subprocess.Popen([sys.executable, "-m", worker,
                                         str(folder / f"{k}.job"), str(folder / f"{k}.result")],
                                        start_new_session=True, stdin=subprocess.DEVNULL)
             running[k] = (process, time.monotonic())
@@ -93,19 +91,3 @@ def _supervise(jobs, workers, budget_seconds, finished, folder, waiting, running
             del running[k]
             if finished is not None:
                 finished(k, results[k])
-
-
-def main(job_file: str, result_file: str) -> None:
-    """The grading process: one job from ``job_file``, its result into ``result_file`` (written whole, then
-    renamed, so that a process killed while writing leaves no half result)."""
-    from vdtutorial.course.classroom import grade_one
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the supervisor's to answer
-    result = grade_one(pickle.loads(Path(job_file).read_bytes()))
-    partial = Path(result_file + ".partial")
-    partial.write_bytes(pickle.dumps(result))
-    partial.rename(result_file)
-
-
-if __name__ == "__main__":
-    main(*sys.argv[1:3])

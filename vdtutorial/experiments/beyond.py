@@ -44,8 +44,9 @@ from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_success
 from vdtutorial.experiments.measures import MEASURES, measures_of
 from vdtutorial.experiments.plots import figure_title, save_png
 from vdtutorial.experiments.results import default_out, derive, experiment_command
-from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_trpo_config,
-                                         finetune_steps, pretrained_policy, run_settings)
+from vdtutorial.experiments.pipeline import pretrained_policy, ready_for_rl
+from vdtutorial.experiments.runs import CHECKPOINT_EVERY, NUM_ENVS, default_trpo_config, finetune_steps, run_settings
+from vdtutorial.methods import METHOD_LABELS, method
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import SavedInStateDir, read_rows, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
@@ -202,8 +203,7 @@ class PreRLJob(SavedInStateDir):
         start = time.perf_counter()
         demos, _ = data_set(self.variant, self.out)
         policy = cloned_policy(self.variant, demos, self.seed, self.out)
-        if self.variant.reg == "vd":
-            policy.prune_()
+        policy = ready_for_rl(self.variant.reg, policy)
         score = mean_action_successes(policy, TASK, self.seed, pre_rl_episodes(), NUM_ENVS)
         rows = [{**score, "success_rate": score["successes"] / max(score["trajectories"], 1e-12)}]
         save_finished_rows(self.state_path, self.settings, rows, time.perf_counter() - start)
@@ -216,10 +216,11 @@ class RLJob(SavedInStateDir):
     """One variant and seed's RL stage as a grid job: TRPO with the paper's settings (:func:`default_trpo_config`)
     for ``steps`` env steps from the policy cloned on the variant's data set (:func:`cloned_policy`'s checkpoint),
     with the start sigma and, for VD, the pruning of the figures' runs
-    (:func:`~vdtutorial.experiments.runs.finetune_policy`). The run is that of
+    (:func:`~vdtutorial.experiments.pipeline.finetune_policy`). The run is that of
     :func:`~vdtutorial.experiments.runs.finetune_steps`: its state saved every ``checkpoint_every`` iterations, a
     rerun continues it to the rows of an uninterrupted run, a larger ``steps`` extends it. ``start_sigma``: the
-    sigma RL starts from (an :class:`~vdtutorial.beyond.initial_sigma.InitialSigma` spelling; None: the figures')."""
+    sigma RL starts from (an :class:`~vdtutorial.experiments.initial_sigma.InitialSigma` spelling; None: the
+    figures')."""
 
     variant: Variant
     seed: int
@@ -385,7 +386,7 @@ def plot(rows: list[dict], made: dict[str, dict]) -> Figure:
     labels = list(dict.fromkeys(r["label"] for r in rows))
     for i, label in enumerate(labels):
         band = _interval([r["successes"] for r in rows if r["label"] == label])
-        colour = "tab:blue" if label.startswith(METHOD_LABELS["vd"]) else "tab:orange"
+        colour = method(next(r["method"] for r in rows if r["label"] == label)).colour
         left.errorbar(band["mean"], i, xerr=[[band["mean"] - band["low"]], [band["high"] - band["mean"]]],
                       fmt="o", color=colour, capsize=3)
     left.set_yticks(range(len(labels)), labels, fontsize=8)

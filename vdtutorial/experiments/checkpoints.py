@@ -24,10 +24,10 @@ from vdtutorial.settings import budget, data_dir
 
 #: Where RL starts in the experiments and the shipped results (``default_config``): option (c), sigma fitted to the
 #: VD network's predictive spread, chosen by the rule written before the study (``data/results/sigma_study/RULE.md``)
-#: from its 5-seed runs (``sigma_study.json``): the most successes in the first 5 TRPO iterations (VD and L2 pooled,
-#: 37.8 against 34.7 for a fixed 0.05, 31.0 for "demos" and 2.8 for the fixed 0.3) among the options that learn at
-#: least as well as the fixed 0.3 later on. No pre-training then starts from the fixed 0.3 (its best start in the
-#: study). ``PretrainConfig()`` itself keeps the paper's setting, sigma untouched at the network's initial 0.3.
+#: from its 5-seed runs (``sigma_study.json``; the numbers: ``docs/results.md``): the most successes in the first 5
+#: TRPO iterations (VD and L2 pooled) among the options that learn at least as well as the fixed 0.3 later on. No
+#: pre-training then starts from the fixed 0.3 (its best start in the study). ``PretrainConfig()`` itself keeps the
+#: paper's setting, sigma untouched at the network's initial 0.3.
 RL_START_SIGMA = "spread"
 
 
@@ -35,10 +35,10 @@ def rgbd_settings() -> dict:
     """Settings that differ for image policies, looked up when a config is made (the epochs follow quick mode).
 
     A policy that sees the cup only through the camera must learn image features before they pay off;
-    with the state-mode warm-up (30% of the epochs) the KL term pruned the whole image stream of the VD network before it was useful (measured: 100% of the
-    image stream's weights dropped, held-out MSE 0.043 vs L2's 0.028). Raising beta over all epochs
-    keeps the stream alive (held-out MSE 0.022). Epochs are fewer because an image epoch costs ~500x a
-    state epoch on a CPU.
+    with the state-mode warm-up (30% of the epochs) the KL term prunes the whole image stream of the VD network
+    before it is useful, and the held-out error is then worse than L2's; raising beta over all epochs keeps the
+    stream alive (the numbers: ``docs/results.md``). Epochs are fewer because an image epoch costs hundreds of
+    state epochs on a CPU.
     """
     return {"epochs": budget(40, 2), "beta_warmup": 1.0}
 
@@ -91,6 +91,31 @@ def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, ro
     return Path(root or data_dir()) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
 
 
+def reusable_checkpoint(candidates: list[Path], expected: dict, seed: int, root: Path,
+                        label: str) -> GaussianPolicy | None:
+    """The first of ``candidates`` that exists and holds the policy ``expected`` (:func:`load_checkpoint`'s entries)
+    pre-trained with ``seed``; None if none does. A file that is another pre-training is named in one plain line:
+    the last candidate, under ``root``, will be replaced; an earlier one (the shipped checkpoint beside a run at a
+    budget of its own, the usual case) is progress, the method ``label`` pre-trained into ``root``."""
+    for candidate in candidates:
+        if not candidate.exists():
+            continue
+        try:
+            policy = load_checkpoint(candidate, **expected)
+            if policy.pretrain_info.get("seed") == seed:
+                return policy
+            reason = f"seed={policy.pretrain_info.get('seed')!r}, expected {seed!r}"
+        except CheckpointError as exc:
+            reason = exc.difference or str(exc)
+        if candidate == candidates[-1]:
+            print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): pre-training again to "
+                  "replace it", flush=True)
+        else:
+            print(f"pre-training {label}, seed {seed}, into {recorded_path(root)} (the shipped "
+                  f"{recorded_path(candidate)} has other settings: {reason})", flush=True)
+    return None
+
+
 def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> Path:
     """``state_dict`` plus the policy's config and how it was made; written atomically."""
     path = Path(path)
@@ -103,14 +128,16 @@ def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> 
 
 
 #: The conventional file name of :func:`checkpoint_path`, read back to fill in a make-it hint.
-_NAME = re.compile(DATA_SET_PATTERN + r"(?:_demos(?P<draw>\d+))?_(?P<reg>vd|l2)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
+_NAME = re.compile(DATA_SET_PATTERN
+                   + r"(?:_demos(?P<draw>\d+))?_(?P<reg>\w+?)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
 
 
 def _make_hint(path: Path) -> str:
     """The command that makes the checkpoint ``path``, with the real values when the name is conventional."""
     match = _NAME.fullmatch(path.name)
     if not match:
-        return "Make it with: python -m vdtutorial pretrain --reg {vd,l2} --demos FILE --seed SEED --obs {state,rgbd} --out " + str(path)
+        return ("Make it with: python -m vdtutorial pretrain --reg METHOD --demos FILE --seed SEED --obs {state,rgbd} "
+                f"--out {path}")
     demos = demo_path(match["task"], int(match["samples"]), float(match["noise"]), int(match["draw"] or 0))
     return (f"Make it with: {pretrain_command(match['reg'], demos, int(match['seed']), match['obs'])} --out {path}")
 

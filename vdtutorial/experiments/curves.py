@@ -9,7 +9,7 @@ import numpy as np
 from scipy import stats
 
 from vdtutorial.experiments.measures import value
-from vdtutorial.experiments.runs import METHOD_LABELS
+from vdtutorial.methods import METHOD_LABELS
 from vdtutorial.settings import budget
 
 #: Confidence level of the bands over seeds.

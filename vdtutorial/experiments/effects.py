@@ -26,19 +26,17 @@ Taught in chapter 07 and appendix A5.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy import integrate, optimize, stats
 
 from vdtutorial.experiments.curves import (CONFIDENCE, PAPER_BUDGET_STEPS, PAPER_QUARTER, PAPER_REACH_STEPS,
-                                           moving_average, record_window, smooth_window)
-from vdtutorial.experiments.looks import looks_of, stages, two_look_test
+                                           moving_average, smooth_window)
+from vdtutorial.experiments.looks import stages, two_look_test
 from vdtutorial.experiments.measures import MEASURES, measures_of, value
-from vdtutorial.runner.rows import read_rows, results_file
+from vdtutorial.methods import pretraining_methods
 
 #: Bootstrap resamples for the steps-to-reach interval.
 BOOTSTRAP_SAMPLES = 2000
@@ -485,7 +483,7 @@ def claims_overview(records: dict[str, dict], measures: tuple[str, ...] = ("fina
 def demo_seed_of(record: dict) -> int:
     """The draw of the demonstrations a figure's record was pre-trained on (its runs' ``demo_seed``; records made
     before runs had one used the shipped draw, 0)."""
-    seeds = {run.get("demo_seed", 0) for run in record["runs"] if run["method"] in ("vd", "l2")}
+    seeds = {run.get("demo_seed", 0) for run in record["runs"] if run["method"] in pretraining_methods()}
     if len(seeds) != 1:
         raise ValueError(f"a record pre-trained on {len(seeds)} draws of the data: expected one")
     return seeds.pop()
@@ -505,19 +503,3 @@ def draws_table(records: list[dict], measures: tuple[str, ...] = ("final", "auc"
                  for e in (table[text] for table in by_text)]
         lines.append(f"| {text} | " + " | ".join(cells) + f" | {' / '.join(_seeds(t[text]) for t in by_text)} |")
     return "\n".join(lines)
-
-
-def write_claims(folder: str | Path) -> str:
-    """Recompute the claims of the experiment in ``folder`` (``NAME.csv.gz`` and ``NAME.json``) from its rows,
-    store them in the JSON record's summary, and return them as a Markdown table: docs/results.md quotes
-    these tables (``python -m vdtutorial claims FOLDER`` prints them)."""
-    folder = Path(folder)
-    record_path = next(folder.glob("*.json"))
-    record = json.loads(record_path.read_text())
-    rows = read_rows(results_file(folder, record['experiment']))
-    from vdtutorial.experiments.batches import mark_batches   # batches builds on this module
-    effects = mark_batches(claim_effects(record["experiment"], rows, record["metric"], record_window(record),
-                                         looks=looks_of(record)), record, rows)
-    record.setdefault("summary", {})["claims"] = effects
-    record_path.write_text(json.dumps(record, indent=1, default=str))
-    return claim_table(effects)

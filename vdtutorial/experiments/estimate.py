@@ -22,6 +22,7 @@ from vdtutorial.demos import demo_path
 from vdtutorial.experiments.checkpoints import RL_START_SIGMA, checkpoint_path
 from vdtutorial.experiments.figures import FIGURES, figure_specs
 from vdtutorial.experiments.jobs import RunSpec
+from vdtutorial.methods import method
 
 
 def makespan(seconds: list[float], cores: int) -> float:
@@ -46,8 +47,9 @@ def distinct_runs(names, seeds=(0, 1, 2), total_steps: int = 300_000, obs_mode: 
 
 
 def needs_pretraining(spec: RunSpec) -> bool:
-    """Whether the run must pre-train first: a VD or L2 run without a shipped checkpoint in ``data/``."""
-    if spec.method not in ("vd", "l2"):
+    """Whether the run must pre-train first: a run of a method that pre-trains without a shipped checkpoint in
+    ``data/``."""
+    if not method(spec.method).pretrains:
         return False
     meta = {"task": spec.task, "samples": spec.samples, "noise": spec.noise, "seed": spec.demo_seed}
     return not checkpoint_path(meta, spec.method, spec.obs_mode, spec.seed).exists() or not demo_path(
@@ -56,14 +58,18 @@ def needs_pretraining(spec: RunSpec) -> bool:
 
 def run_seconds(spec: RunSpec, steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_s: float = 0.0,
                 total_steps: int = 300_000) -> float:
-    """Estimated duration of one run on one core (module docstring, "A run lasts"). An L2 run whose start sigma is fitted
-    to the VD network's spread (``RL_START_SIGMA == "spread"``) needs the VD checkpoint of its data set and
-    seed too, and is costed as making it: it may start before, or beside, the VD run that would."""
+    """Estimated duration of one run on one core (module docstring, "A run lasts"). A run whose start sigma is fitted
+    to another method's network (``RL_START_SIGMA == "spread"``: L2 follows VD's, as the method's ``spread_from``
+    says) needs that method's checkpoint of its data set and seed too, and is costed as making it: it may start
+    before, or beside, the run that would."""
+    entry = method(spec.method)
     seconds = total_steps / steps_per_s
-    if spec.method in ("vd", "l2"):
+    if entry.pretrains:
         seconds += sigma_fit_s + (pretrain_s[spec.method] if needs_pretraining(spec) else 0.0)
-    if spec.method == "l2" and RL_START_SIGMA == "spread" and needs_pretraining(replace(spec, method="vd")):
-        seconds += pretrain_s["vd"]
+        follows = entry.spread_from
+        if RL_START_SIGMA == "spread" and follows not in (None, spec.method) and needs_pretraining(
+                replace(spec, method=follows)):
+            seconds += pretrain_s[follows]
     return seconds
 
 
@@ -72,7 +78,7 @@ def wall_time_table(steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_
                     obs_mode: str = "rgbd") -> str:
     """A Markdown table of estimated wall time (hours) by number of cores for the image Fig. 4 alone and
     for the whole image section (Figs. 4-7, one shared state folder). ``pretrain_s``: seconds of one
-    pre-training per method ("vd", "l2")."""
+    pre-training per method that pre-trains."""
     groups = {"Fig. 4": ["fig4"], "Figs. 4-7": list(FIGURES)}
     runs = {group: distinct_runs(names, seeds, total_steps, obs_mode) for group, names in groups.items()}
     seconds = {group: [run_seconds(spec, steps_per_s, pretrain_s, sigma_fit_s, total_steps) for spec in specs]

@@ -7,7 +7,8 @@ from vdtutorial.demos import SHIPPED_NOISE
 from vdtutorial.experiments.curves import vd_reaches_l2_final
 from vdtutorial.experiments.jobs import RunSpec
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
-from vdtutorial.experiments.runs import METHOD_LABELS, default_seeds, default_total_steps, default_trpo_config
+from vdtutorial.experiments.runs import default_seeds, default_total_steps, default_trpo_config
+from vdtutorial.methods import METHOD_LABELS, SHIPPED, method
 
 
 #: Each figure's runs: (title, methods, task, data sets (samples, Sigma) of the pre-trained methods, the
@@ -25,15 +26,19 @@ FIGURES = {
 
 
 def figure_methods(name: str, methods=None) -> tuple[str, ...]:
-    """Figure ``name``'s methods in its own order, only those of ``methods`` when given (ValueError for a
-    method the figure does not have)."""
+    """Figure ``name``'s methods in its own order, only those of ``methods`` when given, followed by any other
+    method of ``methods`` that pre-trains (:mod:`vdtutorial.methods`: a method of your own, run on the figure's
+    data sets beside the paper's). ValueError for a method not in the table, or one that does not pre-train and
+    is not the figure's."""
     all_methods = FIGURES[name][1]
     if methods is None:
         return all_methods
-    unknown = sorted(set(methods) - set(all_methods))
-    if unknown:
-        raise ValueError(f"{name} has no method {', '.join(unknown)}: its methods are {', '.join(all_methods)}")
-    return tuple(method for method in all_methods if method in methods)
+    entries = [method(m) for m in dict.fromkeys(methods)]  # ValueError for a name not in the table
+    foreign = [entry.name for entry in entries if entry.name not in all_methods and not entry.pretrains]
+    if foreign:
+        raise ValueError(f"{name} has no method {', '.join(foreign)}: its methods are {', '.join(all_methods)}, "
+                         "and any that pre-trains")
+    return tuple(m for m in all_methods if m in methods) + tuple(e.name for e in entries if e.name not in all_methods)
 
 
 def figure_data_sets(name: str, samples=None, sigmas=None) -> tuple[tuple[int, float], ...]:
@@ -53,7 +58,8 @@ def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode
     for every seed (defaults: :func:`~vdtutorial.experiments.runs.default_seeds`,
     :func:`~vdtutorial.experiments.runs.default_total_steps`). ``methods`` keeps only those of the figure's
     methods (``"vd"``, ``"l2"``, ``"none"``, ``"expert"``): extra seeds of some curves, merged later with
-    ``rederive --add``. ``samples`` and ``sigmas`` keep only those data sets (:func:`figure_data_sets`), and
+    ``rederive --add``; a method of the table that pre-trains but is not the figure's joins on its data sets.
+    ``samples`` and ``sigmas`` keep only those data sets (:func:`figure_data_sets`), and
     ``demo_seed`` draws them again: the demonstrations of seed ``demo_seed`` in place of the shipped seed 0, to
     ask whether an effect survives a new draw of the data."""
     _, _, task, _, label = FIGURES[name]
@@ -62,12 +68,12 @@ def figure_specs(name: str, seeds=None, total_steps: int | None = None, obs_mode
     seeds = tuple(default_seeds() if seeds is None else seeds)
     total_steps = default_total_steps() if total_steps is None else total_steps
     specs = []
-    for method in methods:
-        if method in ("vd", "l2"):
-            specs += [RunSpec(method, task, n, sigma, seed, obs_mode, total_steps, label(method, n, sigma), demo_seed)
+    for name_of in methods:
+        if method(name_of).pretrains:
+            specs += [RunSpec(name_of, task, n, sigma, seed, obs_mode, total_steps, label(name_of, n, sigma), demo_seed)
                       for n, sigma in datasets for seed in seeds]
         else:
-            specs += [RunSpec(method, task, None, None, seed, obs_mode, total_steps, METHOD_LABELS[method])
+            specs += [RunSpec(name_of, task, None, None, seed, obs_mode, total_steps, METHOD_LABELS[name_of])
                       for seed in seeds]
     return specs
 
@@ -76,6 +82,10 @@ def _figure(name: str, seeds, total_steps, obs_mode, out, workers, methods=None,
             sigmas=None, **kwargs) -> ExperimentResult:
     """The runs of figure ``name`` (:func:`figure_specs`) handed to :func:`run_experiment`."""
     specs = figure_specs(name, seeds, total_steps, obs_mode, methods, demo_seed, samples, sigmas)
+    registered = sorted({spec.method for spec in specs} - {entry.name for entry in SHIPPED})
+    if registered and workers > 1:
+        raise ValueError(f"{', '.join(registered)}: registered in this process only, which other workers do not "
+                         "share: run with one worker")
     trpo_config = kwargs.get("trpo_config")
     fvp_subsample = None  # in the command only when it is not the default
     if trpo_config is not None and trpo_config.fvp_subsample != default_trpo_config().fvp_subsample:
@@ -105,7 +115,7 @@ def fig4(seeds=None, total_steps: int | None = None, obs_mode: str = "state", ou
 
 def _headline(curves) -> dict:
     """Fig. 4's headline comparison, where the experiment ran both VD and L2 (``methods`` may leave one out)."""
-    if not {METHOD_LABELS["vd"], METHOD_LABELS["l2"]} <= set(curves):
+    if not {method("vd").label, method("l2").label} <= set(curves):
         return {}
     return {"vd_reaches_l2_final": vd_reaches_l2_final(curves)}
 

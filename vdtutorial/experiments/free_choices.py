@@ -34,7 +34,8 @@ from vdtutorial.experiments.effects import Claim
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.plots import figure_title, save_png
 from vdtutorial.experiments.results import default_out, derive, experiment_command
-from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METHOD_LABELS, METRIC, NUM_ENVS, default_seeds, default_trpo_config
+from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_seeds, default_trpo_config
+from vdtutorial.methods import METHOD_LABELS
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import read_rows, results_file, run_grid, write_csv
 from vdtutorial.settings import budget, data_dir, is_quick
@@ -123,8 +124,7 @@ def claims(names) -> tuple[Claim, ...]:
     changed method in place of the default one."""
     pairs = [(DEFAULT, METHOD_LABELS["vd"], METHOD_LABELS["l2"])]
     for choice in (c for c in CHOICES if c.name in names):
-        vd = choice.label if choice.method == "vd" else METHOD_LABELS["vd"]
-        l2 = choice.label if choice.method == "l2" else METHOD_LABELS["l2"]
+        vd, l2 = (choice.label if choice.method == compared else METHOD_LABELS[compared] for compared in ("vd", "l2"))
         pairs.append((choice.name, vd, l2))
     kinds = {"final": "final level", "auc": "area under the curve"}
     return tuple(Claim("free_choices", f"[{row}] {vd} vs {l2} ({kinds[kind]})", kind, vd, l2)

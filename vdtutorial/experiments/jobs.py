@@ -14,9 +14,10 @@ from pathlib import Path
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.evaluation import EPISODE_STEPS
-from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHODS, METRIC, NUM_ENVS, default_expert_episodes,
+from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_expert_episodes,
                                          default_total_steps, expert_reference, expert_settings, finetune_steps,
                                          run_settings)
+from vdtutorial.methods import method as method_entry
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner.resume import save_finished_rows
 from vdtutorial.trpo import TRPOConfig
@@ -24,7 +25,8 @@ from vdtutorial.trpo import TRPOConfig
 
 @dataclass(frozen=True)
 class RunSpec:
-    """What one run is: a method, a data set (``samples``, ``noise``; None for "none" and "expert"), a
+    """What one run is: a method (:mod:`vdtutorial.methods`), a data set (``samples``, ``noise``; None for a method
+    that does not pre-train), a
     seed. ``label`` names the curve it belongs to. ``total_steps`` None: the RL budget of the mode the spec is
     made in (:func:`~vdtutorial.experiments.runs.default_total_steps`). ``demo_seed``: which draw of the data set
     (the demonstrations' seed; the shipped sets are seed 0), named in the run's name when it is not 0."""
@@ -42,16 +44,15 @@ class RunSpec:
     def __post_init__(self):
         if self.total_steps is None:
             object.__setattr__(self, "total_steps", default_total_steps())  # frozen: set once, here
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
-        if self.method in ("vd", "l2") and (self.samples is None or self.noise is None):
+        if method_entry(self.method).pretrains and (self.samples is None or self.noise is None):
             raise ValueError(f"method {self.method!r} pre-trains: give the data set's samples and noise")
 
     @property
     def name(self) -> str:
-        if self.method == "expert":
-            return f"expert_{self.task}_seed{self.seed}"
-        data = "" if self.method == "none" else f"_n{self.samples}_sigma{self.noise:g}" + (
+        entry = method_entry(self.method)
+        if not entry.finetuned:
+            return f"{self.method}_{self.task}_seed{self.seed}"
+        data = "" if not entry.pretrains else f"_n{self.samples}_sigma{self.noise:g}" + (
             f"_demos{self.demo_seed}" if self.demo_seed else "")
         return f"{self.method}_{self.task}{data}_{self.obs_mode}_seed{self.seed}"
 
@@ -82,23 +83,25 @@ class Job:
     def settings(self) -> dict:
         """What the run's saved state must match (:func:`~vdtutorial.experiments.runs.run_settings`)."""
         spec = self.spec
-        if spec.method == "expert":
+        entry = method_entry(spec.method)
+        if not entry.finetuned:
             return expert_settings(spec.task, spec.seed, default_expert_episodes())
-        config = self.pretrain_config or default_config(spec.method if spec.method != "none" else "l2", spec.obs_mode)
-        meta = None if spec.method == "none" else {"samples": spec.samples, "noise": spec.noise, "seed": spec.demo_seed}
+        config = self.pretrain_config or default_config(spec.method, spec.obs_mode)
+        meta = {"samples": spec.samples, "noise": spec.noise, "seed": spec.demo_seed} if entry.pretrains else None
         return run_settings(spec.method, spec.task, meta, spec.obs_mode, spec.seed, NUM_ENVS, config, self.trpo_config)
 
     @property
     def rows_expected(self) -> int:
         """Log rows of the finished run: TRPO iterations, or the expert's episodes."""
-        if self.spec.method == "expert":
+        if not method_entry(self.spec.method).finetuned:
             return default_expert_episodes()
         return math.ceil(self.spec.total_steps / self.trpo_config.steps_per_iter)
 
     @property
     def env_steps(self) -> int:
         """Env steps of the finished run (the expert's: 200 per measured episode)."""
-        return self.rows_expected * (EPISODE_STEPS if self.spec.method == "expert" else self.trpo_config.steps_per_iter)
+        finetuned = method_entry(self.spec.method).finetuned
+        return self.rows_expected * (self.trpo_config.steps_per_iter if finetuned else EPISODE_STEPS)
 
     @property
     def name(self) -> str:
@@ -120,14 +123,15 @@ class Job:
         :func:`~vdtutorial.experiments.runs.finetune_steps` (the expert's reference: one at the end) and
         returns its rows."""
         spec = self.spec
-        if spec.method == "expert":
+        entry = method_entry(spec.method)
+        if not entry.finetuned:
             start = time.perf_counter()
             rows = expert_reference(spec.task, spec.seed, default_expert_episodes())
             save_finished_rows(self.state_path, self.settings, rows, time.perf_counter() - start)
             yield {"env_steps": self.env_steps}
             return rows
-        demos = None if spec.method == "none" else demo_path(spec.task, spec.samples, spec.noise, spec.demo_seed,
-                                                                  root=self.demos_root)
+        demos = demo_path(spec.task, spec.samples, spec.noise, spec.demo_seed, root=self.demos_root) if (
+            entry.pretrains) else None
         _, rows = yield from finetune_steps(spec.method, spec.task, demos, spec.obs_mode, spec.seed, spec.total_steps,
                                             pretrain_config=self.pretrain_config, trpo_config=self.trpo_config,
                                             checkpoints_root=self.checkpoints_root, state_path=self.state_path,

@@ -11,9 +11,9 @@ from PIL import Image
 from vdtutorial.experiments.evaluation import EPISODE_STEPS
 from vdtutorial.experiments.curves import CONFIDENCE, Curve, smooth_window
 from vdtutorial.experiments.measures import MEASURES
+from vdtutorial.methods import method
 
 METRIC_LABELS = {name: measure.label for name, measure in MEASURES.items()}
-_COLOURS = {"vd": "tab:blue", "l2": "tab:orange", "none": "tab:gray", "expert": "black"}
 _LINESTYLES = ("-", "--", ":", "-.", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)), (0, (1, 3)), (0, (8, 3, 2, 3)))
 
 
@@ -44,8 +44,9 @@ def _draw_panel(ax, curves: dict[str, Curve], metric: str, legend: bool) -> None
     """One measure's curves on ``ax``: per seed thin, mean and clipped band over seeds, the expert flat."""
     variants: dict[str, int] = {}
     for curve in curves.values():
-        colour = _COLOURS[curve.method]
-        if curve.method == "expert":
+        entry = method(curve.method)
+        colour = entry.colour
+        if not entry.finetuned:
             ax.axhline(curve.mean[0], color=colour, linestyle="--",
                        label=f"{curve.label} ({curve.mean[0]:.3g}; band: {CONFIDENCE:.0%} interval of its mean over "
                              f"{curve.episodes} evaluation episodes, not seeds)")

@@ -35,8 +35,9 @@ from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.measures import measures_of
 from vdtutorial.experiments.plots import figure_title, plot_measures, save_png
 from vdtutorial.experiments.results import default_out, experiment_command
-from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METHOD_LABELS, NUM_ENVS, default_seeds,
-                                         default_trpo_config, pretrained_policy)
+from vdtutorial.experiments.pipeline import pretrained_policy, ready_for_rl
+from vdtutorial.experiments.runs import CHECKPOINT_EVERY, NUM_ENVS, default_seeds, default_trpo_config
+from vdtutorial.methods import METHOD_LABELS
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import SavedInStateDir, results_file, run_grid, write_csv
 from vdtutorial.runner.resume import save_finished_rows
@@ -113,8 +114,7 @@ class PreRLJob(SavedInStateDir):
         demos = Demos.load(demo_path(TASK, SAMPLES, NOISE, 0))
         policy = pretrained_policy(self.reg, demos, OBS, self.seed, config, self.out)
         info = policy.pretrain_info
-        if self.reg == "vd":
-            policy.prune_()
+        policy = ready_for_rl(self.reg, policy)
         score = mean_action_successes(policy, TASK, self.seed, pre_rl_episodes(), NUM_ENVS, OBS, config.image_size)
         history = info["history"]
         best = info.get("best_epoch", len(history))

@@ -8,8 +8,10 @@ from vdtutorial.analysis.sparsity import sparsity_report
 from vdtutorial.demos import DemoFileError, Demos, demo_command, demo_path, generate_demos
 from vdtutorial.experiments.curves import Curve, vd_reaches_l2_final
 from vdtutorial.experiments.jobs import RunSpec
+from vdtutorial.experiments.pipeline import pretrained_policy
 from vdtutorial.experiments.results import ExperimentResult, default_out, run_experiment
-from vdtutorial.experiments.runs import METHOD_LABELS, RL_METHODS, pretrained_policy
+from vdtutorial.experiments.runs import RL_METHODS
+from vdtutorial.methods import METHOD_LABELS, method
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner.progress import live_by_default
 from vdtutorial.settings import QUICK_ENV, budget, use_quick
@@ -56,8 +58,8 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
         live = live_by_default() if progress is None else progress
         generate_demos("reach", samples, noise, 0, progress=live).save(path)
     config = PretrainConfig(epochs=epochs)
-    specs = [RunSpec(m, "reach", *((samples, noise) if m != "none" else (None, None)), seed, "state", total_steps,
-                     METHOD_LABELS[m]) for m in RL_METHODS for seed in seeds]
+    specs = [RunSpec(m, "reach", *((samples, noise) if method(m).pretrains else (None, None)), seed, "state",
+                     total_steps, METHOD_LABELS[m]) for m in RL_METHODS for seed in seeds]
     command = (f"python -c 'from vdtutorial.experiments import reproduce_quick; reproduce_quick(out={str(out)!r}, "
                f"seeds={tuple(seeds)}, samples={samples}, noise={noise}, epochs={epochs}, total_steps={total_steps})'"
                f"  # demonstrations: {demo_command('reach', samples, noise, 0)} --out {path}")

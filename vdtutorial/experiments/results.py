@@ -121,7 +121,7 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
         :func:`~vdtutorial.experiments.curves.smooth_window`).
     demos_root: where the demonstrations are read (default ``data/``).
     checkpoints_root: where pre-trained checkpoints are made when the shipped ones do not match
-        (default ``out``; see :func:`~vdtutorial.experiments.runs.pretrained_policy`).
+        (default ``out``; see :func:`~vdtutorial.experiments.pipeline.pretrained_policy`).
     backend, address, workers: where the runs execute (:mod:`~vdtutorial.runner.backends`).
     state_dir: the runs' saved states and CSVs (default ``out/runs``; on a cluster, shared storage).
     restart: discard the saved states of these runs instead of continuing them.

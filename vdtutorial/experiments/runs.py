@@ -13,31 +13,28 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-import torch
 from gymnasium.wrappers import RecordEpisodeStatistics
 
-from vdtutorial.beyond.initial_sigma import InitialSigma
-from vdtutorial.beyond.initial_sigma import set_initial_sigma
-from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
+from vdtutorial.demos import Demos
 from vdtutorial.envs import ENV_IDS, HORIZON
-from vdtutorial.experiments.checkpoints import (CheckpointError, checkpoint_path, default_config, load_checkpoint,
-                                                pretrain_command, save_checkpoint)
+from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, ExpertController, successes_per_episode
+from vdtutorial.experiments.initial_sigma import InitialSigma
+from vdtutorial.experiments.pipeline import load_demos, made_in_rounds, finetune_policy
 from vdtutorial.fast.fisher import gauss_newton_fvp
 from vdtutorial.fast.policy import fast_policy
-from vdtutorial.policy import GaussianPolicy, make_policy
-from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig, pretrain
+from vdtutorial.methods import method as method_entry
+from vdtutorial.policy import GaussianPolicy
+from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.rollout import make_vec_env
 from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
                                      save_run_state)
 from vdtutorial.runner.rows import write_csv
-from vdtutorial.experiments.paths import recorded_path, runs_dir
 from vdtutorial.settings import budget
 from vdtutorial.trpo import TRPO, TRPOConfig
 
+#: The paper's fine-tuned methods (the figures' own lists: :data:`~vdtutorial.experiments.figures.FIGURES`).
 RL_METHODS = ("vd", "l2", "none")
-METHODS = RL_METHODS + ("expert",)
-METHOD_LABELS = {"vd": "VD", "l2": "L2", "none": "no pre-training", "expert": "IK expert"}
 #: Sub-environments of the vector env: 8 runs of at most 25 steps (HORIZON) fill one 200-step iteration.
 NUM_ENVS = EPISODE_STEPS // HORIZON
 #: Row column plotted for each task: successes per 200-step episode (reach), cumulative reward (grasp).
@@ -75,116 +72,6 @@ def default_expert_episodes() -> int:
     return budget(5, 1)
 
 
-def load_demos(task: str, demos: Demos | str | Path | None = None, root: Path | None = None) -> Demos:
-    """``demos`` as a data set: itself, loaded from a path, or (None) the task's shipped 8000-sample set
-    (Sigma ``SHIPPED_NOISE[task]``) under ``root`` (default ``data/``). The task must match."""
-    if isinstance(demos, Demos):
-        if demos.meta.get("task") != task:
-            raise ValueError(f"demonstrations of task {demos.meta.get('task')!r} given for task {task!r}")
-        return demos
-    return Demos.load(demos if demos is not None else demo_path(task, 8000, SHIPPED_NOISE[task], 0, root=root), task=task)
-
-
-def made_in_rounds(meta: dict) -> bool:
-    """Whether a data set was made in rounds (DART's, DAgger's): its meta has no hand-set Sigma to name it by."""
-    return "noise" not in meta
-
-
-def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int = 0,
-                      config: PretrainConfig | None = None, checkpoints_root: Path | None = None,
-                      progress: bool = False, source: str | Path | None = None) -> GaussianPolicy:
-    """The policy pre-trained with ``reg`` ("vd" or "l2") on ``demos`` with ``config`` and ``seed``.
-
-    A checkpoint (``experiments.checkpoints.checkpoint_path``) is reused when it was made from the same data set (task,
-    samples, Sigma, demonstration seed) with the same pre-training configuration and seed. The shipped
-    one in ``data/checkpoints`` is looked at first, read only (not in quick mode, whose budgets never
-    match it); then the one under ``checkpoints_root`` (default ``runs/``, ``runs/quick/`` in quick mode).
-    If neither matches, the policy is pre-trained now and saved under ``checkpoints_root`` (replacing a
-    stale file there). So the experiments never write into ``data/`` unless ``checkpoints_root`` names it.
-
-    The policy is always returned as read back from a checkpoint, so a fresh and a reused pre-training
-    hand TRPO exactly the same object (parameters, and every ``requires_grad`` at its default:
-    pre-training freezes sigma, the RL phase trains it). It is not pruned yet.
-    A non-default ``config.initial_sigma`` is applied on top of the default checkpoint (mu does not
-    depend on it; an L2 policy's "spread" follows the VD checkpoint's mu) and saved as a checkpoint of
-    its own (``..._initsigma-OPTION.pt``), so that a resumed run does not fit sigma again.
-
-    source: the data set's file, needed for a set made in rounds (:func:`made_in_rounds`: DART's, DAgger's),
-    which has no (samples, Sigma) name: its checkpoints are named after the file (``STEM_REG_OBS_seedS.pt``)
-    under ``checkpoints_root`` only (none is shipped)."""
-    cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
-    meta = demos.meta
-    if made_in_rounds(meta) and source is None:
-        raise ValueError("a data set made in rounds (DART's, DAgger's: no Sigma in its meta) is named by its file: "
-                         "give its path as source")
-    data_name = Path(source).stem if made_in_rounds(meta) else None
-    root = Path(checkpoints_root) if checkpoints_root is not None else budget(runs_dir(), runs_dir() / "quick")
-    names = {"initial_sigma": cfg.initial_sigma, "kl_divisor": cfg.kl_divisor, "data_name": data_name,
-             "patience": cfg.patience}
-    path = checkpoint_path(meta, reg, obs_mode, seed, root=root, **names)
-    shipped = checkpoint_path(meta, reg, obs_mode, seed, **names)
-    candidates = [shipped] if budget(True, False) and shipped != path and data_name is None else []
-    expected = {**{k: meta[k] for k in DATA_SET_KEYS if k in meta}, **asdict(cfg)}
-    for candidate in [*candidates, path]:
-        if not candidate.exists():
-            continue
-        try:
-            policy = load_checkpoint(candidate, **expected)
-            if policy.pretrain_info.get("seed") == seed:
-                return policy
-            reason = f"seed={policy.pretrain_info.get('seed')!r}, expected {seed!r}"
-        except CheckpointError as exc:
-            reason = exc.difference or str(exc)
-        if candidate == path:
-            print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): pre-training again to "
-                  "replace it", flush=True)
-        else:  # the usual case of a run at a budget of its own beside the shipped checkpoint: progress, no warning
-            print(f"pre-training {reg.upper()}, seed {seed}, into {recorded_path(root)} (the shipped "
-                  f"{recorded_path(candidate)} has other settings: {reason})", flush=True)
-    made_from = Path(source) if data_name else demo_path(meta["task"], meta["samples"], meta["noise"], meta["seed"])
-    if cfg.initial_sigma != PAPER_SIGMA_OPTION:
-        base = replace(cfg, initial_sigma=PAPER_SIGMA_OPTION)
-        policy = pretrained_policy(reg, demos, obs_mode, seed, base, checkpoints_root, progress, source)
-        # the VD network whose spread L2 follows; L2's coefficient is no setting of VD's, so it is the default one's
-        spread_net = (pretrained_policy("vd", demos, obs_mode, seed, replace(base, l2=PretrainConfig.l2), checkpoints_root,
-                                        progress, source).mu if reg == "l2" and cfg.initial_sigma == "spread" else None)
-        policy.pretrain_info["initial_sigma"] = set_initial_sigma(policy, demos, cfg, seed, spread_net=spread_net)
-        policy.pretrain_info["config"] = asdict(cfg)
-    else:
-        policy, _ = pretrain(demos, cfg, seed=seed, progress=progress)
-    save_checkpoint(policy, path, extra={"command": pretrain_command(reg, made_from, seed, obs_mode, cfg.initial_sigma)})
-    return load_checkpoint(path)
-
-
-def finetune_policy(method: str, env: gym.Env | gym.vector.VectorEnv, demos: Demos | None = None, obs_mode: str = "state",
-                    seed: int = 0, config: PretrainConfig | None = None, *, checkpoints_root: Path | None = None,
-                    progress: bool = False, resumed: bool = False, source: str | Path | None = None) -> GaussianPolicy:
-    """The policy RL starts from, for ``method`` on ``env``: the one home of "pre-trained policy ready for RL".
-
-    "vd" and "l2": the policy pre-trained on ``demos`` with ``config`` (looked up or trained by
-    :func:`pretrained_policy`) with its start sigma ``config.initial_sigma`` (the sigma study's choice by
-    default), and for "vd" pruned where log alpha > 3 (Section IV-A) -- pruned weights are exact zeros that
-    TRPO never moves. "none": a fresh network for ``env``'s spaces (one env or a vector env), seeded with
-    ``seed``, sigma fixed at ``config.initial_sigma``.
-    ``resumed``: the run continues from a saved state that holds every parameter, so the network is built
-    from the default checkpoint without fitting the start sigma again (minutes for an image policy) only
-    to be overwritten.
-    ``source``: the data set's file, which names a set made in rounds (DART's, DAgger's; see
-    :func:`pretrained_policy`).
-    """
-    if method not in RL_METHODS:
-        raise ValueError(f"method must be one of {RL_METHODS}, got {method!r}")
-    cfg = config or default_config(method if method != "none" else "l2", obs_mode)
-    if method == "none":
-        torch.manual_seed(seed)
-        space = getattr(env, "single_observation_space", env.observation_space)
-        actions = getattr(env, "single_action_space", env.action_space)
-        return make_policy(space, actions.shape[0], variational=False, init_std=InitialSigma.parse(cfg.initial_sigma).value)
-    network = replace(cfg, initial_sigma=PAPER_SIGMA_OPTION) if resumed else cfg
-    policy = pretrained_policy(method, demos, obs_mode, seed, network, checkpoints_root, progress, source)
-    return policy.prune_() if method == "vd" else policy
-
-
 def run_settings(method: str, task: str, demos_meta: dict | None, obs_mode: str, seed: int, num_envs: int,
                  pretrain_config: PretrainConfig, trpo_config: TRPOConfig, source: str | Path | None = None) -> dict:
     """Everything that determines a fine-tuning run's numbers, as plain data: what a saved run state must
@@ -193,7 +80,7 @@ def run_settings(method: str, task: str, demos_meta: dict | None, obs_mode: str,
     A data set made in rounds (:func:`made_in_rounds`) is named by its method, rounds and file (``source``)."""
     settings = {"method": method, "task": task, "obs_mode": obs_mode, "seed": int(seed), "num_envs": int(num_envs),
                 "image_size": int(pretrain_config.image_size), "trpo_config": asdict(trpo_config)}
-    if method != "none":
+    if method_entry(method).pretrains:
         settings["demos"] = ({"samples": int(demos_meta["samples"]), "seed": int(demos_meta["seed"]),
                               "method": demos_meta["method"], "rounds_done": int(demos_meta["rounds_done"]),
                               "file": Path(source).name} if made_in_rounds(demos_meta) else
@@ -229,13 +116,13 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
         CPU's by floating-point rounding). It is not one of the run's settings; pre-training, when no checkpoint
         matches, stays on the CPU, so that a checkpoint is the same whatever the device.
     """
-    if method not in RL_METHODS:
-        raise ValueError(f"method must be one of {RL_METHODS} (the expert is measured by expert_reference), "
-                         f"got {method!r}")
+    entry = method_entry(method)
+    if not entry.finetuned:
+        raise ValueError(f"method {method!r} is not fine-tuned (the expert is measured by expert_reference)")
     total_steps = default_total_steps() if total_steps is None else total_steps
-    cfg = pretrain_config or default_config(method if method != "none" else "l2", obs_mode)
+    cfg = pretrain_config or default_config(method, obs_mode)
     trpo_config = trpo_config or default_trpo_config()
-    data = None if method == "none" else load_demos(task, demos)
+    data = load_demos(task, demos) if entry.pretrains else None
     source = Path(demos) if isinstance(demos, (str, Path)) else None
     settings = run_settings(method, task, data and data.meta, obs_mode, seed, num_envs, cfg, trpo_config, source)
     iterations = math.ceil(total_steps / trpo_config.steps_per_iter)
@@ -249,7 +136,7 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     env = make_vec_env(ENV_IDS[task], num_envs, obs_mode=obs_mode, image_size=cfg.image_size)
     try:
         policy = finetune_policy(method, env, data, obs_mode, seed, cfg, checkpoints_root=checkpoints_root,
-                                 progress=progress, resumed=saved is not None, source=source)
+                               progress=progress, resumed=saved is not None, source=source)
         algo = TRPO(fast_policy(policy), env, trpo_config, seed=seed, fvp=gauss_newton_fvp, device=device)
         if saved is not None:
             algo.restore(saved)
@@ -280,13 +167,15 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
              num_envs: int = NUM_ENVS, checkpoints_root: Path | None = None, progress: bool = False,
              state_path: str | Path | None = None, checkpoint_every: int = CHECKPOINT_EVERY,
              device: str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
-    """One run of the RL stage: the policy of ``method`` ("vd", "l2" or "none") trained by TRPO for
+    """One run of the RL stage: the policy of ``method`` (a fine-tuned method of :mod:`vdtutorial.methods`: the
+    paper's "vd", "l2", "none", or one registered there) trained by TRPO for
     ``total_steps`` env steps (default 3e5) on ``num_envs`` copies of the task (default 8 x 25 = 200 steps
     per iteration). Returns the trained policy and TRPO's log rows; ``csv_path`` (replaced if it exists)
     receives the rows as they come.
 
     demos: the data set of the pre-training (a :class:`Demos` or a path; default the task's shipped
-        8000-sample set); ignored by "none". A set made in rounds (DART's, DAgger's) is given by its path,
+        8000-sample set); ignored by a method that does not pre-train. A set made in rounds (DART's, DAgger's) is
+        given by its path,
         which names its checkpoints and its runs' settings.
     pretrain_config: behavioural-cloning settings (``reg`` and ``obs_mode`` are set from ``method`` and
         ``obs_mode``); its ``image_size`` is also the camera's in the RL environment.

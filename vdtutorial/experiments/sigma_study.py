@@ -1,4 +1,4 @@
-"""The study of sigma at the start of RL (:mod:`vdtutorial.beyond.initial_sigma`): each option's score before
+"""The study of sigma at the start of RL (:mod:`vdtutorial.experiments.initial_sigma`): each option's score before
 and during RL, in state mode on reaching, and the choice of the default by the rule written down first
 in ``data/results/sigma_study/RULE.md``.
 
@@ -29,7 +29,7 @@ import torch
 from matplotlib.figure import Figure
 
 import vdtutorial
-from vdtutorial.beyond.initial_sigma import InitialSigma
+from vdtutorial.experiments.initial_sigma import InitialSigma
 from vdtutorial.demos import demo_path
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.experiments import (METHOD_LABELS, NUM_ENVS, curves_from_rows, finetune, load_demos,
@@ -39,6 +39,7 @@ from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.evaluation import EPISODE_STEPS, mean_action_successes
 from vdtutorial.experiments.plots import draw_band, save_png
 from vdtutorial.experiments.paths import recorded_path, runs_dir
+from vdtutorial.methods import method as method_entry
 from vdtutorial.settings import data_dir
 
 #: Candidates of the rule: option (a) at the paper's 0.3 and at the issue's probe value 0.05, (b), (c).
@@ -69,8 +70,8 @@ def _run(job: _Run) -> list[dict]:
 
 
 def _finetune(job: _Run) -> list[dict]:
-    cfg = replace(default_config("vd" if job.method == "vd" else "l2"), initial_sigma=job.option)
-    demos = None if job.method == "none" else demo_path("reach", 8000, 0.5, 0)
+    cfg = replace(default_config(job.method), initial_sigma=job.option)
+    demos = demo_path("reach", 8000, 0.5, 0) if method_entry(job.method).pretrains else None
     return finetune(job.method, "reach", demos, "state", job.seed, job.steps, job.csv_path, pretrain_config=cfg)[1]
 
 
@@ -126,12 +127,12 @@ def plot(rows: list[dict], window: int) -> Figure:
     options = list(dict.fromkeys(r["option"] for r in rows))
     fig = Figure(figsize=(3.2 * len(options), 3.6), layout="constrained")
     axes = fig.subplots(1, len(options), sharey=True, squeeze=False)[0]
-    colours = {"vd": "tab:blue", "l2": "tab:orange", "none": "tab:gray"}
     for ax, option in zip(axes, options):
         labelled = [{**r, "label": r["method"]} for r in rows if r["option"] == option]
-        for method, curve in curves_from_rows(labelled, "successes", window).items():
-            ax.plot(curve.steps, curve.mean, color=colours[method], label=f"{METHOD_LABELS[method]} (n={curve.seeds})")
-            draw_band(ax, curve.steps, curve.low, curve.high, "successes", colours[method])
+        for name, curve in curves_from_rows(labelled, "successes", window).items():
+            colour = method_entry(name).colour
+            ax.plot(curve.steps, curve.mean, color=colour, label=f"{METHOD_LABELS[name]} (n={curve.seeds})")
+            draw_band(ax, curve.steps, curve.low, curve.high, "successes", colour)
         spec = InitialSigma.parse(option)
         ax.set_title(f"sigma at start: {'fixed ' if spec.kind == 'fixed' else ''}{option}", fontsize=10)
         ax.set_xlabel("environment steps", fontsize=9)
@@ -162,10 +163,11 @@ def run_study(seeds=(0, 1, 2, 3, 4), steps: int = 100_000, options=OPTIONS, work
     start = time.perf_counter()
     rows = [row for result in run_jobs(_run, jobs, workers) for row in result]
     pre_rl = run_jobs(_mean_action_job, [(m, s) for s in seeds for m in ("vd", "l2")], workers)
-    for option in options:  # "none" rows copied to every option with the same starting sigma
+    for option in options:  # no pre-training's rows copied to every option with the same starting sigma
         source = starts.get(InitialSigma.parse(option).value, option)
         if source != option:
-            rows += [{**r, "option": option} for r in rows if r["option"] == source and r["method"] == "none"]
+            rows += [{**r, "option": option} for r in rows
+                     if r["option"] == source and not method_entry(r["method"]).pretrains]
     wall = time.perf_counter() - start
     rows = stored_rows(rows)  # the summary is what the shipped CSV gives back (runner.rows)
     out.mkdir(parents=True, exist_ok=True)

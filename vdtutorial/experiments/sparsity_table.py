@@ -21,7 +21,7 @@ from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.curves import mean_band
 from vdtutorial.experiments.results import default_out, experiment_command
-from vdtutorial.experiments.runs import pretrained_policy
+from vdtutorial.experiments.pipeline import pretrained_policy
 from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig
 from vdtutorial.runner.backends import run_jobs
 from vdtutorial.runner.rows import stored_rows, write_csv

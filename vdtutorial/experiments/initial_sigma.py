@@ -4,11 +4,11 @@ pre-training ends. An explicit option, applied the same way to every pre-trainin
 Why it matters
     The paper (Section IV) trains only mu in pre-training: "only the parameters of mu_phi(s) are
     trained in this stage, while those of sigma_psi(s) remain fixed". RL therefore starts from whatever
-    sigma the initialisation gives, here ``init_std`` = 0.3 rad for every state. The cloned means are
-    good (measured on reaching, 200-step episodes, mean action: VD 14.6, L2 20.8 successes) but sampled
-    with sigma = 0.3 they score about 2, so the first TRPO iterations -- which sample -- start almost
-    from scratch. The paper's Section VI names the gap: "the pre-training procedure trains only the mean
-    function mu_phi(s) of the policy, and leaves the SD function sigma_psi(s) untouched. Since mu_phi(s)
+    sigma the initialisation gives, here ``init_std`` = 0.3 rad for every state. The cloned means reach the
+    cup often, but sampled with sigma = 0.3 they rarely do, so the first TRPO iterations -- which sample --
+    start almost from scratch (the numbers: ``docs/results.md``, "Measurements behind the code"). The paper's
+    Section VI names the gap: "the pre-training procedure trains only the mean function mu_phi(s) of the policy, and
+    leaves the SD function sigma_psi(s) untouched. Since mu_phi(s)
     is a dropout model, it inherently contains information about its own uncertainty. There is potential
     to use this uncertainty information to learn an appropriate SD function."
 
@@ -57,11 +57,10 @@ class InitialSigma:
             the data term of eq. 3, log N(a | mu(s), sigma_psi(s)), maximised over psi only. This is the
             pre-training of Section IV completed for the second moment: sigma then measures how far the
             expert's labels lie from the cloned mean, state by state. It is fitted on the training split of
-            pre-training (the held-out episodes stay held out) and applies to VD and L2 alike. It can
-            overfit a small set: on the shipped 8000 samples (seed 0) it raised the held-out log-likelihood
-            of the expert's actions from 1.08 to 5.33 (VD) and 1.15 to 4.89 (L2), but on 600 samples cloned
-            for 5 epochs the held-out NLL rose from 0.82 to 17 (sigma shrinks on training states whose
-            labels mu happens to fit). Early stopping on the held-out episodes would guard against it.
+            pre-training (the held-out episodes stay held out) and applies to every method alike. It raises the
+            held-out likelihood of the expert's actions on the shipped sets but can overfit a small one (sigma
+            shrinks on training states whose labels mu happens to fit; the numbers: ``docs/results.md``).
+            Early stopping on the held-out episodes would guard against it.
         ``"spread"`` (c) -- beyond the paper, its Section VI proposal: sigma_psi(s) fitted to the VD mean
             network's predictive spread, the standard deviation of mu(s) over weights sampled from q(W)
             (eq. 4's multiplicative Gaussian noise, with the weights that RL prunes, log alpha > 3, removed,
@@ -71,9 +70,10 @@ class InitialSigma:
 
     Methods without the ingredient an option needs
         L2 under (c): an L2 network has no noise model, so its sigma is fitted to the spread of the VD
-            network pre-trained on the same demonstrations with the same seed (``spread_net``). Both methods
-            then start with the same exploration map and differ only in mu, which is what the comparison
-            of VD against L2 is about.
+            network pre-trained on the same demonstrations with the same seed (``spread_net``; the method's
+            entry in :mod:`vdtutorial.methods` names whose network it follows). Both methods then start with
+            the same exploration map and differ only in mu, which is what the comparison of VD against L2 is
+            about.
         No pre-training ("none"): there are no demonstrations and no mean network to fit to, so under every
             option it starts from a fixed sigma, ``value`` (0.3 by default, as in the paper).
 
@@ -84,9 +84,10 @@ class InitialSigma:
         biases move (a VD sigma network's log sigma^2 gets no gradient in eval mode and is frozen in RL
         anyway). State inputs: full batch (the sets are small, <= 8000 state vectors, so the fit is exact and
         deterministic). Image inputs: one full-batch step through the convolutional sigma network over 7200
-        RGBD images costs about half a minute on a laptop core, so 500 of them would take hours; the fit then
-        uses a seeded subset of ``IMAGE_FIT_STATES`` training states (chosen in :func:`set_initial_sigma`) and seeded minibatches of ``IMAGE_FIT_BATCH`` (a few minutes per policy). Both
-        numbers are our choices, made for cost; the paper has no such fit.
+        RGBD images is slow enough on a CPU that 500 of them would take hours; the fit then uses a seeded subset
+        of ``IMAGE_FIT_STATES`` training states (chosen in :func:`set_initial_sigma`) and seeded minibatches of
+        ``IMAGE_FIT_BATCH`` (minutes per policy). Both numbers are our choices, made for cost; the paper has no such
+        fit.
 
     """
 
