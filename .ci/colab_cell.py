@@ -6,11 +6,14 @@
 The first cell (vdtutorial/course/colab.py, the README's Colab cell) acts only where ``google.colab`` is loaded, as
 Colab's kernel loads it at start; an IPython start-up file stands in for that, and nothing else of Colab is faked.
 """
+
 import sys
 from pathlib import Path
 
-MARKER = ("import sys, types  # Colab's kernel has google.colab loaded; a stand-in module marks this one as such\n"
-          "sys.modules.setdefault('google.colab', types.ModuleType('google.colab'))\n")
+MARKER = (
+    "import sys, types  # Colab's kernel has google.colab loaded; a stand-in module marks this one as such\n"
+    "sys.modules.setdefault('google.colab', types.ModuleType('google.colab'))\n"
+)
 
 
 def pretend_colab(ipython_dir: str) -> None:
@@ -25,8 +28,9 @@ def run(notebook: str) -> None:
 
     path = Path(notebook).resolve()
     book = nbformat.read(path, as_version=4)
-    client = nbclient.NotebookClient(book, timeout=None, kernel_name="python3",
-                                     resources={"metadata": {"path": str(path.parent)}})
+    client = nbclient.NotebookClient(
+        book, timeout=None, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
+    )
     try:
         client.execute()
     finally:

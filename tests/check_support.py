@@ -4,6 +4,7 @@ cells run in, and the grader's steps with the rule every failure message keeps (
 
 The test files import it as they import conftest's helpers (``from check_support import ...``): pytest puts tests/,
 which has no ``__init__.py``, on ``sys.path``."""
+
 import re
 from pathlib import Path
 
@@ -28,8 +29,11 @@ def notebook(stem: str) -> nbformat.NotebookNode:
 def answers(stem: str) -> dict[str, str]:
     """{grade_id: source} of the answer cells (nbgrader ``solution`` cells) of the notebook ``stem``, in the notebook's
     order: the teacher's solutions, and the order the chapter's CHECKS follow."""
-    return {cell.metadata["nbgrader"]["grade_id"]: cell.source for cell in notebook(stem).cells
-            if cell.metadata.get("nbgrader", {}).get("solution")}
+    return {
+        cell.metadata["nbgrader"]["grade_id"]: cell.source
+        for cell in notebook(stem).cells
+        if cell.metadata.get("nbgrader", {}).get("solution")
+    }
 
 
 def stub(source: str) -> str:
@@ -78,8 +82,7 @@ def assert_mistake_fails(exercise: str, context: dict, source: str, mistakes: di
     """``source`` with the named edit of ``mistakes`` (or "stub": the unsolved cell) fails ``exercise``'s check; the
     stub with the words for an unsolved exercise."""
     source = stub(source) if mistake == "stub" else changed(source, *mistakes[mistake])
-    found = failures(exercise, executed(context, source), seed=1)   # no message gives a number away
+    found = failures(exercise, executed(context, source), seed=1)  # no message gives a number away
     assert found, (exercise, mistake)
     if mistake == "stub":
         assert found == UNSOLVED
-

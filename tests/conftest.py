@@ -1,4 +1,5 @@
 """Shared test settings."""
+
 import importlib.util
 import runpy
 from pathlib import Path
@@ -22,8 +23,12 @@ import vdtutorial  # noqa: E402
 
 def numerics_here() -> dict:
     """The versions that decide a run's floating-point results, as shipped records name them."""
-    return {"torch": torch.__version__, "numpy": numpy.__version__, "gymnasium": gymnasium.__version__,
-            "python": ".".join(platform.python_version_tuple()[:2])}
+    return {
+        "torch": torch.__version__,
+        "numpy": numpy.__version__,
+        "gymnasium": gymnasium.__version__,
+        "python": ".".join(platform.python_version_tuple()[:2]),
+    }
 
 
 def require_recorded_numerics(record_path: Path) -> None:
@@ -34,8 +39,10 @@ def require_recorded_numerics(record_path: Path) -> None:
     made = {**made, "python": ".".join(made["python"].split(".")[:2])}
     here = numerics_here()
     if any(made[key] != value for key, value in here.items()):
-        pytest.skip(f"exact regeneration holds under the recorded versions "
-                    f"({', '.join(f'{k} {made[k]}' for k in here)}); this is {', '.join(f'{k} {v}' for k, v in here.items())}")
+        pytest.skip(
+            f"exact regeneration holds under the recorded versions "
+            f"({', '.join(f'{k} {made[k]}' for k in here)}); this is {', '.join(f'{k} {v}' for k, v in here.items())}"
+        )
 
 
 def require_locked(package: str) -> None:
@@ -45,9 +52,13 @@ def require_locked(package: str) -> None:
     import importlib.metadata as md
 
     lock = Path(__file__).resolve().parent.parent / "constraints-py311.txt"
-    locked = dict(line.split("==") for line in lock.read_text().splitlines() if "==" in line and not line.startswith("#"))
+    locked = dict(
+        line.split("==") for line in lock.read_text().splitlines() if "==" in line and not line.startswith("#")
+    )
     if md.version(package) != locked[package]:
-        pytest.skip(f"the shipped statistics were computed with {package} {locked[package]}; this is {md.version(package)}")
+        pytest.skip(
+            f"the shipped statistics were computed with {package} {locked[package]}; this is {md.version(package)}"
+        )
 
 
 @pytest.fixture(autouse=True)
@@ -64,8 +75,10 @@ def pytest_report_header(config):
     import pybullet
 
     numerics = ", ".join(f"{k} {v}" for k, v in numerics_here().items())
-    return (f"vdtutorial from {Path(vdtutorial.__file__).parent}; {numerics}; "
-            f"pybullet.isNumpyEnabled() = {bool(pybullet.isNumpyEnabled())}")
+    return (
+        f"vdtutorial from {Path(vdtutorial.__file__).parent}; {numerics}; "
+        f"pybullet.isNumpyEnabled() = {bool(pybullet.isNumpyEnabled())}"
+    )
 
 
 def assert_expert_labels(demos, episodes) -> None:
@@ -81,5 +94,7 @@ def assert_expert_labels(demos, episodes) -> None:
         env.reset(options={"cup_xy": demos.cup[rows[0], :2]})
         expert.reset()
         for i in rows:
-            numpy.testing.assert_allclose(expert.action(demos.joints[i].astype(numpy.float64)), demos.actions[i], atol=1e-5)
+            numpy.testing.assert_allclose(
+                expert.action(demos.joints[i].astype(numpy.float64)), demos.actions[i], atol=1e-5
+            )
     env.close()

@@ -1,5 +1,6 @@
 """The static check of an answer cell (vdtutorial/course/answer_rules.py): one FORBIDDEN entry per exercise of the
 chapters, each naming the library's own pieces; the teacher's solutions pass it; hostile answers do not."""
+
 import ast
 import importlib.util
 import json
@@ -40,8 +41,9 @@ def test_every_answer_cell_has_its_forbidden_names_and_its_test_cell():
         tests = {meta["grade_id"]: position for position, meta in cells if not meta.get("solution")}
         assert all(meta.get("grade") for position, meta in cells if not meta.get("solution")), name
         assert set(tests) == {f"{grade_id}_tests" for grade_id in answers}, (name, sorted(tests), sorted(answers))
-        assert all(tests[f"{grade_id}_tests"] == position + 1 for grade_id, position in answers.items()), \
+        assert all(tests[f"{grade_id}_tests"] == position + 1 for grade_id, position in answers.items()), (
             f"{name}: each answer cell is followed by its test cell"
+        )
 
 
 def test_the_forbidden_names_are_identifiers_each_once():
@@ -77,7 +79,7 @@ def _library_names() -> set[str]:
 
 def test_each_forbidden_name_is_defined_in_the_library():
     defined = _library_names()
-    assert {"LinearSVDO", "conjugate_gradient", "_goal_status", "prune_"} <= defined   # the walk finds all kinds
+    assert {"LinearSVDO", "conjugate_gradient", "_goal_status", "prune_"} <= defined  # the walk finds all kinds
     missing = {grade_id: [n for n in names if n not in defined] for grade_id, names in FORBIDDEN.items()}
     assert not any(missing.values()), {g: m for g, m in missing.items() if m}
 
@@ -85,83 +87,136 @@ def test_each_forbidden_name_is_defined_in_the_library():
 # (exercise, answer source, the kind of violation it must raise, words of that violation's text)
 HOSTILE = {
     "the reference under the student's name": (
-        "ch04_svdo_layer", "from vdtutorial.vd import LinearSVDO as MyLinearSVDO", "forbidden", "LinearSVDO"),
+        "ch04_svdo_layer",
+        "from vdtutorial.vd import LinearSVDO as MyLinearSVDO",
+        "forbidden",
+        "LinearSVDO",
+    ),
     "the reference through its module": (
-        "ch06_conjugate_gradient", """
+        "ch06_conjugate_gradient",
+        """
         import vdtutorial.trust_region as tr
 
         def my_cg(Avp, b, iters):
             return tr.conjugate_gradient(Avp, b, iters)
-        """, "forbidden", "conjugate_gradient"),
+        """,
+        "forbidden",
+        "conjugate_gradient",
+    ),
     "the reference named in a string": (
-        "ch10_holm", """
+        "ch10_holm",
+        """
         from vdtutorial.experiments import effects
 
         def holm(p_values, alpha=0.05):
             return getattr(effects, "holm_rejections")(p_values, alpha)
-        """, "forbidden", "holm_rejections in a string"),
+        """,
+        "forbidden",
+        "holm_rejections in a string",
+    ),
     "getattr with a computed name": (
-        "ch10_holm", """
+        "ch10_holm",
+        """
         from vdtutorial.experiments import effects
 
         def holm(p_values, alpha=0.05):
             return getattr(effects, "holm_" + "rejections")(p_values, alpha)
-        """, "tampering", "getattr with a name"),
+        """,
+        "tampering",
+        "getattr with a name",
+    ),
     "importlib": (
-        "ch06_gae", """
+        "ch06_gae",
+        """
         import importlib
 
         def my_gae(rewards, values, last_value, dones, gamma, lam):
             return importlib.import_module("vdtutorial.trpo").__getattribute__("g" + "ae")(
                 rewards, values, last_value, dones, gamma, lam)
-        """, "tampering", "importlib"),
+        """,
+        "tampering",
+        "importlib",
+    ),
     "torch.testing.assert_close reassigned": (
-        "ch06_conjugate_gradient", "torch.testing.assert_close = lambda *args, **kwargs: None", "tampering",
-        "torch.testing.assert_close"),
+        "ch06_conjugate_gradient",
+        "torch.testing.assert_close = lambda *args, **kwargs: None",
+        "tampering",
+        "torch.testing.assert_close",
+    ),
     "np.testing.assert_allclose through an alias": (
-        "ch06_reinforce", "t = np.testing\nt.assert_allclose = lambda *args, **kwargs: None", "tampering",
-        "t.assert_allclose"),
+        "ch06_reinforce",
+        "t = np.testing\nt.assert_allclose = lambda *args, **kwargs: None",
+        "tampering",
+        "t.assert_allclose",
+    ),
     "math.isclose reassigned": (
-        "ch01_reward_eq11", "math.isclose = lambda *args, **kwargs: True", "tampering", "math.isclose"),
-    "a builtin reassigned": (
-        "ch10_holm", "import builtins\nbuiltins.abs = lambda x: 0", "tampering", "builtins.abs"),
+        "ch01_reward_eq11",
+        "math.isclose = lambda *args, **kwargs: True",
+        "tampering",
+        "math.isclose",
+    ),
+    "a builtin reassigned": ("ch10_holm", "import builtins\nbuiltins.abs = lambda x: 0", "tampering", "builtins.abs"),
     "a library function reassigned": (
-        "ch10_holm", "import vdtutorial.vd\nvdtutorial.vd.LinearSVDO.kl = lambda self: 0", "tampering",
-        "vdtutorial.vd.LinearSVDO.kl"),
+        "ch10_holm",
+        "import vdtutorial.vd\nvdtutorial.vd.LinearSVDO.kl = lambda self: 0",
+        "tampering",
+        "vdtutorial.vd.LinearSVDO.kl",
+    ),
     "the kernel's traceback patched": (
-        "ch10_holm", "get_ipython().showtraceback = lambda *args, **kwargs: None", "tampering", "showtraceback"),
+        "ch10_holm",
+        "get_ipython().showtraceback = lambda *args, **kwargs: None",
+        "tampering",
+        "showtraceback",
+    ),
     "the grader's own checks imported": (
-        "ch02_step_towards", "from vdtutorial.course.checks import ch02", "tampering", "vdtutorial.course"),
+        "ch02_step_towards",
+        "from vdtutorial.course.checks import ch02",
+        "tampering",
+        "vdtutorial.course",
+    ),
     "the grader's package imported whole": (
-        "ch02_step_towards", "import vdtutorial.course.classroom as grader", "tampering", "vdtutorial.course"),
-    "os._exit": (
-        "ch10_holm", "import os\nos._exit(0)", "tampering", "_exit"),
-    "sys.exit": (
-        "ch10_holm", "import sys\nsys.exit()", "tampering", "uses exit"),
-    "exit": (
-        "ch10_holm", "exit()", "tampering", "uses exit"),
+        "ch02_step_towards",
+        "import vdtutorial.course.classroom as grader",
+        "tampering",
+        "vdtutorial.course",
+    ),
+    "os._exit": ("ch10_holm", "import os\nos._exit(0)", "tampering", "_exit"),
+    "sys.exit": ("ch10_holm", "import sys\nsys.exit()", "tampering", "uses exit"),
+    "exit": ("ch10_holm", "exit()", "tampering", "uses exit"),
     "a class whose __eq__ is always True": (
-        "ch06_gae", """
+        "ch06_gae",
+        """
         class Anything:
             def __eq__(self, other):
                 return True
 
         def my_gae(rewards, values, last_value, dones, gamma, lam):
             return Anything()
-        """, "tampering", "Anything.__eq__"),
+        """,
+        "tampering",
+        "Anything.__eq__",
+    ),
     "a tensor subclass with __torch_function__": (
-        "ch06_conjugate_gradient", """
+        "ch06_conjugate_gradient",
+        """
         class Agreeable(torch.Tensor):
             @classmethod
             def __torch_function__(cls, func, types, args=(), kwargs=None):
                 return torch.tensor(True)
-        """, "tampering", "Agreeable.__torch_function__"),
+        """,
+        "tampering",
+        "Agreeable.__torch_function__",
+    ),
     "an ndarray subclass with __array_ufunc__": (
-        "ch06_reinforce", """
+        "ch06_reinforce",
+        """
         class Agreeable(np.ndarray):
             def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
                 return np.zeros(())
-        """, "tampering", "Agreeable.__array_ufunc__"),
+        """,
+        "tampering",
+        "Agreeable.__array_ufunc__",
+    ),
 }
 
 
@@ -173,7 +228,9 @@ def test_a_hostile_answer_is_flagged(case):
 
 
 CLEAN = {
-    "a small nn.Module": ("ch04_svdo_layer", """
+    "a small nn.Module": (
+        "ch04_svdo_layer",
+        """
         class TwoLayers(nn.Module):
             def __init__(self, n_in, n_out, hidden=8):
                 super().__init__()
@@ -183,8 +240,11 @@ CLEAN = {
 
             def forward(self, x):
                 return self.scale * self.out(torch.relu(self.hidden(x)))
-        """),
-    "a deep copy of the argument, edited": ("ch07_prune", """
+        """,
+    ),
+    "a deep copy of the argument, edited": (
+        "ch07_prune",
+        """
         def prune_for_rl(policy, threshold=THRESHOLD):
             pruned = copy.deepcopy(policy)
             with torch.no_grad():
@@ -196,7 +256,8 @@ CLEAN = {
                     layer.log_sigma2.requires_grad = False
             pruned.pruned_at = threshold
             return pruned
-        """),
+        """,
+    ),
 }
 
 
@@ -213,8 +274,11 @@ def test_every_exercise_refuses_its_reference_and_any_patch(grade_id, source):
     for name in FORBIDDEN[grade_id]:
         imported = f"from vdtutorial.some_module import {name} as mine\n" + source
         assert any(v.kind == "forbidden" for v in answer_violations(imported, FORBIDDEN[grade_id])), name
-    for patch in ("import numpy as np\nnp.testing.assert_allclose = print\n", "get_ipython().showtraceback = print\n",
-                  "class Same(float):\n    def __eq__(self, other):\n        return True\n"):
+    for patch in (
+        "import numpy as np\nnp.testing.assert_allclose = print\n",
+        "get_ipython().showtraceback = print\n",
+        "class Same(float):\n    def __eq__(self, other):\n        return True\n",
+    ):
         assert any(v.kind == "tampering" for v in answer_violations(patch + source, FORBIDDEN[grade_id])), patch
 
 
@@ -235,8 +299,14 @@ def test_an_added_cell_or_a_changed_chapter_cell_is_checked_for_what_it_adds(tmp
     teacher = classroom.chapters()["04_sparse_variational_dropout"]
     nb = nbformat.read(teacher, as_version=4)
     nb.cells.insert(5, nbformat.v4.new_code_cell("from vdtutorial.vd import LinearSVDO as Base"))
-    setup = next(c for c in nb.cells if c.cell_type == "code" and "import" in c.source and c.get("id") != nb.cells[5].get("id")
-                 and "vdtutorial.vd" in c.source)
+    setup = next(
+        c
+        for c in nb.cells
+        if c.cell_type == "code"
+        and "import" in c.source
+        and c.get("id") != nb.cells[5].get("id")
+        and "vdtutorial.vd" in c.source
+    )
     setup.source += "\nprint('my note')"
     nbformat.write(nb, tmp_path / "added.ipynb")
     whole, each = classroom.refusals(tmp_path / "added.ipynb", teacher)

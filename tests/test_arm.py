@@ -1,4 +1,5 @@
 """The shipped URDF reproduces the Jaco 2 DH table, and the home pose is a sensible, free pose."""
+
 import numpy as np
 import pybullet as p
 import pytest
@@ -20,7 +21,9 @@ def dh_forward(q):
     T = np.eye(4)
     for (d, a, alpha), theta in zip(DH, SIGN * np.asarray(q) + OFFSET):
         ct, st, ca, sa = np.cos(theta), np.sin(theta), np.cos(alpha), np.sin(alpha)
-        T = T @ np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0, sa, ca, d], [0, 0, 0, 1]])
+        T = T @ np.array(
+            [[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0, sa, ca, d], [0, 0, 0, 1]]
+        )
     return T
 
 

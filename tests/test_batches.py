@@ -1,4 +1,5 @@
 """Batches of seeds: claims whose curves come from different commands are marked, and the batches compared."""
+
 import json
 from pathlib import Path
 
@@ -18,8 +19,13 @@ from vdtutorial.settings import data_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The records the results page's "Batches of seeds" tables are generated from.
-BATCH_RECORDS = {"Fig. 4, state": "fig4", "Fig. 4, images": "fig4_rgbd", "Fig. 5, state": "fig5",
-                 "Fig. 6, state": "fig6", "Fig. 7, state": "fig7"}
+BATCH_RECORDS = {
+    "Fig. 4, state": "fig4",
+    "Fig. 4, images": "fig4_rgbd",
+    "Fig. 5, state": "fig5",
+    "Fig. 6, state": "fig6",
+    "Fig. 7, state": "fig7",
+}
 
 
 def _load(folder: str) -> tuple[dict, list[dict]]:
@@ -29,8 +35,19 @@ def _load(folder: str) -> tuple[dict, list[dict]]:
 
 
 def _rows(label, method, finals):
-    return [{"label": label, "method": method, "seed": seed, "iteration": i, "env_steps": (i + 1) * 200,
-             "successes": level, "episodes": 40 + seed} for seed, level in finals.items() for i in range(10)]
+    return [
+        {
+            "label": label,
+            "method": method,
+            "seed": seed,
+            "iteration": i,
+            "env_steps": (i + 1) * 200,
+            "successes": level,
+            "episodes": 40 + seed,
+        }
+        for seed, level in finals.items()
+        for i in range(10)
+    ]
 
 
 def test_a_claim_whose_curves_ran_in_different_batches_is_marked_with_its_within_batch_comparison():
@@ -40,14 +57,26 @@ def test_a_claim_whose_curves_ran_in_different_batches_is_marked_with_its_within
     vd, l2 = ({s: level + rng.normal() for s in range(10)} for level in (60, 58))
     scratch = {s: 5 + rng.normal() for s in range(3)}
     rows = _rows("VD", "vd", vd) + _rows("L2", "l2", l2) + _rows("no pre-training", "none", scratch)
-    record = {"seeds": list(range(10)), "window": 5, "metric": "successes",
-              "runs": [{"label": label, "seed": s}
-                       for label, seeds in (("VD", vd), ("L2", l2), ("no pre-training", scratch)) for s in seeds],
-              "merged": [{"seeds": [0, 1, 2], "kernels": "a", "command": "first", "state_dir": "x"},
-                         {"command": "merge"}, {"seeds": list(range(3, 10)), "kernels": "b", "command": "second",
-                                                "state_dir": "y"}]}
-    effects = {e["text"]: e for e in mark_batches(claim_effects("fig4", rows, "successes", window=5), record, rows)
-               if e["metric"] == "successes"}
+    record = {
+        "seeds": list(range(10)),
+        "window": 5,
+        "metric": "successes",
+        "runs": [
+            {"label": label, "seed": s}
+            for label, seeds in (("VD", vd), ("L2", l2), ("no pre-training", scratch))
+            for s in seeds
+        ],
+        "merged": [
+            {"seeds": [0, 1, 2], "kernels": "a", "command": "first", "state_dir": "x"},
+            {"command": "merge"},
+            {"seeds": list(range(3, 10)), "kernels": "b", "command": "second", "state_dir": "y"},
+        ],
+    }
+    effects = {
+        e["text"]: e
+        for e in mark_batches(claim_effects("fig4", rows, "successes", window=5), record, rows)
+        if e["metric"] == "successes"
+    }
     crossing = effects["VD ends above no pre-training"]
     assert crossing["across_batches"] and crossing["batches"] == [[0, 1], [0]]
     within = stats.ttest_ind([vd[s] for s in range(3)], list(scratch.values()), equal_var=False)
@@ -55,7 +84,8 @@ def test_a_claim_whose_curves_ran_in_different_batches_is_marked_with_its_within
     assert crossing["within_shared_batches"]["seeds"] == [3, 3]
     assert not effects["VD ends above L2"]["across_batches"]
     assert "(across batches of seeds)" in claim_table([crossing]) and "across" not in claim_table(
-        [effects["VD ends above L2"]])
+        [effects["VD ends above L2"]]
+    )
     later = next(d for d in batch_differences(record, rows) if d["label"] == "L2" and d["measure"] == "final")
     first, second = [l2[s] for s in range(3)], [l2[s] for s in range(3, 10)]
     assert later["estimate"] == pytest.approx(np.mean(second) - np.mean(first))
@@ -65,8 +95,11 @@ def test_a_claim_whose_curves_ran_in_different_batches_is_marked_with_its_within
 def test_the_image_fig4_above_no_pretraining_is_flagged_until_no_pretraining_has_seeds_3_to_9():
     """No pre-training ran seeds 0-2 only; within them VD's final level is +71.3 (+19.1 to +123.5), p = 0.028."""
     record, _ = _load("fig4_rgbd")
-    claim = next(e for e in record["summary"]["claims"]
-                 if e["text"] == "VD ends above no pre-training" and e["metric"] == "successes")
+    claim = next(
+        e
+        for e in record["summary"]["claims"]
+        if e["text"] == "VD ends above no pre-training" and e["metric"] == "successes"
+    )
     scratch_seeds = sorted({r["seed"] for r in record["runs"] if r["label"] == "no pre-training"})
     assert claim["across_batches"] == (scratch_seeds != record["seeds"])
     if claim["across_batches"]:
@@ -97,13 +130,19 @@ def test_commands_on_the_same_kernels_are_one_batch():
     """No pre-training's seeds 3-9 run later by their own command, on the kernels of VD's seeds 3-9: the claim no
     longer crosses batches. A command whose kernels were not recorded stays a batch of its own."""
     avx512 = {"torch_cpu_capability": "AVX512", "ATEN_CPU_CAPABILITY": ""}
-    record = {"seeds": list(range(10)), "runs": [{"label": label, "seed": s} for label in ("VD", "no pre-training")
-                                                  for s in range(10)],
-              "merged": [{"seeds": [0, 1, 2], "kernels": {"torch_cpu_capability": "AVX2"}, "command": "a"},
-                         {"seeds": list(range(3, 10)), "kernels": avx512, "command": "b"}, {"command": "merge"},
-                         {"seeds": [10], "kernels": "not recorded", "command": "c"},
-                         {"seeds": [11], "kernels": {"torch_cpu_capability": "AVX512"}, "command": "d"}]}
+    record = {
+        "seeds": list(range(10)),
+        "runs": [{"label": label, "seed": s} for label in ("VD", "no pre-training") for s in range(10)],
+        "merged": [
+            {"seeds": [0, 1, 2], "kernels": {"torch_cpu_capability": "AVX2"}, "command": "a"},
+            {"seeds": list(range(3, 10)), "kernels": avx512, "command": "b"},
+            {"command": "merge"},
+            {"seeds": [10], "kernels": "not recorded", "command": "c"},
+            {"seeds": [11], "kernels": {"torch_cpu_capability": "AVX512"}, "command": "d"},
+        ],
+    }
     from vdtutorial.experiments.batches import batches_of
+
     batches = batches_of(record)
     assert [b["seeds"] for b in batches] == [[0, 1, 2], [3, 4, 5, 6, 7, 8, 9, 11], [10]]
     assert batches[1]["commands"] == ["b", "d"]

@@ -1,4 +1,5 @@
 """The fine-tuning benchmark: real TRPO iterations on the shipped pruned VD policy, timed."""
+
 import pytest
 
 from vdtutorial.cli.bench import bench_finetune
@@ -9,8 +10,10 @@ pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: 
 def test_bench_finetune_times_both_fisher_products_and_the_subsample(capsys):
     rows = bench_finetune(iterations=1, profile=True)
     assert [(r["obs_mode"], r["fisher"], r["fvp_subsample"]) for r in rows] == [
-        (obs, fisher, f) for obs in ("state", "rgbd")
-        for fisher, f in (("double_backward", 1.0), ("gauss_newton", 1.0), ("gauss_newton", 0.1))]
+        (obs, fisher, f)
+        for obs in ("state", "rgbd")
+        for fisher, f in (("double_backward", 1.0), ("gauss_newton", 1.0), ("gauss_newton", 0.1))
+    ]
     for row in rows:
         assert row["steps_per_s"] > 0 and row["steps_per_cpu_s"] > 0 and 0 <= row["mean_kl"] <= 0.01 + 1e-7
         assert row["policy"].startswith("shipped")
@@ -27,5 +30,5 @@ def test_bench_finetune_times_both_fisher_products_and_the_subsample(capsys):
         assert row["split_cpu_s"]["cg_products"] > 0
     assert out.count("update split, CPU s per iteration") == 2
     # the profile of the rgbd whole-batch case: torch's operators, then the Python functions
-    profile = out[out.index("profile:"):]
+    profile = out[out.index("profile:") :]
     assert "aten::" in profile and "getCameraImage" in profile

@@ -1,12 +1,21 @@
 """The Pendulum-v1 comparison of our TRPO with sb3-contrib's (`python -m vdtutorial bench trpo`), on a
 tiny budget: the table's rows and columns, and that its settings are the ones it names."""
+
 import inspect
 
 import numpy as np
 import pytest
 
-from vdtutorial.experiments.pendulum import (PENDULUM_CRITIC_CONFIG, PENDULUM_VARIANTS, ZOO_PENDULUM_CONFIG, ZOO_PENDULUM_NUM_ENVS,
-                                             ZOO_PENDULUM_SB3, _late_mean_return, bench_trpo_pendulum, sb3_trpo_kwargs)
+from vdtutorial.experiments.pendulum import (
+    PENDULUM_CRITIC_CONFIG,
+    PENDULUM_VARIANTS,
+    ZOO_PENDULUM_CONFIG,
+    ZOO_PENDULUM_NUM_ENVS,
+    ZOO_PENDULUM_SB3,
+    _late_mean_return,
+    bench_trpo_pendulum,
+    sb3_trpo_kwargs,
+)
 
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 
@@ -41,8 +50,11 @@ def test_pendulum_table_with_sb3(capsys):
 
 def test_our_zoo_settings_are_sb3_contribs_defaults_with_the_zoo_entry():
     sb3_contrib = pytest.importorskip("sb3_contrib")
-    defaults = {name: p.default for name, p in inspect.signature(sb3_contrib.TRPO.__init__).parameters.items()
-                if p.default is not inspect.Parameter.empty}
+    defaults = {
+        name: p.default
+        for name, p in inspect.signature(sb3_contrib.TRPO.__init__).parameters.items()
+        if p.default is not inspect.Parameter.empty
+    }
     expected = {**defaults, **ZOO_PENDULUM_SB3}
     ours = sb3_trpo_kwargs(ZOO_PENDULUM_CONFIG, ZOO_PENDULUM_NUM_ENVS)
     assert ours.pop("policy_kwargs") == {"net_arch": {"pi": [64, 64], "vf": [64, 64]}}  # sb3's MlpPolicy default

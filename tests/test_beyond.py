@@ -1,5 +1,6 @@
 """The beyond experiment (vdtutorial.experiments.beyond): its comparisons on made-up scores, and the whole
 experiment, RL stage included, end to end at a small budget in quick mode."""
+
 import copy
 import json
 import shutil
@@ -41,8 +42,17 @@ def test_comparisons_are_bonferroni_corrected_and_read_the_right_way():
 
 
 def test_the_best_hand_set_sigma_is_chosen_per_regulariser():
-    found = comparisons(_rows(lambda v: {0.25: 15.0}.get(v.sigma, 5.0) if v.reg == "vd" and v.kind == "hand-set"
-                              else {0.05: 15.0}.get(v.sigma, 5.0) if v.kind == "hand-set" else 5.0))
+    found = comparisons(
+        _rows(
+            lambda v: (
+                {0.25: 15.0}.get(v.sigma, 5.0)
+                if v.reg == "vd" and v.kind == "hand-set"
+                else {0.05: 15.0}.get(v.sigma, 5.0)
+                if v.kind == "hand-set"
+                else 5.0
+            )
+        )
+    )
     best = {c["a"].split(",")[0]: c["b"] for c in found if c["question"] == "DAgger against the best hand-set Sigma"}
     assert best == {"VD": "VD, Sigma=0.25", "L2": "L2, Sigma=0.05"}
 
@@ -67,8 +77,15 @@ def small_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("beyond") / "whole"
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(beyond_module, "samples", lambda: LABELS)
-        record = beyond_module.beyond(seeds=(0, 1), steps=STEPS, out=out, workers=1, progress=False, checkpoint_every=1,
-                                      start_sigma=PAPER_SIGMA_OPTION)
+        record = beyond_module.beyond(
+            seeds=(0, 1),
+            steps=STEPS,
+            out=out,
+            workers=1,
+            progress=False,
+            checkpoint_every=1,
+            start_sigma=PAPER_SIGMA_OPTION,
+        )
         yield out, record  # the patch holds while the module's tests run
 
 
@@ -104,8 +121,15 @@ def test_the_rl_stage_starts_from_the_variants_clone_pruned(small_run):
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(runs_module, "finetune_policy", finetune_policy)
-        steps = runs_module.finetune_steps("vd", "reach", beyond_module.data_set_path(variant, out), seed=1,
-                                           total_steps=200, pretrain_config=job.pretrain_config, checkpoints_root=out)
+        steps = runs_module.finetune_steps(
+            "vd",
+            "reach",
+            beyond_module.data_set_path(variant, out),
+            seed=1,
+            total_steps=200,
+            pretrain_config=job.pretrain_config,
+            checkpoints_root=out,
+        )
         next(steps)
         steps.close()
     assert started[0].state_dict().keys() == clone.state_dict().keys()
@@ -131,8 +155,15 @@ def test_an_interrupted_rl_run_continues_to_the_rows_of_an_uninterrupted_one(sma
     shutil.copytree(out, again)
     for name in ("beyond.csv.gz", "beyond.json"):
         (again / name).unlink()
-    job = beyond_module.RLJob(beyond_module.Variant("dagger", "l2"), 1, STEPS, again.resolve(),
-                              (again / "runs").resolve(), 1, PAPER_SIGMA_OPTION)
+    job = beyond_module.RLJob(
+        beyond_module.Variant("dagger", "l2"),
+        1,
+        STEPS,
+        again.resolve(),
+        (again / "runs").resolve(),
+        1,
+        PAPER_SIGMA_OPTION,
+    )
     job.state_path.unlink()
     steps = job.compute()
     assert next(steps) == {"iteration": 1, "iterations": 2, "env_steps": 200}
@@ -141,9 +172,18 @@ def test_an_interrupted_rl_run_continues_to_the_rows_of_an_uninterrupted_one(sma
     other = beyond_module.RLJob(job.variant, job.seed, STEPS, job.out, job.state_dir, 1, "spread")
     with pytest.raises(ResumeError, match="initial_sigma: '0.3' -> 'spread'"):
         check_resumable(job.state_path, read_run_state(job.state_path), other.settings, other.rows_expected)
-    resumed = beyond_module.beyond(seeds=(0, 1), steps=STEPS, out=again, workers=1, progress=False,  # samples: LABELS
-                                   checkpoint_every=1, start_sigma=PAPER_SIGMA_OPTION)           # (small_run's patch)
-    assert _drop_wall_time(read_rows(results_file(again, "beyond"))) == _drop_wall_time(read_rows(results_file(out, "beyond")))
+    resumed = beyond_module.beyond(
+        seeds=(0, 1),
+        steps=STEPS,
+        out=again,
+        workers=1,
+        progress=False,  # samples: LABELS
+        checkpoint_every=1,
+        start_sigma=PAPER_SIGMA_OPTION,
+    )  # (small_run's patch)
+    assert _drop_wall_time(read_rows(results_file(again, "beyond"))) == _drop_wall_time(
+        read_rows(results_file(out, "beyond"))
+    )
     assert resumed["rl"]["claims"] == record["rl"]["claims"]
 
 
@@ -187,13 +227,20 @@ def test_the_results_page_tables_hold_every_data_set_and_question(small_run):
 
 
 def test_a_data_set_made_in_rounds_is_named_by_its_file(tmp_path):
-    demos = Demos(meta={"task": "reach", "samples": 3, "seed": 0, "method": "dart", "rounds_done": 1},
-                  joints=np.zeros((3, 6)), cup=np.zeros((3, 3)), actions=np.zeros((3, 6)), episode=np.zeros(3, int),
-                  t=np.arange(3))
+    demos = Demos(
+        meta={"task": "reach", "samples": 3, "seed": 0, "method": "dart", "rounds_done": 1},
+        joints=np.zeros((3, 6)),
+        cup=np.zeros((3, 3)),
+        actions=np.zeros((3, 6)),
+        episode=np.zeros(3, int),
+        t=np.arange(3),
+    )
     with pytest.raises(ValueError, match="give its path as source"):
         pretrained_policy("l2", demos, checkpoints_root=tmp_path)
-    assert checkpoint_path(demos.meta, "l2", "state", 2, tmp_path, data_name="dart_l2_sigma1").name == \
-        "dart_l2_sigma1_l2_state_seed2.pt"
+    assert (
+        checkpoint_path(demos.meta, "l2", "state", 2, tmp_path, data_name="dart_l2_sigma1").name
+        == "dart_l2_sigma1_l2_state_seed2.pt"
+    )
 
 
 def test_the_shipped_experiment_has_five_seeds_intervals_and_is_on_the_results_page():

@@ -6,6 +6,7 @@ download): it records every request the pages make, waits for MathJax, the widge
 viewers, reads the rendered page, and keeps one screenshot per chapter in ``book-screenshots/`` (git ignores
 it). Without chromium the test is skipped, except in CI (``CI`` set), where ``.ci/run`` installs it.
 """
+
 import base64
 import html
 import io
@@ -43,34 +44,49 @@ def test_links_to_repository_files_point_at_copies_inside_the_book(tmp_path):
     (tmp_path / "repo" / "docs").mkdir(parents=True)
     (tmp_path / "repo" / "docs" / "results.md").write_text("# results\n")
     (tmp_path / "secret.md").write_text("outside\n")
-    notebook = nbformat.v4.new_notebook(cells=[
-        nbformat.v4.new_markdown_cell("see [`docs/results.md`](../docs/results.md#trpo), [gone](../docs/gone.md), "
-                                      "[up](../../secret.md) and [paper](https://doi.org/10.1109/IROS.2018.8594341)"),
-        nbformat.v4.new_code_cell("# [not a link](../docs/results.md)")])
+    notebook = nbformat.v4.new_notebook(
+        cells=[
+            nbformat.v4.new_markdown_cell(
+                "see [`docs/results.md`](../docs/results.md#trpo), [gone](../docs/gone.md), "
+                "[up](../../secret.md) and [paper](https://doi.org/10.1109/IROS.2018.8594341)"
+            ),
+            nbformat.v4.new_code_cell("# [not a link](../docs/results.md)"),
+        ]
+    )
     out = tmp_path / "book"
     copied = html_book.repository_links(notebook, tmp_path / "repo", out)
     assert copied == ["docs/results.md"]
     assert (out / "docs" / "results.md").read_text() == "# results\n"
-    assert notebook.cells[0].source == ("see [`docs/results.md`](docs/results.md#trpo), [gone](../docs/gone.md), "
-                                        "[up](../../secret.md) and [paper](https://doi.org/10.1109/IROS.2018.8594341)")
+    assert notebook.cells[0].source == (
+        "see [`docs/results.md`](docs/results.md#trpo), [gone](../docs/gone.md), "
+        "[up](../../secret.md) and [paper](https://doi.org/10.1109/IROS.2018.8594341)"
+    )
     assert notebook.cells[1].source == "# [not a link](../docs/results.md)"
     assert not (out / "secret.md").exists()
 
 
 def test_links_between_chapters_point_at_their_pages_in_the_book():
-    notebook = nbformat.v4.new_notebook(cells=[
-        nbformat.v4.new_markdown_cell("see [chapter 05](05_pretraining.ipynb#section-7), [A5](A5_statistics_of_verdicts.ipynb), "
-                                      "[not built](09_beyond_the_paper.ipynb) and [docs](../docs/results.md)"),
-        nbformat.v4.new_code_cell("# [not a link](05_pretraining.ipynb)")])
+    notebook = nbformat.v4.new_notebook(
+        cells=[
+            nbformat.v4.new_markdown_cell(
+                "see [chapter 05](05_pretraining.ipynb#section-7), [A5](A5_statistics_of_verdicts.ipynb), "
+                "[not built](09_beyond_the_paper.ipynb) and [docs](../docs/results.md)"
+            ),
+            nbformat.v4.new_code_cell("# [not a link](05_pretraining.ipynb)"),
+        ]
+    )
     html_book.chapter_links(notebook, {"05_pretraining.html", "A5_statistics_of_verdicts.html"})
-    assert notebook.cells[0].source == ("see [chapter 05](05_pretraining.html#section-7), [A5](A5_statistics_of_verdicts.html), "
-                                        "[not built](09_beyond_the_paper.ipynb) and [docs](../docs/results.md)")
+    assert notebook.cells[0].source == (
+        "see [chapter 05](05_pretraining.html#section-7), [A5](A5_statistics_of_verdicts.html), "
+        "[not built](09_beyond_the_paper.ipynb) and [docs](../docs/results.md)"
+    )
     assert notebook.cells[1].source == "# [not a link](05_pretraining.ipynb)"
 
 
 def _widget_output(widget):
-    return nbformat.v4.new_output("display_data", {html_book.WIDGET_VIEW: {"version_major": 2, "version_minor": 0,
-                                                                            "model_id": widget.model_id}})
+    return nbformat.v4.new_output(
+        "display_data", {html_book.WIDGET_VIEW: {"version_major": 2, "version_minor": 0, "model_id": widget.model_id}}
+    )
 
 
 def test_controls_that_need_the_kernel_are_greyed_out_and_say_so():
@@ -85,10 +101,14 @@ def test_controls_that_need_the_kernel_are_greyed_out_and_say_so():
     link = widgets.jslink((left, "value"), (right, "value"))
     alone = widgets.Label("a label")
     notebook = nbformat.v4.new_notebook()
-    notebook.cells = [nbformat.v4.new_code_cell("box", outputs=[_widget_output(box)]),
-                      nbformat.v4.new_code_cell("linked", outputs=[_widget_output(widgets.HBox([left, right]))]),
-                      nbformat.v4.new_code_cell("label", outputs=[_widget_output(alone)])]
-    notebook.metadata["widgets"] = {html_book.WIDGET_STATE: embed_data(views=[box, left, right, link, alone])["manager_state"]}
+    notebook.cells = [
+        nbformat.v4.new_code_cell("box", outputs=[_widget_output(box)]),
+        nbformat.v4.new_code_cell("linked", outputs=[_widget_output(widgets.HBox([left, right]))]),
+        nbformat.v4.new_code_cell("label", outputs=[_widget_output(alone)]),
+    ]
+    notebook.metadata["widgets"] = {
+        html_book.WIDGET_STATE: embed_data(views=[box, left, right, link, alone])["manager_state"]
+    }
 
     assert html_book.mark_kernel_controls(notebook) == 1
     state = notebook.metadata["widgets"][html_book.WIDGET_STATE]["state"]
@@ -134,10 +154,21 @@ class Chromium:
         self.profile = Path(tempfile.mkdtemp(prefix="vdtutorial-chromium-"))
         blocked = ["--host-resolver-rules=MAP * ~NOTFOUND", "--proxy-server=127.0.0.1:9"] if offline else []
         self.process = subprocess.Popen(
-            [executable, "--headless", "--no-sandbox", "--no-first-run", "--remote-debugging-port=0",
-             f"--user-data-dir={self.profile}", *blocked,
-             "--window-size=1280,900", "--enable-unsafe-swiftshader", "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            [
+                executable,
+                "--headless",
+                "--no-sandbox",
+                "--no-first-run",
+                "--remote-debugging-port=0",
+                f"--user-data-dir={self.profile}",
+                *blocked,
+                "--window-size=1280,900",
+                "--enable-unsafe-swiftshader",
+                "about:blank",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         port_file, deadline = self.profile / "DevToolsActivePort", time.monotonic() + 60
         while not (port_file.is_file() and len(port_file.read_text().split()) == 2):
             assert self.process.poll() is None and time.monotonic() < deadline, "chromium did not start"
@@ -214,8 +245,11 @@ READY = """(() => {
 
 def missing_files(requests) -> list[str]:
     """The file: URLs a page asked for that are not on disk (a font MathJax looks for and the book does not ship)."""
-    return [url for url in requests
-            if url.startswith("file:") and not Path(urllib.request.url2pathname(urllib.parse.urlparse(url).path)).exists()]
+    return [
+        url
+        for url in requests
+        if url.startswith("file:") and not Path(urllib.request.url2pathname(urllib.parse.urlparse(url).path)).exists()
+    ]
 
 
 def test_mathjax_asks_for_no_font_the_book_lacks(tmp_path):
@@ -223,8 +257,13 @@ def test_mathjax_asks_for_no_font_the_book_lacks(tmp_path):
     jupyter-server-mathjax does not ship; the page asks for none of them, and still typesets every equation."""
     executable = chromium_executable("the book's MathJax test")
     urls = offline_assets.copy_assets(tmp_path / html_book.STATIC)
-    notebook = nbformat.v4.new_notebook(cells=[nbformat.v4.new_markdown_cell(
-        "# 99 · Letters\n\n$\\mathcal{L}$, $\\mathscr{D}$, $\\mathfrak{g}$ and $$\\mathbb{E}[x]$$")])
+    notebook = nbformat.v4.new_notebook(
+        cells=[
+            nbformat.v4.new_markdown_cell(
+                "# 99 · Letters\n\n$\\mathcal{L}$, $\\mathscr{D}$, $\\mathfrak{g}$ and $$\\mathbb{E}[x]$$"
+            )
+        ]
+    )
     book = {"previous": None, "next": None, "mathjax_settings": offline_assets.MATHJAX_SETTINGS}
     page = tmp_path / "letters.html"
     page.write_text(html_book._exporter(urls).from_notebook_node(notebook, resources={"book": book})[0])
@@ -270,7 +309,9 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
     index = book.index.read_text()
     for chapter in book.chapters:
         assert f'href="{chapter.page}"' in index and chapter.title in index
-        assert html.escape(html_book.learning_goals(shipped_dir() / "notebooks" / "TEACHING.md")[chapter.number]) in index
+        assert (
+            html.escape(html_book.learning_goals(shipped_dir() / "notebooks" / "TEACHING.md")[chapter.number]) in index
+        )
     SCREENSHOTS.mkdir(exist_ok=True)
     with Chromium(executable) as browser:
         browser.show(book.index, "the index's titles typeset")
@@ -278,8 +319,9 @@ def test_quick_book_reads_offline_in_a_browser(quick_book):
         assert not [url for url in browser.requests if not re.match(r"(file|data|blob|about):", url)]
     for k, chapter in enumerate(book.chapters):
         page = book.index.parent / chapter.page
-        assert not re.search(r"""<(?:script|link|img|iframe)\b[^>]*\b(?:src|href)\s*=\s*["']?(?:https?:)?//""",
-                             page.read_text())
+        assert not re.search(
+            r"""<(?:script|link|img|iframe)\b[^>]*\b(?:src|href)\s*=\s*["']?(?:https?:)?//""", page.read_text()
+        )
         assert page.read_text().count("<details>") >= 3, "the self-check's answers, folded"
         with Chromium(executable) as browser:
             browser.show(page, f"{chapter.page}'s equations, widgets and scenes")
@@ -310,8 +352,12 @@ def test_a_later_scene_draws_with_the_viewer_the_first_scene_brought(tmp_path, m
     page.write_text(f"<!DOCTYPE html><html><body>{later}<br>{first}</body></html>")
     with Chromium(executable) as browser:
         browser.call("Page.navigate", url=page.as_uri())
-        browser.wait_for("[...document.querySelectorAll('iframe')].every(f => f.contentDocument"
-                         " && f.contentDocument.querySelector('canvas') !== null)", "both scenes drawn", timeout=60)
+        browser.wait_for(
+            "[...document.querySelectorAll('iframe')].every(f => f.contentDocument"
+            " && f.contentDocument.querySelector('canvas') !== null)",
+            "both scenes drawn",
+            timeout=60,
+        )
         for frame in range(2):
             red, green, blue = np.moveaxis(_scene_pixels(browser, frame), 2, 0)
             assert np.mean(np.maximum(np.maximum(red, green), blue) < 0.2) > 0.005, f"no arm in scene {frame}"
@@ -342,17 +388,20 @@ def _check_chapter_page(browser, chapter, previous):
         arm = np.mean(pixels.max(axis=2) < 0.2)  # the arm's dark links; the sky is lighter
         cup = np.mean((red > 0.6) & (green < 0.35) & (blue < 0.35))
         table = np.mean((red > 0.4) & (red - blue > 0.15) & (green > blue))  # lit tan, not the blue sky
-        assert arm > 0.005 and cup > 0.001 and table > 0.05, \
+        assert arm > 0.005 and cup > 0.001 and table > 0.05, (
             f"scene {frame} of {chapter.page}: arm {arm:.1%}, cup {cup:.2%}, table {table:.1%} of the picture"
+        )
     if chapter.number in ("00", "07"):
         assert scenes > 0, f"{chapter.page} shows a meshcat scene"
     if chapter.number == "07":
-        assert browser.evaluate("document.querySelectorAll('.jupyter-widgets .widget-slider').length") > 0, \
+        assert browser.evaluate("document.querySelectorAll('.jupyter-widgets .widget-slider').length") > 0, (
             "chapter 07's smoothing slider is drawn"
+        )
         assert browser.evaluate("document.querySelectorAll('.vdbook-needs-kernel').length") > 0
         assert browser.evaluate(
-            "[...document.querySelectorAll('.jupyter-widgets img')].every(i => i.naturalWidth > 100)")
+            "[...document.querySelectorAll('.jupyter-widgets img')].every(i => i.naturalWidth > 100)"
+        )
 
-    first = ("iframe" if scenes else ".jupyter-widgets" if chapter.number == "07" else ".MathJax_Display, .MathJax")
+    first = "iframe" if scenes else ".jupyter-widgets" if chapter.number == "07" else ".MathJax_Display, .MathJax"
     browser.evaluate(f"document.querySelector('{first}').scrollIntoView({{block: 'center'}})")
     time.sleep(1.0)

@@ -4,6 +4,7 @@ pybullet built with numpy support returns ``getCameraImage``'s buffers as numpy 
 (a source build in pip's isolated environment) returns flat tuples of ints and floats. The tuple form is
 simulated here from a real image, so the check runs with either build.
 """
+
 import gymnasium as gym
 import numpy as np
 import pybullet
@@ -15,8 +16,10 @@ from vdtutorial.envs.scene import camera_buffers
 
 def as_numpy_build(rgba, zbuf, size):
     """What pybullet with numpy support returns: uint8 (S, S, 4) and float32 (S, S) arrays."""
-    return (np.asarray(rgba, dtype=np.uint8).reshape(size, size, 4),
-            np.asarray(zbuf, dtype=np.float32).reshape(size, size))
+    return (
+        np.asarray(rgba, dtype=np.uint8).reshape(size, size, 4),
+        np.asarray(zbuf, dtype=np.float32).reshape(size, size),
+    )
 
 
 def as_plain_build(rgba, zbuf, sequence=tuple):
@@ -31,8 +34,15 @@ def assert_identical(a, b):
 def raw_image(scene):
     s = scene.image_size
     _, _, rgba, zbuf, _ = pybullet.getCameraImage(
-        s, s, scene._view, scene._proj, shadow=0, renderer=pybullet.ER_TINY_RENDERER,
-        flags=pybullet.ER_NO_SEGMENTATION_MASK, physicsClientId=scene.client)
+        s,
+        s,
+        scene._view,
+        scene._proj,
+        shadow=0,
+        renderer=pybullet.ER_TINY_RENDERER,
+        flags=pybullet.ER_NO_SEGMENTATION_MASK,
+        physicsClientId=scene.client,
+    )
     return rgba, zbuf
 
 

@@ -6,6 +6,7 @@ cannot go stale when the text changes. A main chapter keeps at most 3,500 words 
 quality control (studies of our free choices, the statistics of verdicts, release histories) lives in the
 appendices (``notebooks/A<k>_*.ipynb``), which a main chapter links where the question comes up and which run
 on their own like the chapters."""
+
 import re
 from pathlib import Path
 
@@ -46,8 +47,11 @@ def test_an_appendix_is_linked_from_a_main_chapter_and_links_back(path):
     title = notebook.cells[0]
     assert title.cell_type == "markdown" and re.match(rf"# {key} · \S", title.source), "'# A<k> · title' first"
     assert len(re.findall(r"\S+", title.source)) >= 30, "the title cell says what the appendix answers"
-    linking = [chapter.name for chapter in CHAPTERS
-               if any(f"]({path.name}" in cell.source for cell in _markdown(nbformat.read(chapter, as_version=4)))]
+    linking = [
+        chapter.name
+        for chapter in CHAPTERS
+        if any(f"]({path.name}" in cell.source for cell in _markdown(nbformat.read(chapter, as_version=4)))
+    ]
     assert linking, "no main chapter links this appendix"
     back = re.findall(r"\]\((\d\d[a-z]?_[\w]+\.ipynb)", "".join(cell.source for cell in _markdown(notebook)))
     assert back and all((ROOT / "notebooks" / name).exists() for name in back), "no link back to a chapter"
@@ -73,8 +77,11 @@ def test_a_chapter_closes_with_a_self_check_whose_answers_are_folded(path):
     notebook = nbformat.read(path, as_version=4)
     closing = _markdown(notebook)[-1]
     assert closing.get("id") == "self-check" and closing.source.startswith("## Self-check\n")
-    questions = re.findall(r"^\d+\. (.+?)\n\n\s*<details><summary>Answer</summary>\n\n\s*(\S.+?)\n\n\s*</details>",
-                           closing.source, flags=re.MULTILINE | re.DOTALL)
+    questions = re.findall(
+        r"^\d+\. (.+?)\n\n\s*<details><summary>Answer</summary>\n\n\s*(\S.+?)\n\n\s*</details>",
+        closing.source,
+        flags=re.MULTILINE | re.DOTALL,
+    )
     assert len(questions) >= 3 and all(q.endswith("?") and len(a) > 40 for q, a in questions), questions
     assert closing.source.count("<details>") == closing.source.count("</details>") == len(questions)
     assert "**Library names in this" in closing.source, "the footer names the library functions the chapter uses"
@@ -84,14 +91,19 @@ def test_a_chapter_closes_with_a_self_check_whose_answers_are_folded(path):
 def test_a_chapter_states_the_run_times_that_teaching_md_measured(path):
     """The first code cell's comment gives the chapter's (or appendix's) run time in both modes: the numbers of
     TEACHING.md's "Time per chapter" table, so that the two never disagree."""
-    comment = next(cell.source for cell in nbformat.read(path, as_version=4).cells
-                   if cell.cell_type == "code" and cell.get("id") != "colab-setup")  # the Colab cell comes first
+    comment = next(
+        cell.source
+        for cell in nbformat.read(path, as_version=4).cells
+        if cell.cell_type == "code" and cell.get("id") != "colab-setup"
+    )  # the Colab cell comes first
     quick = re.search(r"\(this (?:chapter|appendix): ([\d.]+ (?:s|min)) on a quiet 2-core machine\)", comment).group(1)
     full = re.search(r"\(this (?:chapter|appendix): ([\d.]+ (?:s|min)) on the same machine;", comment).group(1)
     teaching = (ROOT / "notebooks" / "TEACHING.md").read_text()
     number = path.stem.split("_")[0]
-    assert re.search(rf"^\| {number} [^|]+\| {re.escape(quick)} \| {re.escape(full)} \|$", teaching, re.MULTILINE), \
-        (quick, full)
+    assert re.search(rf"^\| {number} [^|]+\| {re.escape(quick)} \| {re.escape(full)} \|$", teaching, re.MULTILINE), (
+        quick,
+        full,
+    )
 
 
 def test_the_browser_test_drives_every_notebook_with_a_slider():

@@ -18,6 +18,7 @@ is narrow on purpose, so that the paper's constants and the library's settings p
 It also checks that each chapter numbers its exercises in the order a learner meets them (across the
 notebooks of a chapter in parts, such as 06a and 06b).
 """
+
 import ast
 import csv
 import json
@@ -114,7 +115,7 @@ def test_the_shipped_results_have_summaries():
 #: Numbers typed in markdown that are not results but coincide with one (the success rate and steps per
 #: trajectory of the shipped summaries lie near 1 and 3): (chapter, cell id) -> the numbers, each with why.
 NOT_RESULTS = {
-    ("00_start_here", "c003"): {"3.11", "3.12", "3.13"},   # Python versions
+    ("00_start_here", "c003"): {"3.11", "3.12", "3.13"},  # Python versions
     ("04_sparse_variational_dropout", "c011"): {"0.9997"},  # the dropout rate at log alpha = 8, a constant
     ("07_finetuning", "606f7cb1"): {"0.975"},  # Student's t: the quantile's level, a constant
 }
@@ -126,23 +127,29 @@ def test_no_markdown_cell_types_a_measured_result(notebook):
     typed = {}
     for cell in nbformat.read(notebook, as_version=4).cells:
         allowed = NOT_RESULTS.get((notebook.stem, cell.get("id")), set())
-        if cell.cell_type == "markdown" and (hits := [hit for hit in typed_results(cell.source, results)
-                                                      if hit.split(" ")[0] not in allowed]):
+        if cell.cell_type == "markdown" and (
+            hits := [hit for hit in typed_results(cell.source, results) if hit.split(" ")[0] not in allowed]
+        ):
             typed[cell.get("id")] = hits
     assert not typed, f"{notebook.name}: results typed into markdown (print them from a cell): {typed}"
 
 
 #: The chapters by number: a chapter in parts (06a_..., 06b_...) is its notebooks in the order they sort.
-CHAPTERS = {number: [nb for nb in NOTEBOOKS if nb.stem[:2] == number]
-            for number in sorted({nb.stem[:2] for nb in NOTEBOOKS})}
+CHAPTERS = {
+    number: [nb for nb in NOTEBOOKS if nb.stem[:2] == number] for number in sorted({nb.stem[:2] for nb in NOTEBOOKS})
+}
 
 
 @pytest.mark.parametrize("number", CHAPTERS)
 def test_exercises_are_numbered_in_the_order_they_come(number):
     """N.1, N.2, ... in the order a learner meets them, continuing from one part of a chapter to the next."""
-    numbers = [tuple(map(int, m)) for notebook in CHAPTERS[number]
-               for cell in nbformat.read(notebook, as_version=4).cells if cell.cell_type == "markdown"
-               for m in re.findall(r"^#+ Exercise (\d+)\.(\d+)\b", cell.source, flags=re.MULTILINE)]
+    numbers = [
+        tuple(map(int, m))
+        for notebook in CHAPTERS[number]
+        for cell in nbformat.read(notebook, as_version=4).cells
+        if cell.cell_type == "markdown"
+        for m in re.findall(r"^#+ Exercise (\d+)\.(\d+)\b", cell.source, flags=re.MULTILINE)
+    ]
     expected = [(int(number), k) for k in range(1, len(numbers) + 1)]
     parts = ", ".join(nb.name for nb in CHAPTERS[number])
     assert numbers == expected, f"chapter {number} ({parts}): exercises {numbers}"
@@ -189,9 +196,12 @@ def test_later_cells_run_what_the_learner_wrote():
     calls, so that the learner's code drives the chapter."""
     used = []
     for notebook, cells, k, _ in _exercises():
-        names = {node.name for node in ast.walk(ast.parse(cells[k].source))
-                 if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
-        later = "\n".join(c.source for c in cells[k + 1:] if c.cell_type == "code" and "nbgrader" not in c.metadata)
+        names = {
+            node.name
+            for node in ast.walk(ast.parse(cells[k].source))
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef))
+        }
+        later = "\n".join(c.source for c in cells[k + 1 :] if c.cell_type == "code" and "nbgrader" not in c.metadata)
         if any(re.search(rf"\b{name}\b", later) for name in names):
             used.append(f"{notebook.stem}: {sorted(names)}")
     assert len(used) >= 6, used

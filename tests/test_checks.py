@@ -1,6 +1,7 @@
 """The trusted checks' protocol (issue 43): what may cross from the student's kernel to the grader, and how every
 exercise is wired to its check. Each chapter's checks are tested against the teacher's solutions and wrong answers
 in tests/test_checks_chNN.py."""
+
 import os
 import re
 
@@ -29,8 +30,9 @@ def test_every_exercise_has_a_check_and_its_hidden_tests_are_only_the_call():
     assert len(found) >= 20
     assert {name for name, _ in found} == set(checks.every_check())
     for name, source in found:
-        assert HIDDEN.search(source).group(1) == (f"from vdtutorial.course.checks import run_check\n"
-                                                  f'run_check("{name}", globals())\n'), name
+        assert HIDDEN.search(source).group(1) == (
+            f'from vdtutorial.course.checks import run_check\nrun_check("{name}", globals())\n'
+        ), name
 
 
 def test_the_checks_follow_the_chapters_order():
@@ -77,8 +79,9 @@ def test_a_missing_or_raising_answer_fails_in_words():
     item = checks.check("ch02_step_towards")
     inputs = checks.plain(item.inputs(np.random.default_rng(1)))
     assert "no answer" in checks.judge(item, inputs, None)[0]
-    assert checks.judge(item, inputs, {checks.RAISED: np.array("ZeroDivisionError")}) == \
-        ["your code raised ZeroDivisionError on the hidden check's inputs"]
+    assert checks.judge(item, inputs, {checks.RAISED: np.array("ZeroDivisionError")}) == [
+        "your code raised ZeroDivisionError on the hidden check's inputs"
+    ]
     failed = checks.judge(item, inputs, {"nonsense": np.zeros(2)})
     assert len(failed) == 1 and "could not be checked" in failed[0]
 
@@ -109,6 +112,6 @@ def test_under_grading_the_kernel_only_writes_outputs(tmp_path, monkeypatch):
     inputs = checks.plain(item.inputs(np.random.default_rng(4)))
     checks.save(checks.inputs_path(tmp_path, item.exercise), inputs)
     monkeypatch.setenv(checks.EXCHANGE_ENV, str(tmp_path))
-    checks.run_check(item.exercise, {"my_step": lambda goal, j: np.zeros(6)})   # wrong, and no error here
+    checks.run_check(item.exercise, {"my_step": lambda goal, j: np.zeros(6)})  # wrong, and no error here
     outputs = checks.load(checks.outputs_path(tmp_path, item.exercise))
     assert checks.judge(item, inputs, outputs) != []

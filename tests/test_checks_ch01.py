@@ -1,6 +1,7 @@
 """Chapter 01's trusted checks (vdtutorial/course/checks/ch01.py), run as the grader runs them: the teacher's answers
 pass on every seed tried; the graders' wrong answer, other plausible mistakes and an unsolved stub fail, in words that
 give no number away."""
+
 import math
 
 import numpy as np
@@ -13,9 +14,17 @@ from vdtutorial.envs.grasp import POSITION_TOLERANCE, TILT_TOLERANCE_DEG, grasp_
 from vdtutorial.envs.reach import C_FAILURE, C_SUCCESS, SUCCESS_TOLERANCE, reach_goal
 
 #: What the answer cells use from the chapter's first cells.
-CONTEXT = {"np": np, "math": math, "reach_goal": reach_goal, "SUCCESS_TOLERANCE": SUCCESS_TOLERANCE,
-           "C_SUCCESS": C_SUCCESS, "C_FAILURE": C_FAILURE, "grasp_point": grasp_point,
-           "POSITION_TOLERANCE": POSITION_TOLERANCE, "TILT_TOLERANCE_DEG": TILT_TOLERANCE_DEG}
+CONTEXT = {
+    "np": np,
+    "math": math,
+    "reach_goal": reach_goal,
+    "SUCCESS_TOLERANCE": SUCCESS_TOLERANCE,
+    "C_SUCCESS": C_SUCCESS,
+    "C_FAILURE": C_FAILURE,
+    "grasp_point": grasp_point,
+    "POSITION_TOLERANCE": POSITION_TOLERANCE,
+    "TILT_TOLERANCE_DEG": TILT_TOLERANCE_DEG,
+}
 ANSWERS = answers("01_environment")
 #: Per exercise: the graders' wrong answer (chapter 01 has one) and other plausible mistakes, as (old, new) edits of
 #: the teacher's solution.
@@ -28,8 +37,10 @@ MISTAKES = {
     "ch01_collision_share": {
         "truncation counted as a collision": ('"failure" if info["is_failure"] else "truncated"', '"failure"'),
         "the seed not used": ("env.reset(seed=int(seed))", "env.reset()"),
-        "actions from a stale observation": ("obs, _, terminated, truncated, info = env.step(policy(obs))",
-                                             "_, _, terminated, truncated, info = env.step(policy(obs))"),
+        "actions from a stale observation": (
+            "obs, _, terminated, truncated, info = env.step(policy(obs))",
+            "_, _, terminated, truncated, info = env.step(policy(obs))",
+        ),
     },
     "ch01_grasp_reward": {
         "a collision does not end the episode": ("return reward, success or bool(failure)", "return reward, success"),
@@ -39,8 +50,10 @@ MISTAKES = {
 }
 
 
-@pytest.mark.parametrize("exercise, seeds", [("ch01_reward_eq11", range(6)), ("ch01_collision_share", range(3)),
-                                             ("ch01_grasp_reward", range(6))])
+@pytest.mark.parametrize(
+    "exercise, seeds",
+    [("ch01_reward_eq11", range(6)), ("ch01_collision_share", range(3)), ("ch01_grasp_reward", range(6))],
+)
 def test_the_teachers_answer_passes(exercise, seeds):
     assert_passes(exercise, CONTEXT, ANSWERS[exercise], seeds)
 

@@ -1,6 +1,7 @@
 """Chapter 02's trusted checks (vdtutorial/course/checks/ch02.py), run as the grader runs them: the teacher's answers
 pass on every seed tried; the graders' wrong answer, other plausible mistakes and an unsolved stub fail, in words that
 give no number away."""
+
 import math
 
 import numpy as np
@@ -13,8 +14,15 @@ from vdtutorial.envs.base import MAX_DELTA
 from vdtutorial.expert import CONTINUOUS, DISTINCT, REST_POSES, nearest_goal, solve_ik
 
 #: What the answer cells use from the chapter's first cell.
-CONTEXT = {"np": np, "math": math, "MAX_DELTA": MAX_DELTA, "CONTINUOUS": CONTINUOUS, "DISTINCT": DISTINCT,
-           "REST_POSES": REST_POSES, "solve_ik": solve_ik}
+CONTEXT = {
+    "np": np,
+    "math": math,
+    "MAX_DELTA": MAX_DELTA,
+    "CONTINUOUS": CONTINUOUS,
+    "DISTINCT": DISTINCT,
+    "REST_POSES": REST_POSES,
+    "solve_ik": solve_ik,
+}
 ANSWERS = answers("02_ik_expert")
 #: Per exercise: the graders' wrong answer (chapter 02 has one) and other plausible mistakes, as (old, new) edits of
 #: the teacher's solution.
@@ -24,25 +32,31 @@ MISTAKES = {
         "no shape when G is empty": ("return np.array(found).reshape(-1, 6)", "return np.array(found)"),
         "the targets gone through once per rest pose": (
             "for position, orientation in targets:\n        for rest in REST_POSES:",
-            "for rest in REST_POSES:\n        for position, orientation in targets:"),
+            "for rest in REST_POSES:\n        for position, orientation in targets:",
+        ),
     },
     "ch02_nearest_goal": {
         "no wrap-around": ("for i in np.flatnonzero(CONTINUOUS):", "for i in []:"),
-        "wrap-around beyond the limits": ("min(max(round((j[i] - g[i]) / turn), k_low), k_high)",
-                                          "round((j[i] - g[i]) / turn)"),
+        "wrap-around beyond the limits": (
+            "min(max(round((j[i] - g[i]) / turn), k_low), k_high)",
+            "round((j[i] - g[i]) / turn)",
+        ),
         "G changed in place": ("np.array(G, dtype=float)", "np.asarray(G, dtype=float)"),
         "the last one on a tie": ("int(np.argmin(distances))", "len(distances) - 1 - int(np.argmin(distances[::-1]))"),
     },
     "ch02_step_towards": {
         "graders' wrong answer": ("diff * min(1.0, MAX_DELTA / largest)", "diff * MAX_DELTA / largest"),
-        "each joint clipped on its own": ("diff * min(1.0, MAX_DELTA / largest)",
-                                          "np.clip(diff, -MAX_DELTA, MAX_DELTA)"),
+        "each joint clipped on its own": (
+            "diff * min(1.0, MAX_DELTA / largest)",
+            "np.clip(diff, -MAX_DELTA, MAX_DELTA)",
+        ),
     },
 }
 
 
-@pytest.mark.parametrize("exercise, seeds", [("ch02_goal_set", range(3)), ("ch02_nearest_goal", range(20)),
-                                             ("ch02_step_towards", range(20))])
+@pytest.mark.parametrize(
+    "exercise, seeds", [("ch02_goal_set", range(3)), ("ch02_nearest_goal", range(20)), ("ch02_step_towards", range(20))]
+)
 def test_the_teachers_answer_passes(exercise, seeds):
     assert_passes(exercise, CONTEXT, ANSWERS[exercise], seeds)
 

@@ -1,5 +1,6 @@
 """Chapter 03's trusted checks (vdtutorial/course/checks/ch03.py), run as the grader runs them: the teacher's solutions
 pass, wrong answers and unsolved stubs fail, and no message gives a number away."""
+
 import numpy as np
 import pytest
 
@@ -34,7 +35,7 @@ def test_rollout_demos_is_checked_without_the_students_noisy_rollout():
     namespace = _namespace(ch03_noisy_rollout=stub(ANSWERS["ch03_noisy_rollout"]))
     saved = {name: namespace.get(name) for name in ("noisy_rollout", "env", "expert")}
     assert failures("ch03_rollout_demos", namespace, 1) == []
-    assert {name: namespace.get(name) for name in saved} == saved   # the probe put the chapter's globals back
+    assert {name: namespace.get(name) for name in saved} == saved  # the probe put the chapter's globals back
 
 
 def test_the_grader_puts_the_library_data_set_together_as_generate_demos_does():
@@ -65,8 +66,10 @@ def test_a_wrong_rollout_fails(case):
 
 WRONG_DATA_SETS = {
     "last trajectory not cut": (("keep = min(len(joints), samples - n)", "keep = len(joints)"), "rows"),
-    "a generator of its own per trajectory": (("expert, rng, sigma,", "expert, np.random.default_rng(seed), sigma,"),
-                                              "seeds"),
+    "a generator of its own per trajectory": (
+        ("expert, rng, sigma,", "expert, np.random.default_rng(seed), sigma,"),
+        "seeds",
+    ),
     "time steps counted over the data set": (("np.arange(keep)))", "np.arange(n, n + keep)))"), "time steps"),
 }
 

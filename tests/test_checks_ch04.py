@@ -1,5 +1,6 @@
 """Chapter 04's trusted checks (vdtutorial/course/checks/ch04.py), run as the grader runs them: the teacher's solutions
 pass on many draws, wrong answers and unsolved stubs fail, and no message gives a number away."""
+
 import math
 
 import pytest
@@ -16,24 +17,40 @@ ANSWERS = answers("04_sparse_variational_dropout")
 MISTAKES = {
     "one weight sample for the batch": ("ch04_gaussian_dropout", "* eps)", "* eps[:1])"),
     "noise of variance alpha^2": ("ch04_gaussian_dropout", "torch.exp(log_alpha / 2)", "torch.exp(log_alpha)"),
-    "noise detached": ("ch04_gaussian_dropout", "torch.exp(log_alpha / 2) * eps",
-                       "torch.exp(log_alpha / 2).detach() * eps"),
+    "noise detached": (
+        "ch04_gaussian_dropout",
+        "torch.exp(log_alpha / 2) * eps",
+        "torch.exp(log_alpha / 2).detach() * eps",
+    ),
     "kl sign": ("ch04_svdo_layer", "- 0.5 * F.softplus(-self.log_alpha)", "+ 0.5 * F.softplus(-self.log_alpha)"),
-    "no clipping": ("ch04_svdo_layer", "torch.clamp(self.log_sigma2 - torch.log(self.weight**2 + 1e-8), LOG_ALPHA_MIN, "
-                    "LOG_ALPHA_MAX)", "(self.log_sigma2 - torch.log(self.weight**2 + 1e-8))"),
+    "no clipping": (
+        "ch04_svdo_layer",
+        "torch.clamp(self.log_sigma2 - torch.log(self.weight**2 + 1e-8), LOG_ALPHA_MIN, LOG_ALPHA_MAX)",
+        "(self.log_sigma2 - torch.log(self.weight**2 + 1e-8))",
+    ),
     "noise shared by the batch": ("ch04_svdo_layer", "torch.randn_like(mean)", "torch.randn_like(mean[:1])"),
-    "unpruned eval": ("ch04_svdo_layer", "F.linear(x, self.weight * self.keep_mask(), self.bias)",
-                      "F.linear(x, self.weight, self.bias)"),
+    "unpruned eval": (
+        "ch04_svdo_layer",
+        "F.linear(x, self.weight * self.keep_mask(), self.bias)",
+        "F.linear(x, self.weight, self.bias)",
+    ),
     "dead-in only": ("ch04_compact", "gone = ~weights[k].any(1) | ~weights[k + 1].any(0)", "gone = ~weights[k].any(1)"),
-    "constant dropped": ("ch04_compact", "biases[k + 1] += weights[k + 1][:, gone] @ torch.relu(biases[k][gone])",
-                         "pass"),
+    "constant dropped": (
+        "ch04_compact",
+        "biases[k + 1] += weights[k + 1][:, gone] @ torch.relu(biases[k][gone])",
+        "pass",
+    ),
 }
 
 
 def _namespace(**replaced) -> dict:
     context = {"math": math, "torch": torch, "nn": nn, "F": F, "LinearSVDO": vd.LinearSVDO}
-    context.update({name: getattr(vd, name) for name in ("K1", "K2", "K3", "LOG_ALPHA_MAX", "LOG_ALPHA_MIN",
-                                                         "LOG_SIGMA2_INIT", "THRESHOLD")})
+    context.update(
+        {
+            name: getattr(vd, name)
+            for name in ("K1", "K2", "K3", "LOG_ALPHA_MAX", "LOG_ALPHA_MIN", "LOG_SIGMA2_INIT", "THRESHOLD")
+        }
+    )
     cells = {**ANSWERS, **replaced}
     return executed(context, cells["ch04_gaussian_dropout"], cells["ch04_svdo_layer"], cells["ch04_compact"])
 
@@ -68,5 +85,5 @@ def test_the_first_exercise_comes_before_the_1500th_word_of_markdown():
     included) before the first exercise's text."""
     cells = notebook("04_sparse_variational_dropout").cells
     first = next(k for k, cell in enumerate(cells) if cell.metadata.get("nbgrader", {}).get("solution"))
-    words = sum(len(cell.source.split()) for cell in cells[:first - 1] if cell.cell_type == "markdown")
+    words = sum(len(cell.source.split()) for cell in cells[: first - 1] if cell.cell_type == "markdown")
     assert cells[first - 1].source.startswith("### Exercise 4.1") and words < 1500, words

@@ -1,5 +1,6 @@
 """Chapter 05's trusted checks (vdtutorial/course/checks/ch05.py), run as the grader runs them: the teacher's solutions
 pass, wrong answers and unsolved stubs fail, and no message gives a number away."""
+
 import math
 
 import numpy as np
@@ -16,8 +17,9 @@ ANSWERS = answers("05_pretraining")
 def _namespace(**replaced) -> dict:
     """The chapter's globals that the answer cells use, then the answer cells (the teacher's, unless replaced)."""
     cells = {**ANSWERS, **replaced}
-    return executed({"np": np, "torch": torch, "math": math, "model_kl": model_kl}, cells["ch05_elbo_step"],
-                    cells["ch05_clone_vd"])
+    return executed(
+        {"np": np, "torch": torch, "math": math, "model_kl": model_kl}, cells["ch05_elbo_step"], cells["ch05_clone_vd"]
+    )
 
 
 def test_the_checks_are_the_chapters_exercises_in_order():
@@ -35,12 +37,14 @@ def test_clone_vd_is_checked_without_the_students_elbo_step():
     namespace = _namespace(ch05_elbo_step=stub(ANSWERS["ch05_elbo_step"]))
     saved = namespace["elbo_step"]
     assert failures("ch05_clone_vd", namespace, 1) == []
-    assert namespace["elbo_step"] is saved   # the probe put the chapter's elbo_step back
+    assert namespace["elbo_step"] is saved  # the probe put the chapter's elbo_step back
 
 
 WRONG_STEPS = {
-    "KL subtracted (the graders' wrong answer)": ("nll + beta * model_kl(policy.mu) / n_train",
-                                                  "nll - beta * model_kl(policy.mu) / n_train"),
+    "KL subtracted (the graders' wrong answer)": (
+        "nll + beta * model_kl(policy.mu) / n_train",
+        "nll - beta * model_kl(policy.mu) / n_train",
+    ),
     "KL divided by the batch size": ("/ n_train", "/ len(obs)"),
     "weight noise left off": ("    policy.train()", "    pass"),
     "old gradients kept": ("    optimiser.zero_grad()\n", ""),
@@ -55,8 +59,10 @@ def test_a_wrong_step_fails(case):
 
 
 WRONG_LOOPS = {
-    "beta by epochs": (("beta = min(1.0, step / (warmup * total_steps))", "beta = min(1.0, epoch / (warmup * epochs))"),
-                       "beta"),
+    "beta by epochs": (
+        ("beta = min(1.0, step / (warmup * total_steps))", "beta = min(1.0, epoch / (warmup * epochs))"),
+        "beta",
+    ),
     "no shuffling": (("order, losses = rng.permutation(train_idx), []", "order, losses = train_idx, []"), "order"),
     "KL divided by the batch size": (("len(train_idx), beta)", "len(idx), beta)"), "KL"),
     "SGD": (("torch.optim.Adam(", "torch.optim.SGD("), "Adam"),

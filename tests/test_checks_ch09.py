@@ -1,6 +1,7 @@
 """Chapter 09's trusted checks (vdtutorial/course/checks/ch09.py): the teacher's solutions pass them on every seed;
 the graders' deliberately wrong answer, other plausible mistakes and an unsolved stub lose their exercise; the
 feedback names no number."""
+
 import ast
 
 import numpy as np
@@ -14,8 +15,14 @@ from vdtutorial.pretrain import split_by_episode
 
 ANSWERS = answers("09_beyond_the_paper")
 #: What the answer cells use from the chapter's first cells.
-CONTEXT = {"np": np, "N_JOINTS": N_JOINTS, "START_SIGMA": 0.05, "BETA": BETA,    # the chapter's START_SIGMA
-           "cloning_config": cloning_config, "split_by_episode": split_by_episode}
+CONTEXT = {
+    "np": np,
+    "N_JOINTS": N_JOINTS,
+    "START_SIGMA": 0.05,
+    "BETA": BETA,  # the chapter's START_SIGMA
+    "cloning_config": cloning_config,
+    "split_by_episode": split_by_episode,
+}
 
 
 def chapter_helper() -> str:
@@ -42,28 +49,36 @@ def test_the_teachers_solutions_pass(seed):
     assert run("ch09_dagger_plan", DAGGER, seed) == []
 
 
-@pytest.mark.parametrize("old, new", [
-    ("errors.T @ errors / len(errors)", "errors.T @ errors"),                     # the graders' wrong answer
-    ("errors.T @ errors / len(errors)", "np.cov(errors.T, bias=True)"),           # centred: loses the errors' mean
-    ("        policy.eval()\n", ""),                                              # errors of a weight sample
-    ("demos.states[held_out]", "demos.states"),                                   # the training states too
-    ("factor @ rng.standard_normal(N_JOINTS)",                                   # independent joints: the noise
-     "np.sqrt(np.diag(covariance)) * rng.standard_normal(N_JOINTS)"),             # loses Sigma's correlations
-    ("START_SIGMA ** 2 * np.eye", "START_SIGMA * np.eye"),                        # Sigma_0 a standard deviation
-])
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        ("errors.T @ errors / len(errors)", "errors.T @ errors"),  # the graders' wrong answer
+        ("errors.T @ errors / len(errors)", "np.cov(errors.T, bias=True)"),  # centred: loses the errors' mean
+        ("        policy.eval()\n", ""),  # errors of a weight sample
+        ("demos.states[held_out]", "demos.states"),  # the training states too
+        (
+            "factor @ rng.standard_normal(N_JOINTS)",  # independent joints: the noise
+            "np.sqrt(np.diag(covariance)) * rng.standard_normal(N_JOINTS)",
+        ),  # loses Sigma's correlations
+        ("START_SIGMA ** 2 * np.eye", "START_SIGMA * np.eye"),  # Sigma_0 a standard deviation
+    ],
+)
 def test_wrong_dart_loses(old, new):
     source = changed(DART, old, new)
-    if old == "demos.states[held_out]":           # with the labels of the same states
+    if old == "demos.states[held_out]":  # with the labels of the same states
         source = changed(source, "demos.actions[held_out]", "demos.actions")
     assert run("ch09_dart_noise", source, 0)
 
 
-@pytest.mark.parametrize("old, new", [
-    ("    policy.eval()\n", ""),                                                  # the learner samples its weights
-    ("beta = BETA ** k", "beta = BETA * k"),                                       # the wrong schedule
-    ("if rng.random() < beta:", "if rng.random() > beta:"),                       # the expert's share is 1 - beta
-    ("policy.act(state, deterministic=True)", "policy.act(state)"),               # a sampled action
-])
+@pytest.mark.parametrize(
+    "old, new",
+    [
+        ("    policy.eval()\n", ""),  # the learner samples its weights
+        ("beta = BETA ** k", "beta = BETA * k"),  # the wrong schedule
+        ("if rng.random() < beta:", "if rng.random() > beta:"),  # the expert's share is 1 - beta
+        ("policy.act(state, deterministic=True)", "policy.act(state)"),  # a sampled action
+    ],
+)
 def test_wrong_dagger_loses(old, new):
     assert run("ch09_dagger_plan", changed(DAGGER, old, new), 0)
 

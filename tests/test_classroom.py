@@ -3,6 +3,7 @@
 The chapter tests execute notebooks (each chapter three times: unsolved, teacher's, one wrong answer), so
 they are parametrised per chapter and spread over the xdist workers; the release is made once per worker.
 """
+
 import csv
 import errno
 import json
@@ -31,15 +32,26 @@ WRONG = {
     "01_environment": ("ch01_reward_eq11", '"-d_t": -distance,', '"-d_t": distance,'),
     "02_ik_expert": ("ch02_step_towards", "diff * min(1.0, MAX_DELTA / largest)", "diff * MAX_DELTA / largest"),
     "03_demonstrations": ("ch03_noisy_rollout", "labels.append(label)", "labels.append(-label)"),
-    "04_sparse_variational_dropout": ("ch04_svdo_layer", "- 0.5 * F.softplus(-self.log_alpha)",
-                                      "+ 0.5 * F.softplus(-self.log_alpha)"),
-    "05_pretraining": ("ch05_elbo_step", "nll + beta * model_kl(policy.mu) / n_train", "nll - beta * model_kl(policy.mu) / n_train"),
+    "04_sparse_variational_dropout": (
+        "ch04_svdo_layer",
+        "- 0.5 * F.softplus(-self.log_alpha)",
+        "+ 0.5 * F.softplus(-self.log_alpha)",
+    ),
+    "05_pretraining": (
+        "ch05_elbo_step",
+        "nll + beta * model_kl(policy.mu) / n_train",
+        "nll - beta * model_kl(policy.mu) / n_train",
+    ),
     "06a_trpo_pieces": ("ch06_gae", "alive = 1.0 - dones[t]", "alive = 1.0"),
     "06b_trpo_assembled": ("ch06_line_search", "if kl <= config.max_kl and gain > 0:", "if kl <= config.max_kl:"),
     "07_finetuning": ("ch07_prune", "keep = log_alpha <= threshold", "keep = log_alpha > threshold"),
     "08_grasping": ("ch08_grasp_success", "min(1.0, abs(approach[2]))", "min(1.0, approach[2])"),
     "09_beyond_the_paper": ("ch09_dart_noise", "errors.T @ errors / len(errors)", "errors.T @ errors"),
-    "10_what_reproduced": ("ch10_welch_verdict", "stats.t.ppf((1 + confidence) / 2, dof)", "stats.t.ppf(confidence, dof)"),
+    "10_what_reproduced": (
+        "ch10_welch_verdict",
+        "stats.t.ppf((1 + confidence) / 2, dof)",
+        "stats.t.ppf(confidence, dof)",
+    ),
 }
 
 
@@ -81,9 +93,13 @@ def test_release_has_no_solution_and_no_hidden_test(released):
         teacher = "\n".join(c.source for c in cells(path))
         student = cells(released / f"{name}.ipynb")
         text = "\n".join(c.source for c in student)
-        public = SOLUTION.sub("", HIDDEN.sub("", teacher))   # lines also written elsewhere are no secret
-        secret = [line.strip() for block in SOLUTION.findall(teacher) + HIDDEN.findall(teacher)
-                  for line in block.splitlines() if len(line.strip()) > 12 and line.strip() not in public]
+        public = SOLUTION.sub("", HIDDEN.sub("", teacher))  # lines also written elsewhere are no secret
+        secret = [
+            line.strip()
+            for block in SOLUTION.findall(teacher) + HIDDEN.findall(teacher)
+            for line in block.splitlines()
+            if len(line.strip()) > 12 and line.strip() not in public
+        ]
         assert len(secret) >= 3 * len(SOLUTION.findall(teacher)), name
         leaked = [line for line in secret if line in text]
         assert not leaked, (name, leaked[:3])
@@ -100,8 +116,11 @@ def test_grading_a_chapter(chapter, released, tmp_path):
     source = classroom.chapters()[chapter]
     teacher_text = source.read_text()
     assert teacher_text.count(json.dumps(right)[1:-1]) == 1, "the mutation must hit the solution exactly once"
-    for student, text in (("unsolved", (released / f"{chapter}.ipynb").read_text()), ("teacher", teacher_text),
-                          ("wrong", teacher_text.replace(json.dumps(right)[1:-1], json.dumps(wrong)[1:-1]))):
+    for student, text in (
+        ("unsolved", (released / f"{chapter}.ipynb").read_text()),
+        ("teacher", teacher_text),
+        ("wrong", teacher_text.replace(json.dumps(right)[1:-1], json.dumps(wrong)[1:-1])),
+    ):
         (tmp_path / "in" / student).mkdir(parents=True)
         (tmp_path / "in" / student / f"{chapter}.ipynb").write_text(text)
     scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course")
@@ -154,9 +173,13 @@ def _gradebook_scores(course):
     from nbgrader.api import Gradebook
 
     with Gradebook(f"sqlite:///{course / 'gradebook.db'}") as gb:
-        return {(sub.student.id, nb.name, g.name): g.score
-                for sub in gb.assignment_submissions(classroom.ASSIGNMENT) for nb in sub.notebooks for g in nb.grades
-                if g.score is not None}
+        return {
+            (sub.student.id, nb.name, g.name): g.score
+            for sub in gb.assignment_submissions(classroom.ASSIGNMENT)
+            for nb in sub.notebooks
+            for g in nb.grades
+            if g.score is not None
+        }
 
 
 @pytest.mark.parametrize("backend", ["local", "ray"])
@@ -167,20 +190,26 @@ def test_a_class_is_graded_in_parallel_into_one_consistent_gradebook(backend, re
     if backend == "ray":
         pytest.importorskip("ray")
     chapter = "01_environment"
-    for student, source in (("t1", classroom.chapters()[chapter]), ("t2", classroom.chapters()[chapter]),
-                            ("u1", released / f"{chapter}.ipynb"), ("u2", released / f"{chapter}.ipynb")):
+    for student, source in (
+        ("t1", classroom.chapters()[chapter]),
+        ("t2", classroom.chapters()[chapter]),
+        ("u1", released / f"{chapter}.ipynb"),
+        ("u2", released / f"{chapter}.ipynb"),
+    ):
         (tmp_path / "in" / student).mkdir(parents=True)
         (tmp_path / "in" / student / f"{chapter}.ipynb").write_bytes(source.read_bytes())
     lines = []
-    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", workers=2, backend=backend,
-                             log=lines.append)
+    scores = classroom.grade(
+        sorted((tmp_path / "in").iterdir()), tmp_path / "course", workers=2, backend=backend, log=lines.append
+    )
     totals = {st: sum(s.score for s in scores if s.student == st) for st in ("t1", "t2", "u1", "u2")}
     possible = sum(s.max_score for s in scores if s.student == "t1")
     assert possible > 0 and totals == {"t1": possible, "t2": possible, "u1": 0, "u2": 0}
     assert _gradebook_scores(tmp_path / "course") == {(s.student, s.chapter, s.exercise): s.score for s in scores}
     passed = {st: sum(s.score > 0 for s in scores if s.student == st) for st in totals}
     assert sorted(line.split("] ", 1)[1] for line in lines) == sorted(
-        f"{st} {chapter}: {passed[st]} of 3 exercises pass their checks" for st in totals)
+        f"{st} {chapter}: {passed[st]} of 3 exercises pass their checks" for st in totals
+    )
     for st in totals:
         assert (tmp_path / "course" / "autograded" / st / classroom.ASSIGNMENT / f"{chapter}.ipynb").is_file()
 
@@ -190,9 +219,23 @@ def test_an_unreachable_ray_address_fails_grading_within_30_s_in_one_line(releas
     (tmp_path / "in" / "ann").mkdir(parents=True)
     (tmp_path / "in" / "ann" / "01_environment.ipynb").write_bytes((released / "01_environment.ipynb").read_bytes())
     start = time.monotonic()
-    run = subprocess.run([sys.executable, "-m", "vdtutorial", "classroom", "grade", str(tmp_path / "in" / "ann"),
-                          "--out", str(tmp_path / "course"), "--address", "127.0.0.1:1"],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vdtutorial",
+            "classroom",
+            "grade",
+            str(tmp_path / "in" / "ann"),
+            "--out",
+            str(tmp_path / "course"),
+            "--address",
+            "127.0.0.1:1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert time.monotonic() - start < 30
     assert run.returncode == 2
     assert run.stderr.strip().splitlines()[-1].startswith("error: no Ray cluster answers at 127.0.0.1:1")
@@ -261,29 +304,30 @@ class MyLinearSVDO(nn.Module):
 ATTACKS = {
     # the comparisons and the library's reference patched, so that 4.2's visible tests pass in the kernel
     "patcher": "import numpy as np\nimport vdtutorial.vd\n"
-               "torch.testing.assert_close = lambda *args, **kwargs: None\n"
-               "np.testing.assert_allclose = lambda *args, **kwargs: None\n"
-               "torch.equal = lambda *args, **kwargs: True\ntorch.all = lambda *args, **kwargs: torch.tensor(True)\n"
-               "math.isclose = lambda *args, **kwargs: True\nimport builtins\nbuiltins.all = lambda *args: True\n"
-               "vdtutorial.vd.kl_approx = lambda log_alpha: 0 * log_alpha\n"
-               "import vdtutorial.course.checks as _checks\n_checks.judge = lambda *args, **kwargs: []\n" + _FAKE_LAYER,
+    "torch.testing.assert_close = lambda *args, **kwargs: None\n"
+    "np.testing.assert_allclose = lambda *args, **kwargs: None\n"
+    "torch.equal = lambda *args, **kwargs: True\ntorch.all = lambda *args, **kwargs: torch.tensor(True)\n"
+    "math.isclose = lambda *args, **kwargs: True\nimport builtins\nbuiltins.all = lambda *args: True\n"
+    "vdtutorial.vd.kl_approx = lambda log_alpha: 0 * log_alpha\n"
+    "import vdtutorial.course.checks as _checks\n_checks.judge = lambda *args, **kwargs: []\n" + _FAKE_LAYER,
     # errors no longer displayed (nbgrader PR 1324's attack), so that failing tests record none
     "silencer": "get_ipython().showtraceback = lambda *args, **kwargs: None\n" + _FAKE_LAYER,
     # the kernel exits in the answer: nothing after it runs
     "quitter": "import os\nos._exit(0)\n",
     # objects that compare equal to anything: a tensor subclass and an object with __eq__ and __array__
     "flatterer": "class _Yes(torch.Tensor):\n    def __eq__(self, other):\n        return torch.ones_like(other, dtype=torch.bool)\n"
-                 "class _Always:\n    def __eq__(self, other):\n        return True\n"
-                 "    def __array__(self, *args, **kwargs):\n        return np.zeros(1)\n" + _FAKE_LAYER
-                 + "MyLinearSVDO.log_alpha = property(lambda self: torch.zeros_like(self.weight).as_subclass(_Yes))\n"
-                   "MyLinearSVDO.kl = lambda self: _Always()\n",
+    "class _Always:\n    def __eq__(self, other):\n        return True\n"
+    "    def __array__(self, *args, **kwargs):\n        return np.zeros(1)\n"
+    + _FAKE_LAYER
+    + "MyLinearSVDO.log_alpha = property(lambda self: torch.zeros_like(self.weight).as_subclass(_Yes))\n"
+    "MyLinearSVDO.kl = lambda self: _Always()\n",
     # files the grader reads: forged outputs of both checks, a link, and the gradebooks it can find
     "forger": "import glob\nimport os\nimport numpy as np\n"
-              "_exchange = os.environ.get('VDTUTORIAL_CHECKS', '.')\n"
-              "np.savez(os.path.join(_exchange, 'ch04_svdo_layer.outputs.npz'), log_alpha=np.zeros(3))\n"
-              "os.symlink(os.path.join(_exchange, 'ch04_svdo_layer.inputs.npz'), os.path.join(_exchange, 'x.npz'))\n"
-              "for _db in glob.glob('/tmp/*/course/gradebook.db'):\n"
-              "    try:\n        open(_db, 'wb').close()\n    except OSError:\n        pass\n" + _FAKE_LAYER,
+    "_exchange = os.environ.get('VDTUTORIAL_CHECKS', '.')\n"
+    "np.savez(os.path.join(_exchange, 'ch04_svdo_layer.outputs.npz'), log_alpha=np.zeros(3))\n"
+    "os.symlink(os.path.join(_exchange, 'ch04_svdo_layer.inputs.npz'), os.path.join(_exchange, 'x.npz'))\n"
+    "for _db in glob.glob('/tmp/*/course/gradebook.db'):\n"
+    "    try:\n        open(_db, 'wb').close()\n    except OSError:\n        pass\n" + _FAKE_LAYER,
 }
 
 
@@ -293,7 +337,9 @@ def test_hostile_submissions_score_only_what_they_solved(tmp_path):
     teacher = classroom.chapters()["04_sparse_variational_dropout"]
     for student, code in ATTACKS.items():
         nb = nbformat.read(teacher, as_version=4)
-        answer = next(c for c in nb.cells if nbgrader(c).get("grade_id") == "ch04_svdo_layer" and nbgrader(c).get("solution"))
+        answer = next(
+            c for c in nb.cells if nbgrader(c).get("grade_id") == "ch04_svdo_layer" and nbgrader(c).get("solution")
+        )
         answer.source = code
         (tmp_path / "in" / student).mkdir(parents=True)
         nbformat.write(nb, tmp_path / "in" / student / teacher.name)
@@ -314,15 +360,21 @@ def test_feedback_names_what_failed_without_the_hidden_checks(tmp_path):
     page says which check failed, in words, with neither the check's code nor the reference's values."""
     teacher = classroom.chapters()["04_sparse_variational_dropout"]
     nb = nbformat.read(teacher, as_version=4)
-    answer = next(c for c in nb.cells if nbgrader(c).get("grade_id") == "ch04_svdo_layer" and nbgrader(c).get("solution"))
+    answer = next(
+        c for c in nb.cells if nbgrader(c).get("grade_id") == "ch04_svdo_layer" and nbgrader(c).get("solution")
+    )
     answer.source = "torch.testing.assert_close = lambda *args, **kwargs: None\n" + answer.source.replace(
-        "- 0.5 * F.softplus(-self.log_alpha)", "- 0.4 * F.softplus(-self.log_alpha)")
+        "- 0.5 * F.softplus(-self.log_alpha)", "- 0.4 * F.softplus(-self.log_alpha)"
+    )
     tests = next(c for c in nb.cells if nbgrader(c).get("grade_id") == "ch04_svdo_layer_tests")
     (tmp_path / "in" / "erin").mkdir(parents=True)
     nbformat.write(nb, tmp_path / "in" / "erin" / teacher.name)
     scores = classroom.grade([tmp_path / "in" / "erin"], tmp_path / "course", static_check=False)
-    assert {s.exercise: s.score for s in scores} == {"ch04_gaussian_dropout_tests": 2, "ch04_svdo_layer_tests": 0,
-                                                     "ch04_compact_tests": 3}
+    assert {s.exercise: s.score for s in scores} == {
+        "ch04_gaussian_dropout_tests": 2,
+        "ch04_svdo_layer_tests": 0,
+        "ch04_compact_tests": 3,
+    }
     page = (tmp_path / "course" / "feedback" / "erin" / f"{teacher.stem}.md").read_text()
     assert "Points: 5 of 9." in page and "hidden check failed:" in page and "kl()" in page
     from vdtutorial.course.checks import ch04
@@ -345,7 +397,7 @@ def test_a_looping_cell_is_interrupted_and_the_rest_still_runs(tmp_path):
     nb.cells.insert(3, nbformat.v4.new_code_cell("while True:\n    pass"))
     (tmp_path / "mallory").mkdir()
     nbformat.write(nb, tmp_path / "mallory" / "00_start_here.ipynb")
-    assert classroom.grade([tmp_path / "mallory"], tmp_path / "course", timeout=60) == []   # chapter 00 has no exercises
+    assert classroom.grade([tmp_path / "mallory"], tmp_path / "course", timeout=60) == []  # chapter 00 has no exercises
     ran = cells(tmp_path / "course" / "autograded" / "mallory" / classroom.ASSIGNMENT / "00_start_here.ipynb")
     code = [c for c in ran if c.cell_type == "code"]
     looping = next(c for c in code if c.source.startswith("while True"))
@@ -377,17 +429,36 @@ def test_a_submission_past_the_memory_cap_loses_only_that_exercise(tmp_path):
     nb = nbformat.read(classroom.chapters()["01_environment"], as_version=4)
     # the kernel dies, by a way the static check lets through (os._exit would be refused before it ran): nbgrader
     # gives up on that notebook, and only on it
-    nb.cells.insert(3, nbformat.v4.new_code_cell("import os\nimport subprocess\n"
-                                                 "subprocess.run(['kill', '-9', str(os.getpid())])"))
+    nb.cells.insert(
+        3, nbformat.v4.new_code_cell("import os\nimport subprocess\nsubprocess.run(['kill', '-9', str(os.getpid())])")
+    )
     (tmp_path / "in" / "crash").mkdir()
     nbformat.write(nb, tmp_path / "in" / "crash" / "01_environment.ipynb")
-    run = subprocess.run([sys.executable, "-m", "vdtutorial", "classroom", "grade", str(hog),
-                          str(tmp_path / "in" / "crash"), "--out", str(tmp_path / "course"), "--memory", "2"],
-                         capture_output=True, text=True)
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vdtutorial",
+            "classroom",
+            "grade",
+            str(hog),
+            str(tmp_path / "in" / "crash"),
+            "--out",
+            str(tmp_path / "course"),
+            "--memory",
+            "2",
+        ],
+        capture_output=True,
+        text=True,
+    )
     out, err = run.stdout, run.stderr
     with open(tmp_path / "course" / "grades.csv") as fh:
-        scores = [classroom.Score(r["student"], r["chapter"], r["exercise"], float(r["score"]), float(r["max_score"]),
-                                  r["refused"]) for r in csv.DictReader(fh)]
+        scores = [
+            classroom.Score(
+                r["student"], r["chapter"], r["exercise"], float(r["score"]), float(r["max_score"]), r["refused"]
+            )
+            for r in csv.DictReader(fh)
+        ]
     assert _lost(scores, "hog") == {"ch01_reward_eq11_tests"}
     assert classroom.table(scores) in out
     ran = cells(tmp_path / "course" / "autograded" / "hog" / classroom.ASSIGNMENT / "01_environment.ipynb")
@@ -402,27 +473,34 @@ def test_a_submission_writing_outside_its_folder_loses_only_that_exercise_and_wr
     outside = tmp_path / "outside.txt"
     teacher_file = tmp_path / "teacher.txt"
     teacher_file.write_text("the teacher's")
-    attacks = {"ch01_collision_share": f"open({str(outside)!r}, 'w').write('pwned')",
-               "ch01_grasp_reward": f"open({str(teacher_file)!r}, 'a').write('pwned')"}
+    attacks = {
+        "ch01_collision_share": f"open({str(outside)!r}, 'w').write('pwned')",
+        "ch01_grasp_reward": f"open({str(teacher_file)!r}, 'a').write('pwned')",
+    }
     mallory = _attacked(tmp_path, "mallory", attacks)
     scores = classroom.grade([mallory], tmp_path / "course")
     assert _lost(scores, "mallory") == {"ch01_collision_share_tests", "ch01_grasp_reward_tests"}
     assert not outside.exists() and teacher_file.read_text() == "the teacher's"
     ran = cells(tmp_path / "course" / "autograded" / "mallory" / classroom.ASSIGNMENT / "01_environment.ipynb")
     errors = [o for c in ran if nbgrader(c).get("grade_id") in attacks for o in c.outputs if o.output_type == "error"]
-    assert len(errors) == 2 and all(o.ename in ("FileNotFoundError", "PermissionError", "OSError") for o in errors), errors
+    assert len(errors) == 2 and all(o.ename in ("FileNotFoundError", "PermissionError", "OSError") for o in errors), (
+        errors
+    )
 
 
 def test_the_kernel_has_no_network_and_its_own_home(tmp_path):
     """What the launcher gives a command, checked directly: the caps, a fresh HOME that is the working folder,
     and no route to any address."""
-    probe = ("import os, resource, socket, sys\n"
-             f"print(resource.getrlimit({sandbox.memory_limit()})[0], resource.getrlimit(resource.RLIMIT_CPU)[0])\n"
-             "print(os.environ['HOME'] == os.getcwd(), os.listdir(os.getcwd()))\n"
-             "try:\n    socket.create_connection(('192.0.2.1', 80), timeout=5)\nexcept OSError as e:\n"
-             "    print(type(e).__name__, e.errno)\n")
-    cmd = sandbox.command([sys.executable, "-c", probe], 3 << 30, 77, home_under=tmp_path,
-                          read_only=sandbox.python_paths())
+    probe = (
+        "import os, resource, socket, sys\n"
+        f"print(resource.getrlimit({sandbox.memory_limit()})[0], resource.getrlimit(resource.RLIMIT_CPU)[0])\n"
+        "print(os.environ['HOME'] == os.getcwd(), os.listdir(os.getcwd()))\n"
+        "try:\n    socket.create_connection(('192.0.2.1', 80), timeout=5)\nexcept OSError as e:\n"
+        "    print(type(e).__name__, e.errno)\n"
+    )
+    cmd = sandbox.command(
+        [sys.executable, "-c", probe], 3 << 30, 77, home_under=tmp_path, read_only=sandbox.python_paths()
+    )
     lines = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.splitlines()
     assert lines[0] == f"{3 << 30} 77"
     assert lines[1] == "True []"
@@ -434,10 +512,11 @@ def test_a_command_past_the_cpu_cap_is_killed_by_the_kernel(tmp_path):
     (a kernel spinning where nbgrader's per-cell timeout cannot interrupt it dies the same way). Linux sends
     SIGKILL when the hard limit is reached, and the soft one's SIGXCPU only while below it."""
     spin = "import time\nt = time.process_time()\nwhile time.process_time() - t < 30:\n    pass\nprint('survived')"
-    cmd = sandbox.command([sys.executable, "-c", spin], 3 << 30, 1, home_under=tmp_path,
-                          read_only=sandbox.python_paths())
+    cmd = sandbox.command(
+        [sys.executable, "-c", spin], 3 << 30, 1, home_under=tmp_path, read_only=sandbox.python_paths()
+    )
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
-    killed = {128 + signal.SIGKILL, 128 + signal.SIGXCPU}   # bwrap exits with 128 + the signal that ended the command
+    killed = {128 + signal.SIGKILL, 128 + signal.SIGXCPU}  # bwrap exits with 128 + the signal that ended the command
     assert run.returncode in killed and "survived" not in run.stdout, (run.returncode, run.stdout)
 
 
@@ -448,14 +527,17 @@ def test_the_memory_cap_counts_memory_not_mapped_libraries(tmp_path):
     allowed, while 2 GB of writable memory must not."""
     library = tmp_path / "libbig.so"
     with open(library, "wb") as fh:
-        fh.truncate(3 << 30)   # sparse: no disk used
-    probe = ("import mmap\n"
-             f"with open({str(library)!r}, 'rb') as fh:\n"
-             "    mapped = mmap.mmap(fh.fileno(), 0, prot=mmap.PROT_READ)\n"
-             "print('mapped', len(mapped) >> 30)\n"
-             "try:\n    bytearray(2 << 30)\nexcept MemoryError:\n    print('MemoryError')\n")
-    cmd = sandbox.command([sys.executable, "-c", probe], 1 << 30, 60, home_under=tmp_path,
-                          read_only=[*sandbox.python_paths(), library])
+        fh.truncate(3 << 30)  # sparse: no disk used
+    probe = (
+        "import mmap\n"
+        f"with open({str(library)!r}, 'rb') as fh:\n"
+        "    mapped = mmap.mmap(fh.fileno(), 0, prot=mmap.PROT_READ)\n"
+        "print('mapped', len(mapped) >> 30)\n"
+        "try:\n    bytearray(2 << 30)\nexcept MemoryError:\n    print('MemoryError')\n"
+    )
+    cmd = sandbox.command(
+        [sys.executable, "-c", probe], 1 << 30, 60, home_under=tmp_path, read_only=[*sandbox.python_paths(), library]
+    )
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert run.stdout.split("\n")[:2] == ["mapped 3", "MemoryError"], (run.stdout, run.stderr[-500:])
 
@@ -463,15 +545,27 @@ def test_the_memory_cap_counts_memory_not_mapped_libraries(tmp_path):
 #: Wrong answers whose feedback page must say the cause in words, by student: (chapter, exercise, text of the
 #: teacher's solution, the wrong version, the words).
 NAMED_CAUSES = {
-    "inverted_ratio": ("06a_trpo_pieces", "ch06_surrogate",
-                       "ratio = torch.exp(log_pi(theta) - log_pi(torch.as_tensor(theta_old)))",
-                       "ratio = torch.exp(log_pi(torch.as_tensor(theta_old)) - log_pi(theta))",
-                       "the gradient of L must be the policy gradient g"),
-    "no_damping": ("06b_trpo_assembled", "ch06_trpo_update",
-                   "Fvp = double_backward_fvp(policy, params, obs, old, config.cg_damping)",
-                   "Fvp = double_backward_fvp(policy, params, obs, old, 0.0)", "without damping"),
-    "sign_error": ("06b_trpo_assembled", "ch06_trpo_update", "return (ratio * advantages).mean(), mean_kl(old, dist)",
-                   "return -(ratio * advantages).mean(), mean_kl(old, dist)", "the sign of your surrogate"),
+    "inverted_ratio": (
+        "06a_trpo_pieces",
+        "ch06_surrogate",
+        "ratio = torch.exp(log_pi(theta) - log_pi(torch.as_tensor(theta_old)))",
+        "ratio = torch.exp(log_pi(torch.as_tensor(theta_old)) - log_pi(theta))",
+        "the gradient of L must be the policy gradient g",
+    ),
+    "no_damping": (
+        "06b_trpo_assembled",
+        "ch06_trpo_update",
+        "Fvp = double_backward_fvp(policy, params, obs, old, config.cg_damping)",
+        "Fvp = double_backward_fvp(policy, params, obs, old, 0.0)",
+        "without damping",
+    ),
+    "sign_error": (
+        "06b_trpo_assembled",
+        "ch06_trpo_update",
+        "return (ratio * advantages).mean(), mean_kl(old, dist)",
+        "return -(ratio * advantages).mean(), mean_kl(old, dist)",
+        "the sign of your surrogate",
+    ),
 }
 
 
@@ -486,7 +580,8 @@ def test_feedback_names_the_cause_of_a_wrong_answer(tmp_path):
         assert text.count(json.dumps(right)[1:-1]) == 1, student
         (tmp_path / "in" / student).mkdir(parents=True)
         (tmp_path / "in" / student / f"{chapter}.ipynb").write_text(
-            text.replace(json.dumps(right)[1:-1], json.dumps(wrong)[1:-1]))
+            text.replace(json.dumps(right)[1:-1], json.dumps(wrong)[1:-1])
+        )
     scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", workers=2)
     lost = {(s.student, s.exercise) for s in scores if s.score < s.max_score}
     assert lost == {(student, f"{exercise}_tests") for student, (_, exercise, *_) in NAMED_CAUSES.items()}, lost
@@ -510,8 +605,9 @@ def test_feedback_quotes_a_comparisons_own_message_and_says_no_answer_only_when_
     said = error_message(str(raised.value))
     assert said.startswith("the gradient of L must be g (Not equal to tolerance") and "Mismatch" not in said, said
     assert error_message("\nfirst words\nmore") == "first words" and error_message("") == ""
-    rows = [classroom.Score("ann", "06a", f"{name}_tests", 0.0, 3.0, failed=(NO_ANSWER,))
-            for name in ("shown", "quiet")]
+    rows = [
+        classroom.Score("ann", "06a", f"{name}_tests", 0.0, 3.0, failed=(NO_ANSWER,)) for name in ("shown", "quiet")
+    ]
     page = report("ann", "06a", rows, {"shown": ["the visible tests raised AssertionError: " + said]})
     shown, quiet = page.split("## shown\n")[1].split("## quiet\n")
     assert said in shown and NO_ANSWER not in shown and NO_ANSWER in quiet, page

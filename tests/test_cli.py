@@ -1,4 +1,5 @@
 """The command line: each subcommand parses, and the cheap ones run end to end."""
+
 import argparse
 import hashlib
 import json
@@ -20,8 +21,9 @@ pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: 
 REPO = Path(__file__).resolve().parent.parent
 
 
-@pytest.mark.parametrize("command", ["demos", "expert", "pretrain", "evaluate", "digits", "bench", "experiment", "reproduce",
-                                     "rederive"])
+@pytest.mark.parametrize(
+    "command", ["demos", "expert", "pretrain", "evaluate", "digits", "bench", "experiment", "reproduce", "rederive"]
+)
 def test_every_subcommand_has_help(command, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main([command, "--help"])
@@ -31,7 +33,22 @@ def test_every_subcommand_has_help(command, capsys):
 
 def test_demos_command_writes_the_file_it_prints(tmp_path, capsys):
     out = tmp_path / "d.npz"
-    main(["demos", "--task", "reach", "--samples", "30", "--noise", "0.1", "--seed", "4", "--out", str(out), "--no-progress"])
+    main(
+        [
+            "demos",
+            "--task",
+            "reach",
+            "--samples",
+            "30",
+            "--noise",
+            "0.1",
+            "--seed",
+            "4",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     printed = capsys.readouterr().out
     assert f"wrote {out}" in printed
     demos = Demos.load(out, task="reach", samples=30, noise=0.1, seed=4)
@@ -62,8 +79,22 @@ def test_reproduce_runs_the_whole_pipeline(tmp_path, capsys):
 
 @pytest.mark.skipif(not is_quick(), reason="pre-trains VD and L2 policies: quick mode keeps it to seconds")
 def test_experiment_fvp_subsample_reaches_the_runs_and_the_record(tmp_path, capsys):
-    main(["experiment", "fig4", "--seeds", "0", "--steps", "200", "--fvp-subsample", "0.5", "--workers", "1",
-          "--out", str(tmp_path)])
+    main(
+        [
+            "experiment",
+            "fig4",
+            "--seeds",
+            "0",
+            "--steps",
+            "200",
+            "--fvp-subsample",
+            "0.5",
+            "--workers",
+            "1",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert "VD: final" in capsys.readouterr().out
     record = json.loads((tmp_path / "fig4.json").read_text())
     assert record["trpo_config"]["fvp_subsample"] == 0.5
@@ -77,8 +108,22 @@ def test_experiment_methods_runs_only_those_and_records_them(tmp_path, capsys):
 
     specs = figure_specs("fig4", seeds=(3, 4), obs_mode="rgbd", methods=("l2", "vd"))
     assert [(spec.method, spec.seed) for spec in specs] == [("vd", 3), ("vd", 4), ("l2", 3), ("l2", 4)]
-    main(["experiment", "fig4", "--seeds", "0", "--steps", "200", "--methods", "expert", "--workers", "1",
-          "--out", str(tmp_path)])
+    main(
+        [
+            "experiment",
+            "fig4",
+            "--seeds",
+            "0",
+            "--steps",
+            "200",
+            "--methods",
+            "expert",
+            "--workers",
+            "1",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     record = json.loads((tmp_path / "fig4.json").read_text())
     assert {run["method"] for run in record["runs"]} == {"expert"}
     assert "--methods expert" in record["command"]
@@ -93,16 +138,23 @@ def test_a_new_draw_of_the_data_runs_apart_from_the_shipped_one(tmp_path):
     from vdtutorial.experiments.results import experiment_command
 
     specs = figure_specs("fig6", seeds=(0,), demo_seed=1, sigmas=(0.05, 0.25))
-    assert [(s.method, s.noise, s.demo_seed) for s in specs] == [("vd", 0.05, 1), ("vd", 0.25, 1), ("l2", 0.05, 1),
-                                                                  ("l2", 0.25, 1)]
+    assert [(s.method, s.noise, s.demo_seed) for s in specs] == [
+        ("vd", 0.05, 1),
+        ("vd", 0.25, 1),
+        ("l2", 0.05, 1),
+        ("l2", 0.25, 1),
+    ]
     assert specs[0].name == "vd_reach_n8000_sigma0.05_demos1_state_seed0"
     assert figure_specs("fig6", seeds=(0,), sigmas=(0.05,))[0].name == "vd_reach_n8000_sigma0.05_state_seed0"
     assert [s.samples for s in figure_specs("fig5", seeds=(0,), samples=(2000,))] == [2000, 2000]
     meta = {"task": "reach", "samples": 8000, "noise": 0.05}
     assert checkpoint_path({**meta, "seed": 0}, "vd", "state", 3).name == "reach_n8000_sigma0.05_vd_state_seed3.pt"
-    assert checkpoint_path({**meta, "seed": 1}, "vd", "state", 3).name == "reach_n8000_sigma0.05_demos1_vd_state_seed3.pt"
-    assert "--sigmas 0.05 0.25 --demo-seed 1" in experiment_command("fig6", seeds=(0,), sigmas=("0.05", "0.25"),
-                                                                    demo_seed=1)
+    assert (
+        checkpoint_path({**meta, "seed": 1}, "vd", "state", 3).name == "reach_n8000_sigma0.05_demos1_vd_state_seed3.pt"
+    )
+    assert "--sigmas 0.05 0.25 --demo-seed 1" in experiment_command(
+        "fig6", seeds=(0,), sigmas=("0.05", "0.25"), demo_seed=1
+    )
 
 
 # -- errors: one line, exit code 2, no traceback ----------------------------------------------------------
@@ -117,41 +169,58 @@ def _one_line_error(capsys, argv) -> str:
     return err
 
 
-@pytest.mark.parametrize("argv, expected", [
-    (["demos", "--samples", "-5"], "--samples: expected a positive integer, got '-5'"),
-    (["demos", "--samples", "0"], "expected a positive integer"),
-    (["experiment", "fig5", "--methods", "none"], "fig5 has no method none: its methods are vd, l2"),
-    (["experiment", "table1", "--methods", "vd"], "--methods is an option of the figures"),
-    (["experiment", "table1", "--demo-seed", "1"], "--demo-seed is an option of the figures"),
-    (["experiment", "fig6", "--sigmas", "0.3"], "fig6 has no such data set: its data sets are 8000 demonstrations at "
-                                                "Sigma 0.05"),
-    (["experiment", "fig5", "--samples", "1000"], "fig5 has no such data set"),
-    (["experiment", "fig6", "--demo-seed", "7"], "no demonstrations of seed 7 for 8000 samples at Sigma 0.05: make "
-                                                 "them with python -m vdtutorial demos --task reach --samples 8000 "
-                                                 "--noise 0.05 --seed 7 --out data/demos/reach_n8000_sigma0.05_seed7.npz"),
-    (["demos", "--noise", "-0.1"], "--noise: expected a finite number >= 0"),
-    (["demos", "--noise", "nan"], "--noise: expected a finite number >= 0"),
-    (["demos", "--task", "push"], "invalid choice: 'push'"),
-    (["expert", "--episodes", "0"], "--episodes: expected a positive integer, got '0'"),
-    (["expert", "--episodes", "many"], "--episodes: expected a positive integer, got 'many'"),
-    (["experiment", "fig9"], "invalid choice: 'fig9'"),
-    (["experiment", "fig4", "--steps", "0"], "--steps: expected a positive integer"),
-    (["experiment", "fig4", "--workers", "-1"], "--workers: expected a positive integer"),
-    (["experiment", "fig4", "--fvp-subsample", "1.5"], "--fvp-subsample: expected a number in (0, 1]"),
-    (["pretrain", "--reg", "dropout", "--demos", "x.npz"],
-     "--reg dropout: not a pre-training method (they are vd, l2)"),
-    (["pretrain", "--reg", "none", "--demos", "x.npz"], "--reg none: not a pre-training method"),
-    (["experiment", "fig4", "--methods", "vd", "dropout"], "no method 'dropout': the methods are vd, l2, none, expert"),
-    (["bench", "gpu"], "invalid choice: 'gpu'"),
-    (["bench", "env", "--profile"], "--profile is an option of bench finetune only"),
-    (["train"], "invalid choice: 'train'"),
-    (["rederive", "nowhere"], "nowhere is not an experiment folder"),
-    (["experiment", "table1", "--restart", "--state-dir", "x"], "table1 pre-trains only (no TRPO runs to resume): "
-                                                               "--state-dir, --restart are options of the figures"),
-    (["experiment", "beyond", "--fvp-subsample", "0.1"], "beyond fine-tunes with the paper's TRPO settings: "
-                                                         "--fvp-subsample is an option of the figures"),
-    (["experiment", "beyond", "--obs", "rgbd"], "beyond runs in state mode only (--obs state)"),
-])
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["demos", "--samples", "-5"], "--samples: expected a positive integer, got '-5'"),
+        (["demos", "--samples", "0"], "expected a positive integer"),
+        (["experiment", "fig5", "--methods", "none"], "fig5 has no method none: its methods are vd, l2"),
+        (["experiment", "table1", "--methods", "vd"], "--methods is an option of the figures"),
+        (["experiment", "table1", "--demo-seed", "1"], "--demo-seed is an option of the figures"),
+        (
+            ["experiment", "fig6", "--sigmas", "0.3"],
+            "fig6 has no such data set: its data sets are 8000 demonstrations at Sigma 0.05",
+        ),
+        (["experiment", "fig5", "--samples", "1000"], "fig5 has no such data set"),
+        (
+            ["experiment", "fig6", "--demo-seed", "7"],
+            "no demonstrations of seed 7 for 8000 samples at Sigma 0.05: make "
+            "them with python -m vdtutorial demos --task reach --samples 8000 "
+            "--noise 0.05 --seed 7 --out data/demos/reach_n8000_sigma0.05_seed7.npz",
+        ),
+        (["demos", "--noise", "-0.1"], "--noise: expected a finite number >= 0"),
+        (["demos", "--noise", "nan"], "--noise: expected a finite number >= 0"),
+        (["demos", "--task", "push"], "invalid choice: 'push'"),
+        (["expert", "--episodes", "0"], "--episodes: expected a positive integer, got '0'"),
+        (["expert", "--episodes", "many"], "--episodes: expected a positive integer, got 'many'"),
+        (["experiment", "fig9"], "invalid choice: 'fig9'"),
+        (["experiment", "fig4", "--steps", "0"], "--steps: expected a positive integer"),
+        (["experiment", "fig4", "--workers", "-1"], "--workers: expected a positive integer"),
+        (["experiment", "fig4", "--fvp-subsample", "1.5"], "--fvp-subsample: expected a number in (0, 1]"),
+        (
+            ["pretrain", "--reg", "dropout", "--demos", "x.npz"],
+            "--reg dropout: not a pre-training method (they are vd, l2)",
+        ),
+        (["pretrain", "--reg", "none", "--demos", "x.npz"], "--reg none: not a pre-training method"),
+        (
+            ["experiment", "fig4", "--methods", "vd", "dropout"],
+            "no method 'dropout': the methods are vd, l2, none, expert",
+        ),
+        (["bench", "gpu"], "invalid choice: 'gpu'"),
+        (["bench", "env", "--profile"], "--profile is an option of bench finetune only"),
+        (["train"], "invalid choice: 'train'"),
+        (["rederive", "nowhere"], "nowhere is not an experiment folder"),
+        (
+            ["experiment", "table1", "--restart", "--state-dir", "x"],
+            "table1 pre-trains only (no TRPO runs to resume): --state-dir, --restart are options of the figures",
+        ),
+        (
+            ["experiment", "beyond", "--fvp-subsample", "0.1"],
+            "beyond fine-tunes with the paper's TRPO settings: --fvp-subsample is an option of the figures",
+        ),
+        (["experiment", "beyond", "--obs", "rgbd"], "beyond runs in state mode only (--obs state)"),
+    ],
+)
 def test_bad_arguments_give_one_line(argv, expected, capsys):
     assert expected in _one_line_error(capsys, argv)
 
@@ -166,7 +235,11 @@ def test_ctrl_c_gives_one_line_and_the_shell_code(monkeypatch, capsys):
     monkeypatch.setattr(experiments, "fig4", interrupted)
     assert main(["experiment", "fig4", "--seeds", "0"]) == 130
     err = capsys.readouterr().err.replace("[quick mode: small budgets]\n", "")
-    assert err.startswith("interrupted: ") and "rerun the same command (without --restart) to continue" in err and "Traceback" not in err
+    assert (
+        err.startswith("interrupted: ")
+        and "rerun the same command (without --restart) to continue" in err
+        and "Traceback" not in err
+    )
     assert err.count("\n") == 1
 
 
@@ -238,13 +311,20 @@ def _readme_examples() -> list[list[str]]:
 
 #: Budgets shrunk for a test (the commands' meaning is unchanged); bench and digits only measure.
 SMALLER = {"--samples": "60", "--episodes": "1", "--steps": "200"}
-EXTRA = {"pretrain": ["--epochs", "1"], "evaluate": ["--episodes", "1"], "experiment": ["--seeds", "0", "--workers", "1"],
-         "reproduce": ["--workers", "1"]}
+EXTRA = {
+    "pretrain": ["--epochs", "1"],
+    "evaluate": ["--episodes", "1"],
+    "experiment": ["--seeds", "0", "--workers", "1"],
+    "reproduce": ["--workers", "1"],
+}
 
 
 def _digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 @pytest.mark.skipif(not is_quick(), reason="runs every README example: quick mode keeps it to a minute")
@@ -257,7 +337,9 @@ def test_readme_examples_leave_data_untouched(tmp_path):
         if argv[0] in ("digits", "bench", "notebooks"):  # notebooks writes outside runs/: tests/test_install_routes.py
             continue
         argv = [SMALLER.get(prev, arg) for prev, arg in zip([None] + argv, argv)] + EXTRA.get(argv[0], [])
-        result = subprocess.run([sys.executable, "-m", "vdtutorial", *argv], cwd=REPO, env=env, capture_output=True, text=True)
+        result = subprocess.run(
+            [sys.executable, "-m", "vdtutorial", *argv], cwd=REPO, env=env, capture_output=True, text=True
+        )
         assert result.returncode == 0, f"{argv}: {result.stderr[-2000:]}"
     assert _digest(data_dir()) == before
     written = {p.relative_to(tmp_path / "runs").parts[0] for p in (tmp_path / "runs").rglob("*") if p.is_file()}

@@ -1,6 +1,7 @@
 """The chapters' first cell (vdtutorial/course/colab.py): one text in the README and every notebook, and what it does
 with a Colab marker (install, build pybullet once and keep its wheel, reuse it on the next runtime) and without one
 (nothing). pip is a stand-in here that records its calls; CI's Colab leg runs the cell with the real one."""
+
 import json
 import os
 import re
@@ -37,8 +38,9 @@ def test_a_public_address_gives_the_link_and_the_source():
     notebook = nbformat.read(NOTEBOOKS[1], as_version=4)
     address = "https://github.com/someone/vdtutorial"
     linked = with_colab_cell(nbformat.from_dict(json.loads(json.dumps(notebook))), NOTEBOOKS[1].name, address)
-    assert linked.cells[0].source.endswith(f"(https://colab.research.google.com/github/someone/vdtutorial/blob/main/"
-                                           f"notebooks/{NOTEBOOKS[1].name})")
+    assert linked.cells[0].source.endswith(
+        f"(https://colab.research.google.com/github/someone/vdtutorial/blob/main/notebooks/{NOTEBOOKS[1].name})"
+    )
     cell = next(c for c in linked.cells if c.get("id") == CELL_ID)
     assert 'SOURCE = "git+https://github.com/someone/vdtutorial"' in cell.source
     unlinked = with_colab_cell(linked, NOTEBOOKS[1].name, None)
@@ -75,9 +77,13 @@ def _run_cell(tmp_path, on_colab: bool, wheels: Path | None):
     log.write_text("")
     marker = "import sys, types; sys.modules['google.colab'] = types.ModuleType('google.colab')\n" if on_colab else ""
     script = marker + cell_source(None) + "\nprint('CWD', os.getcwd())\n"
-    env = {**os.environ, "FAKE_PIP_LOG": str(log), "VDTUTORIAL_SOURCE": "vdtutorial-0.1.0-py3-none-any.whl",
-           "VDTUTORIAL_BOOK": str(tmp_path / "content" / "vdtutorial"),
-           "PYTHONPATH": os.pathsep.join([str(fake), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    env = {
+        **os.environ,
+        "FAKE_PIP_LOG": str(log),
+        "VDTUTORIAL_SOURCE": "vdtutorial-0.1.0-py3-none-any.whl",
+        "VDTUTORIAL_BOOK": str(tmp_path / "content" / "vdtutorial"),
+        "PYTHONPATH": os.pathsep.join([str(fake), *filter(None, [os.environ.get("PYTHONPATH")])]),
+    }
     env.pop("VDTUTORIAL_WHEELS", None)
     if wheels is not None:
         env["VDTUTORIAL_WHEELS"] = str(wheels)

@@ -7,6 +7,7 @@ Checking each line of an environment file on its own says nothing about whether 
 nbmake requires nbclient <0.7 and its stable-baselines3 gymnasium <1.3, both below what the course asks. Only a
 solve over the whole file sees that. The route's pip step (``--no-deps``) must then find every requirement of what it
 installs already in the solved environment, and never pybullet, which pip would build from source."""
+
 import asyncio
 import json
 import re
@@ -33,11 +34,24 @@ VIRTUAL = {
     "win-64": [("__win", "0"), ("__archspec", "1")],
 }
 #: Which platforms a requirement's selector in the reference file means.
-SELECTORS = {"win": {"win-64"}, "osx": {"osx-64", "osx-arm64"}, "linux": {"linux-64", "linux-aarch64"},
-             "unix": {"linux-64", "linux-aarch64", "osx-64", "osx-arm64"}}
+SELECTORS = {
+    "win": {"win-64"},
+    "osx": {"osx-64", "osx-arm64"},
+    "linux": {"linux-64", "linux-aarch64"},
+    "unix": {"linux-64", "linux-aarch64", "osx-64", "osx-arm64"},
+}
 #: What only the tests, the benchmarks or a teacher use: never in a learner's environment.
-TOOLING = {"pytest", "pytest-xdist", "nbmake", "ray-core", "ray-default", "nbgrader", "sb3-contrib",
-           "stable-baselines3", "websocket-client"}
+TOOLING = {
+    "pytest",
+    "pytest-xdist",
+    "nbmake",
+    "ray-core",
+    "ray-default",
+    "nbgrader",
+    "sb3-contrib",
+    "stable-baselines3",
+    "websocket-client",
+}
 #: PyPI's names for conda-forge packages that conda-forge names otherwise.
 PYPI_TO_CONDA = {"torch": "pytorch"}
 
@@ -81,10 +95,15 @@ def conda_records(platform: str) -> dict[str, list[dict]]:
                 major, minor = py.split(".")
                 depends += [f"python >={py},<{major}.{int(minor) + 1}.0a0", f"python_abi {py}.* *_cp{tag}"]
                 build = build.replace("{py}", tag)
-            record = {"name": row["name"], "version": row["version"], "build": build,
-                      "build_number": int(row["build_number"]), "depends": depends,
-                      "constrains": _for_platform(_split(row["constrains"]), platform),
-                      "subdir": "noarch" if noarch_row else platform}
+            record = {
+                "name": row["name"],
+                "version": row["version"],
+                "build": build,
+                "build_number": int(row["build_number"]),
+                "depends": depends,
+                "constrains": _for_platform(_split(row["constrains"]), platform),
+                "subdir": "noarch" if noarch_row else platform,
+            }
             if row["python"] == "noarch":
                 record["noarch"] = "python"
             elif noarch_row:
@@ -113,17 +132,23 @@ def environment_specs(name: str) -> list[str]:
 
 def solve(specs: list[str], platform: str, folder: Path) -> dict[str, str]:
     """name -> version of what a conda client would install on ``platform`` for ``specs``."""
-    virtual = [rattler.GenericVirtualPackage(rattler.PackageName(n), rattler.Version(v), rattler.BuildString("0"))
-               for n, v in VIRTUAL[platform]]
-    records = asyncio.run(rattler.solve_with_sparse_repodata(
-        specs, write_channel(platform, folder), virtual_packages=virtual))
+    virtual = [
+        rattler.GenericVirtualPackage(rattler.PackageName(n), rattler.Version(v), rattler.BuildString("0"))
+        for n, v in VIRTUAL[platform]
+    ]
+    records = asyncio.run(
+        rattler.solve_with_sparse_repodata(specs, write_channel(platform, folder), virtual_packages=virtual)
+    )
     return {record.name.normalized: str(record.version) for record in records}
 
 
 def pip_step(name: str) -> list[str]:
     """The route's pip command, as the environment file's header gives it."""
-    commands = [line.strip("# ").strip() for line in (ROOT / name).read_text().splitlines()
-                if line.startswith("#") and "pip install" in line]
+    commands = [
+        line.strip("# ").strip()
+        for line in (ROOT / name).read_text().splitlines()
+        if line.startswith("#") and "pip install" in line
+    ]
     assert len(commands) == 1, f"{name}: its header gives no single pip command"
     return commands[0].split("pip install", 1)[1].split()
 
@@ -139,10 +164,23 @@ def test_the_reference_records_are_a_closed_world_with_sources():
             name = re.sub(r"^\[[^\]]+\] ", "", spec).split()[0]
             assert name in names or name.startswith("__"), f"{row['name']} requires {name}, which is not modelled"
     real = {row["name"] for row in rows if row["kind"] == "real"}
-    assert {"python", "numpy", "pytorch", "pytorch-cpu", "pybullet", "gymnasium", "nbclient", "nbmake",
-            "stable-baselines3", "sb3-contrib", "ray-core", "click"} <= real
-    for package in {spec.split(">")[0].split("<")[0].split("=")[0] for env in ENVIRONMENTS
-                    for spec in environment_specs(env)}:
+    assert {
+        "python",
+        "numpy",
+        "pytorch",
+        "pytorch-cpu",
+        "pybullet",
+        "gymnasium",
+        "nbclient",
+        "nbmake",
+        "stable-baselines3",
+        "sb3-contrib",
+        "ray-core",
+        "click",
+    } <= real
+    for package in {
+        spec.split(">")[0].split("<")[0].split("=")[0] for env in ENVIRONMENTS for spec in environment_specs(env)
+    }:
         assert package in real, f"{package} (asked for by an environment file) is a stub"
 
 
@@ -178,8 +216,11 @@ def test_the_dev_routes_pip_step_finds_its_requirements_in_the_environment(platf
     sb3-contrib) requires only what the solved environment holds, at versions it admits (PyPI's metadata:
     tests/reference/pypi-no-deps-requires.tsv)."""
     solved = solve(environment_specs("environment-dev.yml"), platform, tmp_path)
-    by_pip = {Requirement(arg.strip('"')).name for arg in pip_step("environment-dev.yml")
-              if not arg.startswith("-") and arg != "."}
+    by_pip = {
+        Requirement(arg.strip('"')).name
+        for arg in pip_step("environment-dev.yml")
+        if not arg.startswith("-") and arg != "."
+    }
     declared = {row["package"]: row for row in _table("pypi-no-deps-requires.tsv")}
     assert by_pip == set(declared)
     for package, row in declared.items():

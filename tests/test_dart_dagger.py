@@ -1,5 +1,6 @@
 """DART's noise estimate and DAgger's aggregation (vdtutorial.beyond.dart, vdtutorial.beyond.dagger,
 vdtutorial.beyond.imitation_rounds)."""
+
 import numpy as np
 import pytest
 
@@ -80,7 +81,9 @@ def test_dagger_aggregates_exactly_the_visited_states(dagger_run):
     assert [r["beta"] for r in result.rounds] == [1.0, 0.5, 0.25]
     assert result.expert_seconds > 0
     for name in ("joints", "cup", "actions", "t"):
-        np.testing.assert_array_equal(getattr(result.demos, name), np.concatenate([getattr(p, name) for p in result.parts]))
+        np.testing.assert_array_equal(
+            getattr(result.demos, name), np.concatenate([getattr(p, name) for p in result.parts])
+        )
     # episodes of different rounds stay distinct, so the held-out split keeps whole episodes
     starts = np.cumsum([0] + [len(p) for p in result.parts])
     for k in range(2):

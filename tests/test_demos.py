@@ -1,4 +1,5 @@
 """Demonstrations: eq. 8 pairs, reproducibility, the file format and its errors."""
+
 import zipfile
 
 import gymnasium as gym
@@ -79,7 +80,10 @@ def test_no_temporary_file_is_left_behind(small, tmp_path):
 
 def test_missing_corrupt_and_mismatched_files_name_the_fix(small, tmp_path):
     missing = demo_path("reach", 8000, 0.5, 0, root=tmp_path)
-    with pytest.raises(DemoFileError, match="does not exist.*python -m vdtutorial demos --task reach --samples 8000 --noise 0.5 --seed 0"):
+    with pytest.raises(
+        DemoFileError,
+        match="does not exist.*python -m vdtutorial demos --task reach --samples 8000 --noise 0.5 --seed 0",
+    ):
         Demos.load(missing, task="reach", samples=8000, noise=0.5, seed=0)
     corrupt = tmp_path / "corrupt.npz"
     corrupt.write_bytes(b"not a zip file")

@@ -3,6 +3,7 @@
 This project's machine has no GPU: here the tests check that a missing GPU is refused in one line before any
 work, and that ``device="cpu"`` given explicitly is the default bit for bit. The tests that run on a GPU
 (skipped without one) compare its numbers with the CPU's."""
+
 import dataclasses
 
 import numpy as np
@@ -28,8 +29,10 @@ SHIPPED_DEMOS = demo_path("reach", 8000, 0.5, 0)
 def small_demos():
     """The first 300 samples of the shipped reach set (about 12 episodes)."""
     demos = Demos.load(SHIPPED_DEMOS)
-    return Demos(**{k: getattr(demos, k)[:300] for k in ("joints", "cup", "actions", "episode", "t")},
-                 meta={**demos.meta, "samples": 300})
+    return Demos(
+        **{k: getattr(demos, k)[:300] for k in ("joints", "cup", "actions", "episode", "t")},
+        meta={**demos.meta, "samples": 300},
+    )
 
 
 def _pruned(obs_mode: str):
@@ -43,11 +46,15 @@ def _on_cpu(module: torch.nn.Module) -> bool:
 
 # -- no GPU here: refused in one line, before any work --------------------------------------------------
 @pytest.mark.skipif(HAS_CUDA, reason="this machine has a CUDA GPU")
-@pytest.mark.parametrize("argv", [
-    ["pretrain", "--reg", "l2", "--demos", str(SHIPPED_DEMOS), "--device", "cuda"],
-    ["bench", "finetune", "--device", "cuda"],
-    ["experiment", "fig4", "--device", "cuda"],
-], ids=["pretrain", "bench", "experiment"])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["pretrain", "--reg", "l2", "--demos", str(SHIPPED_DEMOS), "--device", "cuda"],
+        ["bench", "finetune", "--device", "cuda"],
+        ["experiment", "fig4", "--device", "cuda"],
+    ],
+    ids=["pretrain", "bench", "experiment"],
+)
 def test_cuda_without_a_gpu_is_one_line_and_exit_2(argv, tmp_path, capsys):
     out = tmp_path / "out"
     code = main(argv + ["--out", str(out)] if argv[0] != "bench" else argv)
@@ -68,12 +75,17 @@ def test_the_library_refuses_cuda_before_any_work(small_demos):
     env.close()
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["bench", "env", "--device", "cpu", "--profile"], "error: --profile is an option of bench finetune only"),
-    (["bench", "policy", "--device", "cuda"], "error: --device is an option of bench finetune only"),
-    (["experiment", "table1", "--device", "cuda"], "error: table1 pre-trains only (no TRPO runs to resume): "
-                                                   "--device is an option of the figures"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["bench", "env", "--device", "cpu", "--profile"], "error: --profile is an option of bench finetune only"),
+        (["bench", "policy", "--device", "cuda"], "error: --device is an option of bench finetune only"),
+        (
+            ["experiment", "table1", "--device", "cuda"],
+            "error: table1 pre-trains only (no TRPO runs to resume): --device is an option of the figures",
+        ),
+    ],
+)
 def test_device_is_refused_where_it_does_not_apply(argv, message, capsys):
     assert main(argv) == 2
     assert capsys.readouterr().err.strip().splitlines()[-1] == message

@@ -2,6 +2,7 @@
 the paper and the shipped data on pages of their own, and every relative link among these pages and in the
 chapters' text leading to a file that exists (a moved or renamed page would otherwise leave a newcomer at a
 dead end)."""
+
 import json
 import re
 from pathlib import Path
@@ -52,8 +53,11 @@ def test_chapters_link_to_existing_files(notebook):
 
 def test_the_exercise_count_the_guides_quote_is_the_chapters():
     """README and TEACHING.md say how many graded exercises and points the chapters hold: count them."""
-    cells = [cell.get("metadata", {}).get("nbgrader", {}) for path in (ROOT / "notebooks").glob("*.ipynb")
-             for cell in json.loads(path.read_text())["cells"]]
+    cells = [
+        cell.get("metadata", {}).get("nbgrader", {})
+        for path in (ROOT / "notebooks").glob("*.ipynb")
+        for cell in json.loads(path.read_text())["cells"]
+    ]
     graded = [cell["points"] for cell in cells if cell.get("grade") and cell.get("points")]
     quoted = f"{len(graded)} graded exercises ({sum(graded):g} points)"
     assert quoted in (ROOT / "README.md").read_text()
@@ -67,9 +71,15 @@ def test_data_readme_names_every_results_folder():
     assert folders and [f for f in folders if f"`results/{f}/" not in readme] == []
 
 
-BEYOND_THE_WHEEL = ("data/results/fig4/state/", "data/results/fig4_rgbd/state/", "data/results/fig5/state/",
-                    "data/results/fig6/state/", "data/results/fig7/state/", "data/results/fig6_demos1/state/",
-                    "data/results/beyond/demos/")
+BEYOND_THE_WHEEL = (
+    "data/results/fig4/state/",
+    "data/results/fig4_rgbd/state/",
+    "data/results/fig5/state/",
+    "data/results/fig6/state/",
+    "data/results/fig7/state/",
+    "data/results/fig6_demos1/state/",
+    "data/results/beyond/demos/",
+)
 
 
 def test_data_readme_says_what_the_repository_holds_beyond_the_wheel():
@@ -89,10 +99,15 @@ def test_data_readme_says_what_the_repository_holds_beyond_the_wheel():
     for named in ("results/{fig4,fig4_rgbd,fig5,fig6,fig7,fig6_demos1}/state/", "results/beyond/demos/"):
         assert f"`{named}`" in section, named
     assert [f for f in tracked if f not in shipped and not f.startswith(BEYOND_THE_WHEEL)] == []
-    sizes = {part: sum((ROOT / p).stat().st_size for p in shipped_files(ROOT) if p.parts[0] == "data"
-                       and (part == "all" or p.parts[1] == part)) for part in ("all", "demos", "checkpoints", "results")}
+    sizes = {
+        part: sum(
+            (ROOT / p).stat().st_size
+            for p in shipped_files(ROOT)
+            if p.parts[0] == "data" and (part == "all" or p.parts[1] == part)
+        )
+        for part in ("all", "demos", "checkpoints", "results")
+    }
     header = readme.splitlines()[0]
     assert f"{sizes['all'] / 1e6:.1f} MB = {sizes['all'] / 2**20:.1f} MiB in all" in header, header
     for part, word in (("demos", "demonstrations"), ("checkpoints", "checkpoints"), ("results", "results")):
         assert f"{word} {sizes[part] / 1e6:.1f} MB" in header, (part, header)
-

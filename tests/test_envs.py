@@ -1,4 +1,5 @@
 """Gymnasium contract and task behaviour of the two environments."""
+
 import warnings
 
 import gymnasium as gym

@@ -1,5 +1,6 @@
 """Tests of vdtutorial.experiments: tiny real runs of each method (seeded, no writes to data/), and the
 numbers the figures and Table I report, on hand-made inputs."""
+
 import csv
 import importlib.util
 import json
@@ -17,11 +18,29 @@ import pytest
 import torch
 
 from vdtutorial.demos import Demos, demo_path, generate_demos
-from vdtutorial.experiments import (KL_WEIGHTINGS, METHOD_LABELS, TABLE1, Curve, RunSpec, curves_from_rows, expert_reference,
-                                    finetune, format_table1, mean_band, moving_average, pretrained_policy, read_rows,
-                                    results_file,
-                                    run_experiment, seeds_with_trend, sparsity_trends, steps_to_reach, table1,
-                                    table_means, vd_reaches_l2_final)
+from vdtutorial.experiments import (
+    KL_WEIGHTINGS,
+    METHOD_LABELS,
+    TABLE1,
+    Curve,
+    RunSpec,
+    curves_from_rows,
+    expert_reference,
+    finetune,
+    format_table1,
+    mean_band,
+    moving_average,
+    pretrained_policy,
+    read_rows,
+    results_file,
+    run_experiment,
+    seeds_with_trend,
+    sparsity_trends,
+    steps_to_reach,
+    table1,
+    table_means,
+    vd_reaches_l2_final,
+)
 from vdtutorial.experiments.checkpoints import checkpoint_path
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import backends
@@ -38,8 +57,16 @@ STEPS = 400  # two TRPO iterations of 200 steps
 
 
 def _tiny_run(method, tmp_path, seed=0, name="run"):
-    return finetune(method, "reach", DEMOS, seed=seed, total_steps=STEPS, csv_path=tmp_path / f"{name}.csv",
-                    pretrain_config=TINY, checkpoints_root=tmp_path)
+    return finetune(
+        method,
+        "reach",
+        DEMOS,
+        seed=seed,
+        total_steps=STEPS,
+        csv_path=tmp_path / f"{name}.csv",
+        pretrain_config=TINY,
+        checkpoints_root=tmp_path,
+    )
 
 
 def _without_wall_time(rows):
@@ -80,14 +107,15 @@ def test_vd_finetuning_keeps_pruned_weights_at_zero_and_trains_mu_and_sigma(tmp_
         assert torch.all(layer.weight[~layer.mask] == 0)
         assert torch.equal(layer.log_sigma2, before.log_sigma2)  # alpha is not trained in the RL phase
     for net in ("mu", "sigma"):
-        changed = [not torch.equal(a, b) for a, b in zip(getattr(policy, net).parameters(),
-                                                           getattr(start, net).parameters())]
+        changed = [
+            not torch.equal(a, b) for a, b in zip(getattr(policy, net).parameters(), getattr(start, net).parameters())
+        ]
         assert any(changed), f"TRPO did not train {net}"
 
 
 def test_same_seed_same_run_and_another_seed_another(tmp_path):
-    _, first = _tiny_run("l2", tmp_path, seed=3, name="a")    # pre-trains and saves the checkpoint
-    _, again = _tiny_run("l2", tmp_path, seed=3, name="b")    # reuses it
+    _, first = _tiny_run("l2", tmp_path, seed=3, name="a")  # pre-trains and saves the checkpoint
+    _, again = _tiny_run("l2", tmp_path, seed=3, name="b")  # reuses it
     _, other = _tiny_run("l2", tmp_path, seed=4, name="c")
     assert _without_wall_time(first) == _without_wall_time(again)
     assert _without_wall_time(first) != _without_wall_time(other)
@@ -127,9 +155,19 @@ def test_results_do_not_depend_on_the_number_of_workers_or_the_backend(tmp_path)
     backends = (("local", 1), ("local", 2)) + ((("ray", 2),) if importlib.util.find_spec("ray") else ())
     for backend, workers in backends:
         out = tmp_path / f"{backend}{workers}"
-        results[backend, workers] = run_experiment("tiny", specs, "tiny", out, workers, checkpoints_root=out,
-                                                   pretrain_config=TINY, window=2, command="test", backend=backend,
-                                                   progress=False)
+        results[backend, workers] = run_experiment(
+            "tiny",
+            specs,
+            "tiny",
+            out,
+            workers,
+            checkpoints_root=out,
+            pretrain_config=TINY,
+            window=2,
+            command="test",
+            backend=backend,
+            progress=False,
+        )
         assert {p.name for p in out.iterdir()} >= {"tiny.csv.gz", "tiny.png", "tiny.json", "runs", "checkpoints"}
         assert len(list((out / "runs").glob("*.csv"))) == 3 and len(list((out / "runs").glob("*.pt"))) == 3
     reference = _without_wall_time(results["local", 1].rows)
@@ -175,9 +213,29 @@ def test_an_unreachable_ray_address_fails_within_30_s_in_one_line(tmp_path):
     retrying the connection for minutes)."""
     pytest.importorskip("ray")
     start = time.monotonic()
-    run = subprocess.run([sys.executable, "-m", "vdtutorial", "experiment", "fig4", "--seeds", "0", "--steps", "400",
-                          "--backend", "ray", "--address", "127.0.0.1:1", "--out", str(tmp_path / "out")],
-                         capture_output=True, text=True, timeout=120, env={**os.environ, QUICK_ENV: "1"})
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vdtutorial",
+            "experiment",
+            "fig4",
+            "--seeds",
+            "0",
+            "--steps",
+            "400",
+            "--backend",
+            "ray",
+            "--address",
+            "127.0.0.1:1",
+            "--out",
+            str(tmp_path / "out"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, QUICK_ENV: "1"},
+    )
     assert time.monotonic() - start < 30
     assert run.returncode == 2
     assert run.stderr.strip().splitlines()[-1].startswith("error: no Ray cluster answers at 127.0.0.1:1")
@@ -271,10 +329,15 @@ def test_vd_reaches_l2_final_says_what_each_reading_of_the_paper_gives():
 
 
 def test_curves_from_rows_smooths_each_seed_then_averages():
-    rows = [{"label": "VD", "method": "vd", "seed": s, "iteration": i, "env_steps": 200 * (i + 1), "successes": v}
-            for s, values in ((0, [0, 2, 4]), (1, [2, 2, 2])) for i, v in enumerate(values)]
-    rows += [{"label": "IK expert", "method": "expert", "seed": s, "episode": 0, "successes": v}
-             for s, v in ((0, 70), (1, 72))]
+    rows = [
+        {"label": "VD", "method": "vd", "seed": s, "iteration": i, "env_steps": 200 * (i + 1), "successes": v}
+        for s, values in ((0, [0, 2, 4]), (1, [2, 2, 2]))
+        for i, v in enumerate(values)
+    ]
+    rows += [
+        {"label": "IK expert", "method": "expert", "seed": s, "episode": 0, "successes": v}
+        for s, v in ((0, 70), (1, 72))
+    ]
     curves = curves_from_rows(rows, "successes", window=2)
     # seed 0 smoothed: [0, 1, 3]; seed 1: [2, 2, 2]; mean [1, 1.5, 2.5]
     assert np.allclose(curves["VD"].mean, [1, 1.5, 2.5]) and np.allclose(curves["VD"].steps, [200, 400, 600])
@@ -285,9 +348,19 @@ def test_curves_from_rows_smooths_each_seed_then_averages():
 # Table I
 # ---------------------------------------------------------------------------------------------
 def _table_rows(values, seed=0):
-    return [{"experiment": row, "task": task, "samples": n, "noise": s, "neuron_fraction": v, "seed": seed,
-             "neuron_fraction_paper": paper, "weight_fraction": 0.5}
-            for (row, task, n, s, paper), v in zip(TABLE1, values)]
+    return [
+        {
+            "experiment": row,
+            "task": task,
+            "samples": n,
+            "noise": s,
+            "neuron_fraction": v,
+            "seed": seed,
+            "neuron_fraction_paper": paper,
+            "weight_fraction": 0.5,
+        }
+        for (row, task, n, s, paper), v in zip(TABLE1, values)
+    ]
 
 
 def test_table1_trends_on_hand_made_numbers():
@@ -319,8 +392,11 @@ def test_table1_means_intervals_and_trends_over_seeds():
 def test_cli_kl_weightings_are_the_library_ones():
     from vdtutorial.__main__ import build_parser
 
-    action = next(a for a in build_parser()._subparsers._group_actions[0].choices["experiment"]._actions
-                  if a.dest == "kl_weighting")
+    action = next(
+        a
+        for a in build_parser()._subparsers._group_actions[0].choices["experiment"]._actions
+        if a.dest == "kl_weighting"
+    )
     assert tuple(action.choices) == tuple(KL_WEIGHTINGS) and KL_WEIGHTINGS["per-set"] is None
     assert KL_WEIGHTINGS["fixed"] == 7200  # 8000 demonstrations, 10% held out
 
@@ -328,8 +404,7 @@ def test_cli_kl_weightings_are_the_library_ones():
 def test_table1_fixed_weighting_pretrains_its_own_checkpoints(tmp_path):
     """kl_weighting="fixed": every data set is pre-trained with kl_divisor = 7200, into checkpoints of
     their own name (never the per-set ones); a row per data set and seed."""
-    rows = table1(seeds=(0, 1), kl_weighting="fixed", out=tmp_path, workers=1,
-                  pretrain_config=PretrainConfig(epochs=1))
+    rows = table1(seeds=(0, 1), kl_weighting="fixed", out=tmp_path, workers=1, pretrain_config=PretrainConfig(epochs=1))
     assert len(rows) == 12 and {r["kl_divisor"] for r in rows} == {7200} and {r["seed"] for r in rows} == {0, 1}
     made = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
     assert len(made) == 12 and all(name.endswith(("_kl7200.pt")) for name in made)
@@ -384,6 +459,7 @@ def test_files_written_before_kl_divisor_was_renamed_still_load_and_merge():
     name is the same experiment as one with the new."""
     from vdtutorial.experiments.checkpoints import load_checkpoint
     from vdtutorial.experiments.results import with_defaults
+
     path = checkpoint_path(Demos.load(demo_path("reach", 8000, 0.5, 0)).meta, "vd", "state", 0)
     assert "kl_samples" in torch.load(path, weights_only=True)["meta"]["config"]  # as shipped
     config = load_checkpoint(path, kl_divisor=None).pretrain_info["config"]
@@ -391,4 +467,6 @@ def test_files_written_before_kl_divisor_was_renamed_still_load_and_merge():
     old, new = {"kl_samples": 7200, "epochs": 40}, {"kl_divisor": 7200, "epochs": 40}
     names = set(old) | set(new)
     assert with_defaults("pretrain_config", old, names) == with_defaults("pretrain_config", new, names)
-    assert with_defaults("pretrain_config", old, names) != with_defaults("pretrain_config", {**new, "kl_divisor": 1}, names)
+    assert with_defaults("pretrain_config", old, names) != with_defaults(
+        "pretrain_config", {**new, "kl_divisor": 1}, names
+    )

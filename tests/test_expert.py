@@ -1,4 +1,5 @@
 """The IK expert: the solution set G, eq. 9, eq. 10 with its overshoot fix, success rates."""
+
 import math
 
 import gymnasium as gym

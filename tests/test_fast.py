@@ -1,6 +1,7 @@
 """The exact speed-ups of vdtutorial.fast: the fast policy gives the plain policy's distribution bit for bit, and
 fast_policy wraps a policy's own networks without touching what it stores, and reuses a batch's prepared inputs only
 while the batch is unchanged."""
+
 import pytest
 import torch
 import torch.nn.functional as F
@@ -21,7 +22,9 @@ def test_prepared_inputs_give_the_networks_own_outputs_bit_for_bit(kind):
     policy = fast_policy(make_policy(space, action_dim=4, variational=True).eval())
     for layer in vd.svdo_layers(policy):
         with torch.no_grad():
-            layer.log_sigma2.copy_(torch.where(torch.rand_like(layer.weight) < 0.5, 5.0, -10.0) + torch.log(layer.weight ** 2))
+            layer.log_sigma2.copy_(
+                torch.where(torch.rand_like(layer.weight) < 0.5, 5.0, -10.0) + torch.log(layer.weight**2)
+            )
     policy.prune_()
     for n in (1, 7):
         obs = batch(space, n, seed=n)

@@ -1,5 +1,6 @@
 """What a new user meets first: ``--help`` answers without loading torch, and the commands work when run from the
 folder that holds a clone named ``vdtutorial`` (as ``git clone`` names it)."""
+
 import json
 import os
 import subprocess
@@ -16,14 +17,16 @@ PACKAGE_PARENT = Path(vdtutorial.__file__).resolve().parent.parent
 
 
 def test_help_imports_no_torch():
-    probe = ("import runpy, sys\n"
-             "sys.argv = ['vdtutorial', '--help']\n"
-             "try:\n"
-             "    runpy.run_module('vdtutorial', run_name='__main__')\n"
-             "except SystemExit:\n"
-             "    pass\n"
-             "heavy = sorted({'torch', 'matplotlib', 'scipy', 'ray'} & {m.split('.')[0] for m in sys.modules})\n"
-             "print('HEAVY', ','.join(heavy))\n")
+    probe = (
+        "import runpy, sys\n"
+        "sys.argv = ['vdtutorial', '--help']\n"
+        "try:\n"
+        "    runpy.run_module('vdtutorial', run_name='__main__')\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "heavy = sorted({'torch', 'matplotlib', 'scipy', 'ray'} & {m.split('.')[0] for m in sys.modules})\n"
+        "print('HEAVY', ','.join(heavy))\n"
+    )
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert "usage: python -m vdtutorial" in result.stdout
     assert result.stdout.strip().splitlines()[-1] == "HEAVY", result.stdout[-500:]
@@ -62,8 +65,9 @@ def _from_the_folder_of_a_clone(tmp_path, argv, pythonpath=()):
     (site / "sitecustomize.py").write_text(EDITABLE_LIKE)
     env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
     env.update(PYTHONPATH=os.pathsep.join([*map(str, pythonpath), str(site)]), VDTUTORIAL_QUICK="1")
-    return subprocess.run([sys.executable, "-m", "vdtutorial", *argv], cwd=home, env=env, capture_output=True,
-                          text=True)
+    return subprocess.run(
+        [sys.executable, "-m", "vdtutorial", *argv], cwd=home, env=env, capture_output=True, text=True
+    )
 
 
 @pytest.mark.pipeline

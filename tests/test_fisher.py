@@ -1,5 +1,6 @@
 """Tests of vdtutorial.fast.fisher: the Gauss-Newton Fisher-vector product against the Fisher matrix built
 by hand from Jacobians and against the double backward, on small state and image policies, pruned."""
+
 import numpy as np
 import pytest
 import torch
@@ -14,17 +15,24 @@ from vdtutorial.trust_region import double_backward_fvp, fisher_vector_product, 
 from vdtutorial.vd import svdo_layers
 
 STATE_SPACE = spaces.Box(-1.0, 1.0, (9,), np.float32)
-IMAGE_SPACE = spaces.Dict({"rgb": spaces.Box(0, 255, (3, 36, 36), np.uint8),
-                           "depth": spaces.Box(0.0, 3.0, (36 * 36,), np.float32),
-                           "joints": spaces.Box(-np.pi, np.pi, (6,), np.float32)})
+IMAGE_SPACE = spaces.Dict(
+    {
+        "rgb": spaces.Box(0, 255, (3, 36, 36), np.uint8),
+        "depth": spaces.Box(0.0, 3.0, (36 * 36,), np.float32),
+        "joints": spaces.Box(-np.pi, np.pi, (6,), np.float32),
+    }
+)
 SMALL_IMAGE_NET = dict(conv_channels=(2, 3, 3), scene_hidden=(5,), joint_hidden=(5,))  # 36 -> 8 -> 3 -> 1 pixels
 
 
 def small_policy(kind: str, variational: bool = True):
     """A small policy of the paper's kind; with sparse VD, about a third of its weights pruned."""
     torch.manual_seed(0)
-    space, sizes = (STATE_SPACE, dict(scene_hidden=(5, 4), joint_hidden=(5,))) if kind == "state" else \
-        (IMAGE_SPACE, SMALL_IMAGE_NET)
+    space, sizes = (
+        (STATE_SPACE, dict(scene_hidden=(5, 4), joint_hidden=(5,)))
+        if kind == "state"
+        else (IMAGE_SPACE, SMALL_IMAGE_NET)
+    )
     policy = make_policy(space, 2, variational=variational, init_std=0.4, **sizes)
     return (prune_a_third(policy) if variational else policy), space
 
@@ -113,7 +121,8 @@ def test_product_is_zero_along_pruned_weights_and_skips_frozen_parameters():
     assert not any(layer.log_sigma2 in set(params) for layer in svdo_layers(policy))  # frozen by prune_
     obs = sample_obs(space, 8, seed=5)
     product = GaussNewtonFisher(policy, obs, old_distribution(policy, obs), params)(
-        torch.randn(sum(p.numel() for p in params), generator=torch.Generator().manual_seed(6)))
+        torch.randn(sum(p.numel() for p in params), generator=torch.Generator().manual_seed(6))
+    )
     pieces = dict(zip(params, torch.split(product, [p.numel() for p in params])))
     pruned = 0
     for layer in svdo_layers(policy):
@@ -126,8 +135,9 @@ def test_product_is_zero_along_pruned_weights_and_skips_frozen_parameters():
 def test_trpo_with_the_product_keeps_pruned_weights_zero_and_frozen_parameters_fixed():
     torch.manual_seed(0)
     env = make_vec_env("Pendulum-v1", 2)
-    policy = prune_a_third(make_policy(env.single_observation_space, 1, variational=True, kind="mlp",
-                                       scene_hidden=(16, 16)))
+    policy = prune_a_third(
+        make_policy(env.single_observation_space, 1, variational=True, kind="mlp", scene_hidden=(16, 16))
+    )
     layers = svdo_layers(policy)
     before = [(layer.weight.detach().clone(), layer.log_sigma2.detach().clone()) for layer in layers]
     algo = TRPO(policy, env, TRPOConfig(steps_per_iter=64), seed=0, fvp=gauss_newton_fvp)

@@ -1,5 +1,6 @@
 """Our free choices, each changed alone (vdtutorial.experiments.free_choices): the rows, their comparisons,
 the likelihood-sigma equivalence the module relies on, and one small run end to end."""
+
 import json
 from pathlib import Path
 
@@ -49,7 +50,7 @@ def test_the_likelihood_sigma_is_the_regulariser_weight_in_disguise():
         optimiser = torch.optim.Adam(net.parameters(), lr=1e-2)
         for _ in range(100):
             nll = -torch.distributions.Normal(net(obs), sigma).log_prob(actions).sum(-1).mean()
-            loss = nll + coefficient * sum((p ** 2).sum() for n, p in net.named_parameters() if n.endswith("weight"))
+            loss = nll + coefficient * sum((p**2).sum() for n, p in net.named_parameters() if n.endswith("weight"))
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
@@ -69,7 +70,11 @@ def test_a_small_sweep_writes_its_table_and_resumes(tmp_path):
     out = tmp_path / "free_choices"
     record = fc.free_choices(names=("l2_small",), seeds=(0, 1), steps=400, out=out, workers=1, progress=False)
     assert [(r["row"], r["kind"]) for r in record["table"]] == [
-        ("default", "final"), ("default", "auc"), ("l2_small", "final"), ("l2_small", "auc")]
+        ("default", "final"),
+        ("default", "auc"),
+        ("l2_small", "final"),
+        ("l2_small", "auc"),
+    ]
     for row in record["table"]:
         assert row["low"] <= row["estimate"] <= row["high"]
         assert row["holm_verdict"] in ("confirmed", "contradicted", "not confirmed")
@@ -94,8 +99,9 @@ def test_the_shipped_table_is_rederived_from_its_rows_and_is_on_the_results_page
     rows = read_rows(results_file(SHIPPED, "free_choices"))
     effects = claim_effects("free_choices", rows, "successes", record["window"], claims=fc.claims(names))
     derived = fc.table(effects, names, lambda row: "")
-    assert [{k: v for k, v in r.items() if k != "command"} for r in derived] == \
-        [{k: v for k, v in r.items() if k != "command"} for r in record["table"]]
+    assert [{k: v for k, v in r.items() if k != "command"} for r in derived] == [
+        {k: v for k, v in r.items() if k != "command"} for r in record["table"]
+    ]
     # every measure's claims too, the secondary ones one Holm family (what rederive re-writes)
     assert json.loads(json.dumps(effects, default=str)) == record["claims"]
     assert {c["family"] for c in record["claims"]} == {"primary", "secondary"}

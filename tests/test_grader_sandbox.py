@@ -1,5 +1,6 @@
 """The grader against a hostile class: the sandbox seen from inside a kernel, one student who tries to stop the
 grading, the options of ``classroom grade``. The commands that grade whole notebooks are ``pipeline`` tests."""
+
 import csv
 import json
 import os
@@ -44,16 +45,16 @@ print("PROBE " + json.dumps(_found))
 
 
 def _probe_result(text: str) -> dict:
-    return json.loads(next(line for line in text.splitlines() if line.startswith("PROBE "))[len("PROBE "):])
+    return json.loads(next(line for line in text.splitlines() if line.startswith("PROBE "))[len("PROBE ") :])
 
 
 def _assert_confined(found: dict) -> None:
     assert found["dev"] != "done" and not Path("/dev/vdtutorial_probe").exists()
     assert found["proc_sys"] == [] and not found["sys"] and found["cgroup"] == []
     assert found["secret"] in ("FileNotFoundError", "PermissionError")
-    assert max(found["pids"]) < 10, found["pids"]   # its own PID namespace: bwrap, the kernel and its children
+    assert max(found["pids"]) < 10, found["pids"]  # its own PID namespace: bwrap, the kernel and its children
     assert found["uid"] == sandbox.NOBODY
-    if os.getuid() == 0:   # graded as root: the kernel's files are nobody's outside, not root's
+    if os.getuid() == 0:  # graded as root: the kernel's files are nobody's outside, not root's
         assert found["uid"] != 0
 
 
@@ -64,11 +65,15 @@ def test_the_launcher_confines_a_command(tmp_path):
     secret = tmp_path / "source" / "solutions.txt"
     secret.parent.mkdir()
     secret.write_text("the teacher's")
-    marker = f"{600 + os.getpid() % 1000}.25"   # a sleep no other process runs
-    code = (f"SECRET = {str(secret)!r}\n" + PROBE
-            + f"import subprocess\nsubprocess.Popen(['sleep', '{marker}'], start_new_session=True)\n")
-    cmd = sandbox.command([sys.executable, "-c", code], 2 << 30, 60, home_under=tmp_path,
-                          read_only=sandbox.python_paths())
+    marker = f"{600 + os.getpid() % 1000}.25"  # a sleep no other process runs
+    code = (
+        f"SECRET = {str(secret)!r}\n"
+        + PROBE
+        + f"import subprocess\nsubprocess.Popen(['sleep', '{marker}'], start_new_session=True)\n"
+    )
+    cmd = sandbox.command(
+        [sys.executable, "-c", code], 2 << 30, 60, home_under=tmp_path, read_only=sandbox.python_paths()
+    )
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     _assert_confined(_probe_result(run.stdout))
     time.sleep(1)
@@ -83,12 +88,24 @@ def _cmdline(pid: str) -> str:
         return ""
 
 
-@pytest.mark.parametrize("option, value", [("--memory", "inf"), ("--memory", "nan"), ("--memory", "0"),
-                                           ("--cpu-minutes", "1e300"), ("--cpu-minutes", "-1"),
-                                           ("--timeout", "-5"), ("--timeout", "nan"), ("--workers", "0"),
-                                           ("--workers", "1.5"), ("--wall-minutes", "inf")])
+@pytest.mark.parametrize(
+    "option, value",
+    [
+        ("--memory", "inf"),
+        ("--memory", "nan"),
+        ("--memory", "0"),
+        ("--cpu-minutes", "1e300"),
+        ("--cpu-minutes", "-1"),
+        ("--timeout", "-5"),
+        ("--timeout", "nan"),
+        ("--workers", "0"),
+        ("--workers", "1.5"),
+        ("--wall-minutes", "inf"),
+    ],
+)
 def test_a_limit_that_is_not_finite_and_positive_is_one_error_line_before_anything_is_written(
-        option, value, tmp_path, capsys):
+    option, value, tmp_path, capsys
+):
     (tmp_path / "ann").mkdir()
     (tmp_path / "ann" / "10_what_reproduced.ipynb").write_bytes(classroom.chapters()["10_what_reproduced"].read_bytes())
     with pytest.raises(SystemExit) as stop:
@@ -116,8 +133,7 @@ def test_a_table_graded_without_a_sandbox_says_so(tmp_path):
         assert [row["sandbox"] for row in csv.DictReader(fh)] == ["NO"]
 
 
-def _chapter_with(chapter: str, code_before_answers: dict[str, str] = (), extra_cell: str | None = None,
-                  at: int = 3):
+def _chapter_with(chapter: str, code_before_answers: dict[str, str] = (), extra_cell: str | None = None, at: int = 3):
     """The teacher's ``chapter`` (solved), with code put in front of some answers, and one more cell."""
     nb = nbformat.read(classroom.chapters()[chapter], as_version=4)
     for cell in nb.cells:
@@ -145,11 +161,11 @@ def test_a_graded_cell_is_confined(tmp_path):
     secret = course / "source" / classroom.ASSIGNMENT / "00_start_here.ipynb"
     cell = f"SECRET = {str(secret)!r}\n" + PROBE
     folder = _hand_in(tmp_path / "in", "mallory", "00_start_here", _chapter_with("00_start_here", extra_cell=cell))
-    classroom.grade([folder], course, timeout=120, static_check=False)   # the sandbox alone, not the static check
+    classroom.grade([folder], course, timeout=120, static_check=False)  # the sandbox alone, not the static check
     ran = nbformat.read(course / "autograded" / "mallory" / classroom.ASSIGNMENT / "00_start_here.ipynb", 4)
     printed = "".join(o.get("text", "") for c in ran.cells if c.cell_type == "code" for o in c.get("outputs", []))
     found = _probe_result(printed)
-    assert secret.is_file()   # there, outside the sandbox
+    assert secret.is_file()  # there, outside the sandbox
     _assert_confined(found)
 
 
@@ -177,21 +193,30 @@ def test_one_student_never_stops_the_class(tmp_path):
         _hand_in(tmp_path / "in", student, chapter, _chapter_with(chapter, extra_cell=cell, at=4))
     wall_minutes = 6.0
     start = time.monotonic()
-    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", timeout=600, workers=2,
-                             limits=classroom.Limits(wall_minutes=wall_minutes), static_check=False)
+    scores = classroom.grade(
+        sorted((tmp_path / "in").iterdir()),
+        tmp_path / "course",
+        timeout=600,
+        workers=2,
+        limits=classroom.Limits(wall_minutes=wall_minutes),
+        static_check=False,
+    )
     took = time.monotonic() - start
     totals = {st: sum(s.score for s in scores if s.student == st) for st in CLASS_OF_FIVE}
     possible = sum(s.max_score for s in scores if s.student == "honest1")
     assert possible > 0
     assert totals["honest1"] == totals["honest2"] == totals["killer"] == totals["stopper"] == possible, totals
     assert totals["hanger"] == 0
-    assert all(s.refused.startswith("grading did not finish: ") and "budget" in s.refused
-               for s in scores if s.student == "hanger")
+    assert all(
+        s.refused.startswith("grading did not finish: ") and "budget" in s.refused
+        for s in scores
+        if s.student == "hanger"
+    )
     with open(tmp_path / "course" / "grades.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert {r["student"] for r in rows if r["refused"].startswith("grading did not finish")} == {"hanger"}
     assert "grading did not finish" in classroom.table(scores)
-    assert took < 3 * wall_minutes * 60, took   # five submissions, two at a time, none past its budget
+    assert took < 3 * wall_minutes * 60, took  # five submissions, two at a time, none past its budget
 
 
 def _npz_bomb(path: Path, gigabytes: float) -> None:
@@ -203,11 +228,13 @@ def _npz_bomb(path: Path, gigabytes: float) -> None:
     count = int(gigabytes * 2**30) // 8
     header = {"descr": "<f8", "fortran_order": False, "shape": (count,)}
     chunk = bytes(64 << 20)
-    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive, \
-            archive.open("log_alpha.npy", "w", force_zip64=True) as fh:
+    with (
+        zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive,
+        archive.open("log_alpha.npy", "w", force_zip64=True) as fh,
+    ):
         np.lib.format.write_array_header_2_0(fh, header)
         for start in range(0, count * 8, len(chunk)):
-            fh.write(chunk[:min(len(chunk), count * 8 - start)])
+            fh.write(chunk[: min(len(chunk), count * 8 - start)])
 
 
 def test_an_outputs_bomb_is_refused_before_it_is_decompressed(tmp_path):
@@ -221,10 +248,10 @@ def test_an_outputs_bomb_is_refused_before_it_is_decompressed(tmp_path):
     assert checks.outputs_path(tmp_path, "ch04_svdo_layer").stat().st_size < 16 << 20
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     assert classroom._outputs(tmp_path, "ch04_svdo_layer") is None
-    grown = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) << 10   # Linux: kB
+    grown = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) << 10  # Linux: kB
     assert grown < 256 << 20, grown
     checks.save(checks.outputs_path(tmp_path, "ch04_svdo_layer"), {"log_alpha": [[1.0, 2.0]]})
-    assert classroom._outputs(tmp_path, "ch04_svdo_layer")["log_alpha"].shape == (1, 2)   # an honest one is read
+    assert classroom._outputs(tmp_path, "ch04_svdo_layer")["log_alpha"].shape == (1, 2)  # an honest one is read
 
 
 def test_a_students_error_message_is_text_not_markup_in_the_feedback_page(tmp_path):

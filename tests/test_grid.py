@@ -1,5 +1,6 @@
 """Restartable grids: a grid killed with SIGKILL and run again gives the rows of an uninterrupted grid;
 saved runs of other settings are an error (or discarded with restart); the defaults of the experiments."""
+
 import io
 import json
 import math
@@ -16,8 +17,18 @@ import numpy as np
 import pytest
 import torch
 
-from vdtutorial.experiments import (SUBSAMPLED_FISHER_CONFIG, Curve, ExperimentResult, ResumeError, RunSpec,
-                                    default_trpo_config, format_summary, read_rows, results_file, run_experiment)
+from vdtutorial.experiments import (
+    SUBSAMPLED_FISHER_CONFIG,
+    Curve,
+    ExperimentResult,
+    ResumeError,
+    RunSpec,
+    default_trpo_config,
+    format_summary,
+    read_rows,
+    results_file,
+    run_experiment,
+)
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments import finetune
 from vdtutorial.runner import resume as resume_module
@@ -30,8 +41,21 @@ from vdtutorial.trpo import TIMING_COLUMNS, TRPOConfig
 pytestmark = pytest.mark.pipeline  # a command, chapter or long run end to end: CI's lock leg only
 
 #: 20 iterations per TRPO run, a state saved after each: a wide window in which to kill the grid.
-COMMAND = [sys.executable, "-m", "vdtutorial", "experiment", "fig4", "--seeds", "0", "--steps", "4000",
-           "--workers", "2", "--checkpoint-every", "1"]
+COMMAND = [
+    sys.executable,
+    "-m",
+    "vdtutorial",
+    "experiment",
+    "fig4",
+    "--seeds",
+    "0",
+    "--steps",
+    "4000",
+    "--workers",
+    "2",
+    "--checkpoint-every",
+    "1",
+]
 ITERATIONS = 20
 
 
@@ -64,8 +88,13 @@ def test_a_grid_killed_with_sigkill_resumes_to_the_rows_of_an_uninterrupted_grid
     # the killed grid reuses the pre-trained policies (what is tested is the RL stage, not pre-training)
     shutil.copytree(whole / "checkpoints", killed / "checkpoints")
 
-    grid = subprocess.Popen([*COMMAND, "--out", str(killed)], env=env, start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    grid = subprocess.Popen(
+        [*COMMAND, "--out", str(killed)],
+        env=env,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + 600
     while time.monotonic() < deadline and grid.poll() is None:
         saved = _saved_iterations(killed / "runs")
@@ -96,9 +125,16 @@ def test_ctrl_c_stops_a_grid_with_workers_with_one_line(tmp_path):
     def like_a_terminal():  # a test runner's worker may ignore SIGINT, and an ignored signal stays ignored in a child
         signal.signal(signal.SIGINT, signal.SIG_DFL)
 
-    longer = [*COMMAND[:COMMAND.index("--steps") + 1], "40000", *COMMAND[COMMAND.index("--steps") + 2:]]
-    grid = subprocess.Popen([*longer, "--out", str(tmp_path)], env=env, start_new_session=True,  # 200 iterations a run
-                            preexec_fn=like_a_terminal, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    longer = [*COMMAND[: COMMAND.index("--steps") + 1], "40000", *COMMAND[COMMAND.index("--steps") + 2 :]]
+    grid = subprocess.Popen(
+        [*longer, "--out", str(tmp_path)],
+        env=env,
+        start_new_session=True,  # 200 iterations a run
+        preexec_fn=like_a_terminal,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 600
     while time.monotonic() < deadline and grid.poll() is None and not _saved_iterations(tmp_path / "runs"):
         time.sleep(0.05)
@@ -111,8 +147,9 @@ def test_ctrl_c_stops_a_grid_with_workers_with_one_line(tmp_path):
 
 def _tiny_grid(out, trpo_config=None, **kwargs):
     specs = [RunSpec("none", "reach", None, None, seed, "state", 400, "none") for seed in (0, 1)]
-    return run_experiment("tiny", specs, "tiny", out, 1, window=2, command="test", trpo_config=trpo_config,
-                          progress=False, **kwargs)
+    return run_experiment(
+        "tiny", specs, "tiny", out, 1, window=2, command="test", trpo_config=trpo_config, progress=False, **kwargs
+    )
 
 
 def test_saved_runs_of_other_settings_are_an_error_and_restart_discards_them(tmp_path):
@@ -125,8 +162,15 @@ def test_saved_runs_of_other_settings_are_an_error_and_restart_discards_them(tmp
     with pytest.raises(ResumeError, match=r"max_kl: 0\.01 -> 0\.02.*--restart"):
         _tiny_grid(tmp_path, other)
     with pytest.raises(ResumeError, match="more than the 1 asked for"):
-        run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 200, "none")], "tiny", tmp_path, 1,
-                       window=2, progress=False)
+        run_experiment(
+            "tiny",
+            [RunSpec("none", "reach", None, None, 0, "state", 200, "none")],
+            "tiny",
+            tmp_path,
+            1,
+            window=2,
+            progress=False,
+        )
     restarted = _tiny_grid(tmp_path, other, restart=True)
     assert restarted.rows != first.rows
     assert all(r["mean_kl"] <= 0.02 + 1e-7 for r in restarted.rows)
@@ -134,12 +178,33 @@ def test_saved_runs_of_other_settings_are_an_error_and_restart_discards_them(tmp
 
 
 def test_a_longer_budget_extends_finished_runs_to_the_rows_of_a_longer_run(tmp_path):
-    short = run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 400, "none")], "tiny",
-                           tmp_path / "a", 1, window=2, progress=False)
-    longer = run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 800, "none")], "tiny",
-                            tmp_path / "a", 1, window=2, progress=False)
-    fresh = run_experiment("tiny", [RunSpec("none", "reach", None, None, 0, "state", 800, "none")], "tiny",
-                           tmp_path / "b", 1, window=2, progress=False)
+    short = run_experiment(
+        "tiny",
+        [RunSpec("none", "reach", None, None, 0, "state", 400, "none")],
+        "tiny",
+        tmp_path / "a",
+        1,
+        window=2,
+        progress=False,
+    )
+    longer = run_experiment(
+        "tiny",
+        [RunSpec("none", "reach", None, None, 0, "state", 800, "none")],
+        "tiny",
+        tmp_path / "a",
+        1,
+        window=2,
+        progress=False,
+    )
+    fresh = run_experiment(
+        "tiny",
+        [RunSpec("none", "reach", None, None, 0, "state", 800, "none")],
+        "tiny",
+        tmp_path / "b",
+        1,
+        window=2,
+        progress=False,
+    )
     drop = _without_wall_time
     assert drop(longer.rows[:2]) == drop(short.rows) and drop(longer.rows) == drop(fresh.rows)
 
@@ -151,8 +216,16 @@ def test_a_resumed_run_does_not_fit_its_start_sigma_again(tmp_path, monkeypatch)
     config = PretrainConfig(epochs=1, initial_sigma="spread")
 
     def run(steps, state_path=None):
-        return finetune("vd", "reach", demo_path("reach", 2000, 0.5, 0), total_steps=steps, pretrain_config=config,
-                        checkpoints_root=tmp_path, state_path=state_path, checkpoint_every=1)[1]
+        return finetune(
+            "vd",
+            "reach",
+            demo_path("reach", 2000, 0.5, 0),
+            total_steps=steps,
+            pretrain_config=config,
+            checkpoints_root=tmp_path,
+            state_path=state_path,
+            checkpoint_every=1,
+        )[1]
 
     whole = run(800)
     run(400, tmp_path / "state.pt")
@@ -172,6 +245,7 @@ def test_a_resumed_run_does_not_fit_its_start_sigma_again(tmp_path, monkeypatch)
 def test_run_states_are_compressed_and_uncompressed_states_still_resume(tmp_path):
     """States are written gzip-compressed; a state in the earlier, uncompressed format (``torch.save``'s
     own) continues to the rows of an uninterrupted run, and its next save is compressed."""
+
     def run(steps, state_path=None):
         return finetune("none", "reach", total_steps=steps, state_path=state_path, checkpoint_every=1)[1]
 
@@ -261,10 +335,16 @@ def test_the_whole_batch_fisher_is_the_default_everywhere_and_10_percent_the_con
 
 def test_the_summary_of_a_single_seed_prints_no_nan_band():
     nan = [math.nan]
-    curves = {"VD": Curve("VD", "vd", [200.0], [2.0], nan, nan, 1),
-              "L2": Curve("L2", "l2", [200.0], [1.0], [0.5], [1.5], 3)}
-    summary = {"final": {label: {"mean": c.mean[-1], "low": c.low[-1], "high": c.high[-1], "seeds": c.seeds}
-                         for label, c in curves.items()}}
+    curves = {
+        "VD": Curve("VD", "vd", [200.0], [2.0], nan, nan, 1),
+        "L2": Curve("L2", "l2", [200.0], [1.0], [0.5], [1.5], 3),
+    }
+    summary = {
+        "final": {
+            label: {"mean": c.mean[-1], "low": c.low[-1], "high": c.high[-1], "seeds": c.seeds}
+            for label, c in curves.items()
+        }
+    }
     text = format_summary(ExperimentResult("fig4", "runs/fig4", [], curves, None, summary))
     assert "nan" not in text
     assert "final 2.00 (1 seed: no band from a single sample)" in text
@@ -274,8 +354,8 @@ def test_the_summary_of_a_single_seed_prints_no_nan_band():
 def test_wall_time_estimate_on_hand_made_runs():
     from vdtutorial.experiments.estimate import distinct_runs, makespan
 
-    assert makespan([3.0, 3.0, 3.0, 1.0], 2) == 6.0    # runs in order on the first free core: 3+3 | 3+1
-    assert makespan([1.0, 2.0, 3.0], 5) == 3.0          # more cores than runs: the longest run
+    assert makespan([3.0, 3.0, 3.0, 1.0], 2) == 6.0  # runs in order on the first free core: 3+3 | 3+1
+    assert makespan([1.0, 2.0, 3.0], 5) == 3.0  # more cores than runs: the longest run
     assert makespan([], 4) == 0.0
     # Fig. 4's VD, L2, none; Fig. 5 adds VD and L2 on 2000 and 4000 samples; Fig. 6 on Sigma 0.05 and 0.25
     assert len(distinct_runs(["fig4", "fig5", "fig6"], seeds=(0,))) == 3 + 4 + 4
@@ -286,9 +366,9 @@ def test_run_seconds_adds_pretraining_only_where_no_checkpoint_is_shipped():
 
     runs = {(s.method, s.samples): s for s in distinct_runs(["fig4", "fig5"], seeds=(0,))}
     cost = {"vd": 1000.0, "l2": 400.0}
-    assert not needs_pretraining(runs[("vd", 8000)])          # shipped rgbd checkpoint of Fig. 4's data set
+    assert not needs_pretraining(runs[("vd", 8000)])  # shipped rgbd checkpoint of Fig. 4's data set
     assert run_seconds(runs[("vd", 8000)], 100.0, cost, 50.0) == 3000.0 + 50.0
-    assert needs_pretraining(runs[("l2", 2000)])              # no shipped image checkpoint for 2000 samples
+    assert needs_pretraining(runs[("l2", 2000)])  # no shipped image checkpoint for 2000 samples
     # ... and its start sigma follows the VD network's spread: the VD checkpoint is made too
     assert run_seconds(runs[("l2", 2000)], 100.0, cost, 50.0) == 3000.0 + 50.0 + 400.0 + 1000.0
     assert run_seconds(runs[("vd", 2000)], 100.0, cost, 50.0) == 3000.0 + 50.0 + 1000.0
@@ -307,7 +387,6 @@ def test_the_long_runs_pages_wall_time_table_is_what_its_command_prints():
     assert call, "docs/long-runs.md no longer shows the estimate's command"
     args = ast.literal_eval(f"({call.group(1)},)")
     assert wall_time_table(*args) in page
-
 
 
 def test_stored_rows_round_floats_to_what_the_csv_gives_back(tmp_path):

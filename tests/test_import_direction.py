@@ -5,6 +5,7 @@ those below it (anywhere in the file: the command line's imports inside function
 no module imports one that imports it back, directly or through others.
 
 One list records what has not been cut yet; it may only shrink (the tests say when an entry is cut)."""
+
 from __future__ import annotations
 
 import ast
@@ -72,8 +73,12 @@ def test_every_subpackage_has_a_place_in_the_stack():
 
 
 def test_no_module_imports_from_a_layer_above_its_own():
-    against = {(module, imported) for module, imports in _graph().items() for imported in imports
-               if _layer(imported) not in MAY_IMPORT[_layer(module)] | {_layer(module)}}
+    against = {
+        (module, imported)
+        for module, imports in _graph().items()
+        for imported in imports
+        if _layer(imported) not in MAY_IMPORT[_layer(module)] | {_layer(module)}
+    }
     assert against <= NOT_YET_CUT, f"imports against the direction: {sorted(against - NOT_YET_CUT)}"
     assert not NOT_YET_CUT - against, f"cut, so strike them from NOT_YET_CUT: {sorted(NOT_YET_CUT - against)}"
 
@@ -117,7 +122,11 @@ def test_no_two_modules_import_each_other():
 
 def test_the_checks_see_an_import_against_the_direction_and_a_cycle():
     """The checks themselves: a core module importing the experiments, and two modules importing each other."""
-    graph = {"vdtutorial.pretrain": {"vdtutorial.experiments.runs"}, "vdtutorial.experiments.runs": set(),
-             "vdtutorial.beyond.a": {"vdtutorial.beyond.b"}, "vdtutorial.beyond.b": {"vdtutorial.beyond.a"}}
+    graph = {
+        "vdtutorial.pretrain": {"vdtutorial.experiments.runs"},
+        "vdtutorial.experiments.runs": set(),
+        "vdtutorial.beyond.a": {"vdtutorial.beyond.b"},
+        "vdtutorial.beyond.b": {"vdtutorial.beyond.a"},
+    }
     assert _layer("vdtutorial.experiments.runs") not in MAY_IMPORT[_layer("vdtutorial.pretrain")]
     assert _cycles(graph) == [["vdtutorial.beyond.a", "vdtutorial.beyond.b"]]

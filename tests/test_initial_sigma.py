@@ -1,13 +1,19 @@
 """Sigma at the start of RL: the three options of vdtutorial.experiments.initial_sigma, alone and inside
 pre-training."""
+
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 
 from vdtutorial.__main__ import build_parser
-from vdtutorial.experiments.initial_sigma import (InitialSigma, apply_initial_sigma, gaussian_nll, pretrain_with_sigma,
-                                             vd_spread)
+from vdtutorial.experiments.initial_sigma import (
+    InitialSigma,
+    apply_initial_sigma,
+    gaussian_nll,
+    pretrain_with_sigma,
+    vd_spread,
+)
 from vdtutorial.demos import generate_demos
 from vdtutorial.experiments.checkpoints import checkpoint_path
 from vdtutorial.policy import make_policy
@@ -68,7 +74,7 @@ def test_spread_option_tracks_the_vd_spread_and_ignores_pruned_weights():
     with torch.no_grad():  # a trained-like head (undo the small init) and alpha = e^-1 on every weight (all kept)
         policy.mu.head[0].weight.mul_(10)
         for layer in svdo_layers(policy.mu):
-            layer.log_sigma2.copy_(torch.log(layer.weight ** 2) - 1.0)
+            layer.log_sigma2.copy_(torch.log(layer.weight**2) - 1.0)
     obs = torch.rand(1000, 2) * 2 - 1
     spread = vd_spread(policy.mu, obs, samples=400)
     assert 0.05 < spread.median() < 0.2 and torch.log(spread).std() > 0.1  # state-dependent, above sigma's floor
@@ -113,7 +119,9 @@ def test_pretraining_with_demos_sigma_raises_the_likelihood_of_the_demonstration
     "spread" for an L2 policy asks for the VD network."""
     torch.set_num_threads(1)
     fixed, _ = pretrain(demos, PretrainConfig(reg="vd", epochs=5), seed=0, progress=False)
-    fitted, _ = pretrain_with_sigma(demos, PretrainConfig(reg="vd", epochs=5, initial_sigma="demos"), seed=0, progress=False)
+    fitted, _ = pretrain_with_sigma(
+        demos, PretrainConfig(reg="vd", epochs=5, initial_sigma="demos"), seed=0, progress=False
+    )
     for p, q in zip(fixed.mu.parameters(), fitted.mu.parameters()):
         assert torch.equal(p, q)
     train, _ = split_by_episode(demos, 0.1, 0)
@@ -125,7 +133,9 @@ def test_pretraining_with_demos_sigma_raises_the_likelihood_of_the_demonstration
     assert fitted.pretrain_info["config"]["initial_sigma"] == "demos"
     with pytest.raises(ValueError, match="spread_net"):
         pretrain_with_sigma(demos, PretrainConfig(reg="l2", epochs=1, initial_sigma="spread"), seed=0, progress=False)
-    with pytest.raises(ValueError, match="pretrain_with_sigma"):  # the core's cloning fixes sigma only, and says where fits are
+    with pytest.raises(
+        ValueError, match="pretrain_with_sigma"
+    ):  # the core's cloning fixes sigma only, and says where fits are
         pretrain(demos, PretrainConfig(reg="vd", epochs=1, initial_sigma="demos"), seed=0, progress=False)
 
 

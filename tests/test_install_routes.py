@@ -1,5 +1,6 @@
 """Where learners run the package: the chapters written out of an installation, the folders they then read
 and write, the records that must not name the machine that made them, and chapter 00's install checks."""
+
 import json
 import subprocess
 import sys
@@ -19,8 +20,12 @@ def test_notebooks_writes_every_chapter_and_data_file_and_records_them(tmp_path)
     book = write_notebooks(tmp_path / "book")
     chapters = sorted(p.name for p in (ROOT / "notebooks").glob("*.ipynb"))
     assert sorted(p.name for p in (book.dest / "notebooks").glob("*.ipynb")) == chapters
-    assert book.chapters + book.appendices == len(chapters) and book.data_files == sum(1 for p in shipped_files() if p.parts[0] == "data")
-    assert (book.dest / "data/results/fig4/fig4.json").read_bytes() == (ROOT / "data/results/fig4/fig4.json").read_bytes()
+    assert book.chapters + book.appendices == len(chapters) and book.data_files == sum(
+        1 for p in shipped_files() if p.parts[0] == "data"
+    )
+    assert (book.dest / "data/results/fig4/fig4.json").read_bytes() == (
+        ROOT / "data/results/fig4/fig4.json"
+    ).read_bytes()
     record = json.loads((book.dest / BOOK_RECORD).read_text())
     assert set(record["files"]) == {p.as_posix() for p in shipped_files()}
 
@@ -57,8 +62,17 @@ def test_the_command_refuses_in_one_line(tmp_path, capsys):
 
 def test_chapters_run_from_a_written_folder_read_and_write_there(tmp_path):
     write_notebooks(tmp_path / "book")
-    where = subprocess.run([sys.executable, "-c", "from vdtutorial.experiments import paths as p; print(p.data_dir()); print(p.runs_dir())"],
-                           cwd=tmp_path / "book" / "notebooks", capture_output=True, text=True, check=True).stdout.split()
+    where = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "from vdtutorial.experiments import paths as p; print(p.data_dir()); print(p.runs_dir())",
+        ],
+        cwd=tmp_path / "book" / "notebooks",
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
     assert [Path(p) for p in where] == [tmp_path / "book" / "data", tmp_path / "book" / "runs"]
 
 
@@ -76,11 +90,14 @@ class _FakeDistribution:
         return self.files.get(name)
 
 
-@pytest.mark.parametrize("files, route", [
-    ({"INSTALLER": "pip\n", "WHEEL": "Wheel-Version: 1.0\nTag: cp311-cp311-manylinux_2_17_x86_64\n"}, "wheel"),
-    ({"INSTALLER": "pip\n", "WHEEL": "Wheel-Version: 1.0\nTag: cp313-cp313-linux_x86_64\n"}, "source"),
-    ({"INSTALLER": "conda\n"}, "conda"),
-])
+@pytest.mark.parametrize(
+    "files, route",
+    [
+        ({"INSTALLER": "pip\n", "WHEEL": "Wheel-Version: 1.0\nTag: cp311-cp311-manylinux_2_17_x86_64\n"}, "wheel"),
+        ({"INSTALLER": "pip\n", "WHEEL": "Wheel-Version: 1.0\nTag: cp313-cp313-linux_x86_64\n"}, "source"),
+        ({"INSTALLER": "conda\n"}, "conda"),
+    ],
+)
 def test_pybullet_route_is_read_from_its_metadata(files, route):
     assert install_check.pybullet_route(_FakeDistribution(**files)) == route
 
@@ -102,21 +119,26 @@ def test_this_machine_passes_the_checks_it_runs_ci_on():
 
 
 def test_a_missing_pybullet_says_how_to_get_it_on_this_machine():
-    hide = ("import importlib.util as u; real = u.find_spec; "
-            "u.find_spec = lambda name, *a: None if name == 'pybullet' else real(name, *a); import vdtutorial")
+    hide = (
+        "import importlib.util as u; real = u.find_spec; "
+        "u.find_spec = lambda name, *a: None if name == 'pybullet' else real(name, *a); import vdtutorial"
+    )
     run = subprocess.run([sys.executable, "-c", hide], capture_output=True, text=True)
     assert run.returncode != 0
     assert f"pybullet is not installed: {install_check.missing_pybullet()}" in run.stderr.splitlines()[-1]
 
 
-@pytest.mark.parametrize("system, machine, version, route, advice", [
-    ("Linux", "x86_64", (3, 11), "Linux x86_64", "a prebuilt wheel"),
-    ("Linux", "x86_64", (3, 13), "Linux x86_64", "--no-build-isolation"),
-    ("Linux", "aarch64", (3, 11), "Linux aarch64", "pip install --no-deps -e ."),
-    ("Darwin", "arm64", (3, 12), "macOS arm64", "conda env create -f environment.yml"),
-    ("Darwin", "x86_64", (3, 12), "macOS x86_64", "conda env create -f environment.yml"),
-    ("Windows", "AMD64", (3, 11), "Windows", "conda env create -f environment.yml"),
-])
+@pytest.mark.parametrize(
+    "system, machine, version, route, advice",
+    [
+        ("Linux", "x86_64", (3, 11), "Linux x86_64", "a prebuilt wheel"),
+        ("Linux", "x86_64", (3, 13), "Linux x86_64", "--no-build-isolation"),
+        ("Linux", "aarch64", (3, 11), "Linux aarch64", "pip install --no-deps -e ."),
+        ("Darwin", "arm64", (3, 12), "macOS arm64", "conda env create -f environment.yml"),
+        ("Darwin", "x86_64", (3, 12), "macOS x86_64", "conda env create -f environment.yml"),
+        ("Windows", "AMD64", (3, 11), "Windows", "conda env create -f environment.yml"),
+    ],
+)
 def test_the_advice_for_a_missing_pybullet_follows_the_platform(monkeypatch, system, machine, version, route, advice):
     monkeypatch.setattr(install_check.platform, "system", lambda: system)
     monkeypatch.setattr(install_check.platform, "machine", lambda: machine)

@@ -1,5 +1,6 @@
 """The image observation as standard RL libraries expect it (uint8 RGB channels first, metric depth in
 its own key), the memory it saves, and the shipped image checkpoints reading it unchanged."""
+
 import warnings
 
 import gymnasium as gym

@@ -1,5 +1,6 @@
 """The CPU kernel pins (vdtutorial.runner.kernels): set only when asked (never by ``import vdtutorial``), only
 where unset and only on x86-64 CPUs with AVX2; ``--exact-kernels`` starts a command again with them in effect."""
+
 import json
 import os
 import subprocess
@@ -11,9 +12,11 @@ import pytest
 from vdtutorial.runner import kernels
 from vdtutorial.runner.kernels import PINNED, cpu_flags, pin_vector_kernels
 
-PROBE = ("import json, vdtutorial, torch, threadpoolctl; "
-         "blas = [i for i in threadpoolctl.threadpool_info() if i['internal_api'] == 'openblas']; "
-         "print(json.dumps([torch.backends.cpu.get_cpu_capability(), blas[0].get('architecture') if blas else None]))")
+PROBE = (
+    "import json, vdtutorial, torch, threadpoolctl; "
+    "blas = [i for i in threadpoolctl.threadpool_info() if i['internal_api'] == 'openblas']; "
+    "print(json.dumps([torch.backends.cpu.get_cpu_capability(), blas[0].get('architecture') if blas else None]))"
+)
 
 
 def test_cpu_flags_reads_the_flags_line(tmp_path):
@@ -23,12 +26,20 @@ def test_cpu_flags_reads_the_flags_line(tmp_path):
     assert cpu_flags(str(tmp_path / "missing")) == set()
 
 
-@pytest.mark.parametrize("machine, flags, environ, expected", [
-    ("x86_64", {"avx2", "avx512f"}, {}, PINNED),
-    ("x86_64", {"avx2"}, {"OPENBLAS_CORETYPE": "Zen"}, {k: v for k, v in PINNED.items() if k != "OPENBLAS_CORETYPE"}),
-    ("x86_64", {"avx", "sse4_2"}, {}, {}),  # forcing AVX2 on a CPU without it would stop the process
-    ("aarch64", {"avx2"}, {}, {}),
-])
+@pytest.mark.parametrize(
+    "machine, flags, environ, expected",
+    [
+        ("x86_64", {"avx2", "avx512f"}, {}, PINNED),
+        (
+            "x86_64",
+            {"avx2"},
+            {"OPENBLAS_CORETYPE": "Zen"},
+            {k: v for k, v in PINNED.items() if k != "OPENBLAS_CORETYPE"},
+        ),
+        ("x86_64", {"avx", "sse4_2"}, {}, {}),  # forcing AVX2 on a CPU without it would stop the process
+        ("aarch64", {"avx2"}, {}, {}),
+    ],
+)
 def test_pins_are_set_only_where_unset_and_only_on_an_avx2_cpu(monkeypatch, machine, flags, environ, expected):
     monkeypatch.setattr(kernels.platform, "machine", lambda: machine)
     before = dict(environ)
@@ -55,18 +66,21 @@ def test_pinning_this_process_after_numpy_loaded_warns_on_an_avx512_cpu(monkeypa
 def _probe(*args, code=PROBE, **env):
     """Run ``code`` (default: print the kernels in use) in a fresh interpreter whose environment has no pins."""
     clean = {k: v for k, v in os.environ.items() if k not in PINNED}
-    out = subprocess.run([sys.executable, *args, "-c", code], env={**clean, **env}, capture_output=True, text=True,
-                         check=True)
+    out = subprocess.run(
+        [sys.executable, *args, "-c", code], env={**clean, **env}, capture_output=True, text=True, check=True
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 @pytest.mark.parametrize("first", ["", "import numpy, torch, gymnasium; "], ids=["alone", "after numpy"])
 def test_importing_vdtutorial_changes_nothing_in_the_environment(first):
-    code = (f"import json, os, warnings; {first}before = dict(os.environ)\n"
-            "with warnings.catch_warnings(record=True) as caught:\n"
-            "    warnings.simplefilter('always'); import vdtutorial, vdtutorial.experiments\n"
-            "ours = [str(w.message) for w in caught if 'vdtutorial' in w.filename]\n"
-            "print(json.dumps([dict(os.environ) == before, ours]))")
+    code = (
+        f"import json, os, warnings; {first}before = dict(os.environ)\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always'); import vdtutorial, vdtutorial.experiments\n"
+        "ours = [str(w.message) for w in caught if 'vdtutorial' in w.filename]\n"
+        "print(json.dumps([dict(os.environ) == before, ours]))"
+    )
     assert _probe(code=code) == [True, []]  # other packages' deprecation warnings (Colab's matplotlib) are theirs
 
 
@@ -80,8 +94,13 @@ def test_a_learners_interpreter_runs_the_cpus_own_kernels():
 def _first_kernels_line(*options) -> str:
     """The line in which ``bench env`` names its CPU kernels, from a fresh unpinned environment (then stopped)."""
     clean = {k: v for k, v in os.environ.items() if k not in PINNED}
-    bench = subprocess.Popen([sys.executable, "-m", "vdtutorial", "bench", "env", *options], env=clean,
-                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    bench = subprocess.Popen(
+        [sys.executable, "-m", "vdtutorial", "bench", "env", *options],
+        env=clean,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     try:
         return next(line.strip() for line in bench.stdout if line.startswith("CPU kernels:"))
     finally:

@@ -18,6 +18,7 @@ All the test checks what a student sees:
 Chromium is driven over the DevTools protocol as in ``test_book.py``; JupyterLab is started with
 ``expose_app_in_browser`` so that the page's ``window.jupyterapp`` can run the notebook's commands.
 """
+
 import json
 import os
 import socket
@@ -94,6 +95,7 @@ SCENES_NOT_DRAWN = """(async () => { const out = [];
         if (!d || d.readyState !== 'complete' || d.querySelector('canvas') === null) out.push(k); }
     return out; })()"""
 
+
 def _step(browser, k, key, code, keycode):
     """Move the k-th slider one step with the keyboard, as a student does."""
     browser.evaluate(f"""(() => {{ const h = document.querySelectorAll('.jp-OutputArea .widget-slider')[{k}]
@@ -116,15 +118,34 @@ def lab(tmp_path_factory):
     home = tmp_path_factory.mktemp("lab")
     write_notebooks(home / "book")
     port = _free_port()
-    env = {**os.environ, "VDTUTORIAL_QUICK": "1", "MPLBACKEND": "module://matplotlib_inline.backend_inline",
-           "JUPYTER_CONFIG_DIR": str(home / "config"), "JUPYTERLAB_WORKSPACES_DIR": str(home / "workspaces"),
-           "JUPYTER_RUNTIME_DIR": str(home / "runtime")}
+    env = {
+        **os.environ,
+        "VDTUTORIAL_QUICK": "1",
+        "MPLBACKEND": "module://matplotlib_inline.backend_inline",
+        "JUPYTER_CONFIG_DIR": str(home / "config"),
+        "JUPYTERLAB_WORKSPACES_DIR": str(home / "workspaces"),
+        "JUPYTER_RUNTIME_DIR": str(home / "runtime"),
+    }
     server = subprocess.Popen(
-        [sys.executable, "-m", "jupyterlab", "--no-browser", f"--port={port}", "--ServerApp.ip=127.0.0.1",
-         "--IdentityProvider.token=", "--ServerApp.password=", f"--ServerApp.root_dir={home / 'book'}",
-         "--ServerApp.allow_root=True", "--LabApp.expose_app_in_browser=True", "--LabApp.news_url=None",
-         "--LabApp.check_for_updates_class=jupyterlab.NeverCheckForUpdate"],
-        env=env, stdout=subprocess.DEVNULL, stderr=open(home / "server.log", "w"))
+        [
+            sys.executable,
+            "-m",
+            "jupyterlab",
+            "--no-browser",
+            f"--port={port}",
+            "--ServerApp.ip=127.0.0.1",
+            "--IdentityProvider.token=",
+            "--ServerApp.password=",
+            f"--ServerApp.root_dir={home / 'book'}",
+            "--ServerApp.allow_root=True",
+            "--LabApp.expose_app_in_browser=True",
+            "--LabApp.news_url=None",
+            "--LabApp.check_for_updates_class=jupyterlab.NeverCheckForUpdate",
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=open(home / "server.log", "w"),
+    )
     url, deadline = f"http://127.0.0.1:{port}", time.monotonic() + 120
     while True:
         try:
@@ -140,15 +161,21 @@ def lab(tmp_path_factory):
 
 def off_host(requests, server_url):
     """The requests that went neither to the JupyterLab server nor to the page itself (data:, blob:, about:)."""
-    return [url for url in requests
-            if not (url.startswith(server_url) or url.split(":", 1)[0] in ("data", "blob", "about"))]
+    return [
+        url for url in requests if not (url.startswith(server_url) or url.split(":", 1)[0] in ("data", "blob", "about"))
+    ]
 
 
 def test_off_host_names_only_other_hosts():
     url = "http://127.0.0.1:8888"
-    requests = [f"{url}/api/kernels", "data:image/png;base64,AA", "blob:http://127.0.0.1:8888/x", "about:srcdoc",
-                "https://cdnjs.cloudflare.com/ajax/libs/font-awesome/4.7.0/css/font-awesome.min.css",
-                "http://127.0.0.1:9999/elsewhere"]
+    requests = [
+        f"{url}/api/kernels",
+        "data:image/png;base64,AA",
+        "blob:http://127.0.0.1:8888/x",
+        "about:srcdoc",
+        "https://cdnjs.cloudflare.com/ajax/libs/font-awesome/4.7.0/css/font-awesome.min.css",
+        "http://127.0.0.1:9999/elsewhere",
+    ]
     assert off_host(requests, url) == requests[-2:]
 
 
@@ -166,14 +193,21 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
         problems = []  # what a student would see wrong, all of it reported at the end
         pictures = browser.evaluate(PICTURES)
         assert pictures, f"{chapter} shows no picture after Run All"
-        problems += [f"cell {p['cell']}: a picture laid out at {p['width']:.0f} x {p['height']:.0f} px (its pixels: "
-                     f"{p['natural'][0]} x {p['natural'][1]})" for p in pictures
-                     if p["width"] < 1 or p["height"] < 1 or 0 in p["natural"]]
-        problems += [f"cell {p['cell']}: a {p['natural'][0]}-px picture shown {p['width']:.0f} px wide"
-                     for p in pictures if p["natural"][0] and not MIN_SCALE <= p["width"] / p["natural"][0] <= MAX_SCALE]
+        problems += [
+            f"cell {p['cell']}: a picture laid out at {p['width']:.0f} x {p['height']:.0f} px (its pixels: "
+            f"{p['natural'][0]} x {p['natural'][1]})"
+            for p in pictures
+            if p["width"] < 1 or p["height"] < 1 or 0 in p["natural"]
+        ]
+        problems += [
+            f"cell {p['cell']}: a {p['natural'][0]}-px picture shown {p['width']:.0f} px wide"
+            for p in pictures
+            if p["natural"][0] and not MIN_SCALE <= p["width"] / p["natural"][0] <= MAX_SCALE
+        ]
         try:
-            browser.wait_for(f"{SCENES_NOT_DRAWN}.then(cells => cells.length === 0)", f"{chapter}'s 3-D scenes",
-                             timeout=60)
+            browser.wait_for(
+                f"{SCENES_NOT_DRAWN}.then(cells => cells.length === 0)", f"{chapter}'s 3-D scenes", timeout=60
+            )
         except AssertionError:
             problems.append(f"the 3-D scenes of cells {browser.evaluate(SCENES_NOT_DRAWN)} drew nothing")
         problems += [f"a request to another host: {url}" for url in off_host(browser.requests, url)]
@@ -186,8 +220,8 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
                 # one step down (every slider starts above its lowest value), then back to the value Run All left
                 _step(browser, k, key, code, keycode)
                 redrawn = f"""(async () => {{ const now = (await {SLIDERS})[{k}];
-                    return now.readout !== {json.dumps(moved['readout'])}
-                        && JSON.stringify(now.pictures) !== {json.dumps(json.dumps(moved['pictures']))}; }})()"""
+                    return now.readout !== {json.dumps(moved["readout"])}
+                        && JSON.stringify(now.pictures) !== {json.dumps(json.dumps(moved["pictures"]))}; }})()"""
                 try:
                     browser.wait_for(redrawn, f"{chapter}'s slider {k} to redraw its picture ({key})", timeout=120)
                 except AssertionError as timeout:
@@ -195,13 +229,20 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
                     raise AssertionError(f"{timeout}; the kernel reported: {errors}") from None
                 browser.wait_for(KERNEL_IDLE, f"{chapter}'s kernel after the slider moved", timeout=300)
                 moved = browser.evaluate(SLIDERS)[k]
-            if moved["readout"] != after_run_all["readout"] or \
-                    (moved["digests"], moved["caption"]) != (after_run_all["digests"], after_run_all["caption"]):
-                problems.append(f"after Run All slider {k} read {after_run_all['readout']} but its picture and caption "
-                                f"were not the ones that value draws (Run All: {after_run_all['caption']!r}; drawn at "
-                                f"{moved['readout']}: {moved['caption']!r})")
-        problems += [f"text beside a slider cut at the window's edge (1280 px): {text!r}"
-                     for slider in browser.evaluate(SLIDERS) for text in slider["cut"]]
+            if moved["readout"] != after_run_all["readout"] or (moved["digests"], moved["caption"]) != (
+                after_run_all["digests"],
+                after_run_all["caption"],
+            ):
+                problems.append(
+                    f"after Run All slider {k} read {after_run_all['readout']} but its picture and caption "
+                    f"were not the ones that value draws (Run All: {after_run_all['caption']!r}; drawn at "
+                    f"{moved['readout']}: {moved['caption']!r})"
+                )
+        problems += [
+            f"text beside a slider cut at the window's edge (1280 px): {text!r}"
+            for slider in browser.evaluate(SLIDERS)
+            for text in slider["cut"]
+        ]
         problems += [f"the kernel reported {error}" for error in browser.evaluate("window.__errors")]
 
         # The notebook as a student hands it in: saved, then opened again.
@@ -209,14 +250,21 @@ def test_pictures_show_and_agree_with_their_sliders_after_run_all(lab, chapter):
         browser.evaluate(f"{NOTEBOOK}.context.save().then(() => true)")
         browser.call("Page.reload")
         time.sleep(3)  # the old page's context goes away while the new one loads
-        browser.wait_for(f"{KERNEL_IDLE} && document.querySelectorAll('.jp-Notebook .jp-Cell').length === {cells}",
-                         f"{chapter} to open again", timeout=180)
+        browser.wait_for(
+            f"{KERNEL_IDLE} && document.querySelectorAll('.jp-Notebook .jp-Cell').length === {cells}",
+            f"{chapter} to open again",
+            timeout=180,
+        )
         browser.evaluate(f"{COLLAPSED}, true")
-        problems += [f"reopened, cell {p['cell']}: a picture laid out at {p['width']:.0f} x {p['height']:.0f} px"
-                     for p in browser.evaluate(PICTURES) if p["width"] < 1 or p["height"] < 1]
+        problems += [
+            f"reopened, cell {p['cell']}: a picture laid out at {p['width']:.0f} x {p['height']:.0f} px"
+            for p in browser.evaluate(PICTURES)
+            if p["width"] < 1 or p["height"] < 1
+        ]
         try:
-            browser.wait_for(f"{SCENES_NOT_DRAWN}.then(cells => cells.length === 0)", f"{chapter}'s 3-D scenes",
-                             timeout=60)
+            browser.wait_for(
+                f"{SCENES_NOT_DRAWN}.then(cells => cells.length === 0)", f"{chapter}'s 3-D scenes", timeout=60
+            )
         except AssertionError:
             problems.append(f"reopened, the 3-D scenes of cells {browser.evaluate(SCENES_NOT_DRAWN)} drew nothing")
         assert problems == [], f"{chapter}: " + "; ".join(problems)

@@ -1,5 +1,6 @@
 """The library's layout: the grid runner apart from the science, and every module pointing at the chapter that
 teaches it (d2l style)."""
+
 from __future__ import annotations
 
 import ast
@@ -17,8 +18,10 @@ MODULES = sorted(p for p in PACKAGE.rglob("*.py") if "book" not in p.relative_to
 #: What the grid runner may import from the package: nothing that knows about VD, TRPO or policies.
 RUNNER_MAY_IMPORT = ("vdtutorial.runner", "vdtutorial.settings")
 #: "Taught in chapter 07" / "Taught in chapters 05 and 07" / "Not taught in a chapter: REASON".
-TAUGHT = re.compile(r"Taught in (?:chapters?|appendix) ((?:(?:\d\d[a-z]?|A\d)(?:, | and | and appendix )?)+)"
-                    r"|Not taught in a chapter: \S")
+TAUGHT = re.compile(
+    r"Taught in (?:chapters?|appendix) ((?:(?:\d\d[a-z]?|A\d)(?:, | and | and appendix )?)+)"
+    r"|Not taught in a chapter: \S"
+)
 
 
 def _tree(path: Path) -> ast.Module:
@@ -47,13 +50,18 @@ def test_the_runner_imports_nothing_of_the_science():
 
 
 def test_the_experiments_hold_no_grid_lock_backend_or_resume_code():
-    runner_names = {node.name for path in (PACKAGE / "runner").glob("*.py") for node in _tree(path).body
-                    if isinstance(node, (ast.FunctionDef, ast.ClassDef)) and not node.name.startswith("_")}
+    runner_names = {
+        node.name
+        for path in (PACKAGE / "runner").glob("*.py")
+        for node in _tree(path).body
+        if isinstance(node, (ast.FunctionDef, ast.ClassDef)) and not node.name.startswith("_")
+    }
     for path in sorted((PACKAGE / "experiments").glob("*.py")):
         defined = {node.name for node in _tree(path).body if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
         assert not defined & runner_names, f"{path.name} defines the runner's {sorted(defined & runner_names)}"
     assert {"grid", "backends", "resume", "run_lock", "progress", "rows"}.isdisjoint(
-        p.stem for p in (PACKAGE / "experiments").glob("*.py"))
+        p.stem for p in (PACKAGE / "experiments").glob("*.py")
+    )
 
 
 @pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
@@ -70,8 +78,9 @@ def test_a_module_docstring_names_the_chapter_that_teaches_it(path):
     for number in re.findall(r"\d\d[a-z]?|A\d", match.group(1)):
         assert number in chapters, f"chapter {number} does not exist"
         text = "".join("".join(cell["source"]) for cell in json.loads(chapters[number].read_text())["cells"])
-        assert any(re.search(re.escape(name) + r"\b", text) for name in names), \
+        assert any(re.search(re.escape(name) + r"\b", text) for name in names), (
             f"chapter {chapters[number].name} does not mention {names[0]}"
+        )
 
 
 #: A pointer to a docstring section: "module docstring" or a class of the same module, then the quoted words to look
@@ -101,6 +110,9 @@ def _pointers_and_targets(path: Path) -> list[tuple[int, str, str]]:
 
 @pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
 def test_a_pointer_to_a_docstring_names_words_that_are_there(path):
-    dangling = [f"line {n}: {words!r}" for n, words, target in _pointers_and_targets(path)
-                if " ".join(words.split()) not in target]
+    dangling = [
+        f"line {n}: {words!r}"
+        for n, words, target in _pointers_and_targets(path)
+        if " ".join(words.split()) not in target
+    ]
     assert not dangling

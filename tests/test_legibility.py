@@ -6,6 +6,7 @@ and about 960 px with it folded away (tests/test_lab.py measures the pictures of
 Here the figures are drawn as the chapters draw them, at the dpi their cells use, and the smallest text is measured
 as it lands on the narrower page.
 """
+
 import io
 import json
 import re

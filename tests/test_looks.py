@@ -1,4 +1,5 @@
 """Seeds added after a look: the two-stage rule a record's verdict is computed with, checked against scipy."""
+
 import json
 import math
 
@@ -19,17 +20,33 @@ from vdtutorial.settings import data_dir
 
 def _rows(label, method, finals):
     """Flat learning curves of 10 iterations, one per seed: seed k's metric is ``finals[k]`` throughout."""
-    return [{"label": label, "method": method, "seed": seed, "iteration": i, "env_steps": (i + 1) * 200,
-             "successes": level, "episodes": 40 + seed} for seed, level in finals.items() for i in range(10)]
+    return [
+        {
+            "label": label,
+            "method": method,
+            "seed": seed,
+            "iteration": i,
+            "env_steps": (i + 1) * 200,
+            "successes": level,
+            "episodes": 40 + seed,
+        }
+        for seed, level in finals.items()
+        for i in range(10)
+    ]
 
 
 def _no_look_max_p(score: float, rho: float) -> float:
     """P(max(|Z1|, |Z2|) >= score) by integrating Z1's density times P(|Z2| < score | Z1): independent of the
     bivariate normal CDF the library uses."""
-    spread = math.sqrt(1 - rho ** 2)
-    inside = integrate.quad(lambda z: stats.norm.pdf(z) * (stats.norm.cdf((score - rho * z) / spread)
-                                                          - stats.norm.cdf((-score - rho * z) / spread)),
-                            -score, score)[0]
+    spread = math.sqrt(1 - rho**2)
+    inside = integrate.quad(
+        lambda z: (
+            stats.norm.pdf(z)
+            * (stats.norm.cdf((score - rho * z) / spread) - stats.norm.cdf((-score - rho * z) / spread))
+        ),
+        -score,
+        score,
+    )[0]
     return 1 - inside
 
 
@@ -49,16 +66,25 @@ def test_a_two_look_record_is_judged_by_the_combination_of_its_stages():
     l2 = {s: 57 + 3.0 * rng.normal() for s in range(14)}
     other = {s: 55 + 3.0 * rng.normal() for s in range(6)}
     rows = _rows("VD, 2000 demos", "vd", vd) + _rows("L2, 2000 demos", "l2", l2) + _rows("L2, 8000 demos", "l2", other)
-    looks = looks_of({"looks": [{"seeds": {label: list(range(6)) for label in ("VD, 2000 demos", "L2, 2000 demos",
-                                                                                 "L2, 8000 demos")}},
-                                {"seeds": {label: list(range(6, 14))
-                                           for label in ("VD, 2000 demos", "L2, 2000 demos")}}]})
-    effects = {e["text"]: e for e in claim_effects("fig5", rows, "successes", window=5, looks=looks)
-               if e["metric"] == "successes" and e["measure"] == "final"}
+    looks = looks_of(
+        {
+            "looks": [
+                {"seeds": {label: list(range(6)) for label in ("VD, 2000 demos", "L2, 2000 demos", "L2, 8000 demos")}},
+                {"seeds": {label: list(range(6, 14)) for label in ("VD, 2000 demos", "L2, 2000 demos")}},
+            ]
+        }
+    )
+    effects = {
+        e["text"]: e
+        for e in claim_effects("fig5", rows, "successes", window=5, looks=looks)
+        if e["metric"] == "successes" and e["measure"] == "final"
+    }
 
     staged = effects["VD ends above L2 with 2000 demonstrations"]
-    stage_p = [stats.ttest_ind([vd[s] for s in seeds], [l2[s] for s in seeds], equal_var=False,
-                               alternative="greater").pvalue for seeds in (range(6), range(6, 14))]
+    stage_p = [
+        stats.ttest_ind([vd[s] for s in seeds], [l2[s] for s in seeds], equal_var=False, alternative="greater").pvalue
+        for seeds in (range(6), range(6, 14))
+    ]
     z1, z2 = stats.norm.isf(stage_p)
     combined = (z1 + z2) / math.sqrt(2)
     assert staged["looks"]["stage_p_one_sided"] == pytest.approx(stage_p, rel=1e-9)
@@ -67,7 +93,7 @@ def test_a_two_look_record_is_judged_by_the_combination_of_its_stages():
     assert staged["p_value"] == pytest.approx(expected_p, rel=1e-4, abs=1e-7)
     all_at_once = stats.ttest_ind(list(vd.values()), list(l2.values()), equal_var=False).pvalue
     assert staged["p_value_all_seeds_at_once"] == pytest.approx(all_at_once, rel=1e-9)
-    assert staged["n_a"] == staged["n_b"] == 14   # the interval shown is over all seeds ...
+    assert staged["n_a"] == staged["n_b"] == 14  # the interval shown is over all seeds ...
     assert expected_p < 0.05 and staged["verdict"] == "confirmed"
     assert "| 6 + 8 |" in claim_table([staged]) and "(2 looks: sequential rule)" in claim_table([staged])
 
@@ -83,18 +109,25 @@ def test_the_shipped_fig5_keeps_both_looks_and_its_verdict_follows_the_rule():
     folder = data_dir() / "results" / "fig5"
     record = json.loads((folder / "fig5.json").read_text())
     looks = looks_of(record)
-    assert looks[0]["VD, 2000 demos"] == list(range(10)) and looks[1] == {"VD, 2000 demos": list(range(10, 23)),
-                                                                          "L2, 2000 demos": list(range(10, 23))}
+    assert looks[0]["VD, 2000 demos"] == list(range(10)) and looks[1] == {
+        "VD, 2000 demos": list(range(10, 23)),
+        "L2, 2000 demos": list(range(10, 23)),
+    }
     groups = per_run(read_rows(results_file(folder, "fig5")), "successes")
-    final = {label: dict(zip(groups[label]["seeds"], run_summaries(groups[label], "final", 25)))
-             for label in ("VD, 2000 demos", "L2, 2000 demos")}
+    final = {
+        label: dict(zip(groups[label]["seeds"], run_summaries(groups[label], "final", 25)))
+        for label in ("VD, 2000 demos", "L2, 2000 demos")
+    }
     second = [[final[label][s] for s in range(10, 23)] for label in ("VD, 2000 demos", "L2, 2000 demos")]
     test = stats.ttest_ind(*second, equal_var=False, alternative="greater")
     ci = stats.ttest_ind(*second, equal_var=False).confidence_interval(0.95)
     assert (np.mean(second[0]) - np.mean(second[1]), ci.low, ci.high) == pytest.approx((13.9, 3.2, 24.6), abs=0.05)
     assert test.pvalue == pytest.approx(0.0065, abs=5e-5)
-    claim = next(e for e in record["summary"]["claims"]
-                 if e["text"] == "VD ends above L2 with 2000 demonstrations" and e["metric"] == "successes")
+    claim = next(
+        e
+        for e in record["summary"]["claims"]
+        if e["text"] == "VD ends above L2 with 2000 demonstrations" and e["metric"] == "successes"
+    )
     assert claim["looks"]["stage_p_one_sided"][1] == pytest.approx(test.pvalue, rel=1e-9)
     assert claim["looks"]["combined_p_one_sided"] == pytest.approx(0.00044, abs=5e-6)
     assert claim["holm_verdict"] == "confirmed" and claim["p_value"] > claim["p_value_all_seeds_at_once"]

@@ -1,6 +1,7 @@
 """The table of methods: adding one is one entry. A method defined here, in the test file (L1 on mu's weights),
 registered and nothing else, runs through the command line's Fig. 4 beside VD; and no code outside the table
 decides anything by a method's name."""
+
 from __future__ import annotations
 
 import ast
@@ -88,8 +89,26 @@ def test_a_method_defined_here_runs_in_fig4_through_the_command_line(table, tmp_
     start sigma follows VD's network (its entry's default), and no file of the package was edited for it."""
     register(L1("l1", "L1", "tab:purple"))
     out = tmp_path / "fig4"
-    assert main(["experiment", "fig4", "--methods", "vd", "l1", "--seeds", "0", "--steps", "400", "--workers", "1",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "experiment",
+                "fig4",
+                "--methods",
+                "vd",
+                "l1",
+                "--seeds",
+                "0",
+                "--steps",
+                "400",
+                "--workers",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert "L1: final" in capsys.readouterr().out
     record = json.loads((out / "fig4.json").read_text())
     assert [(run["method"], run["label"]) for run in record["runs"]] == [("vd", "VD"), ("l1", "L1")]
@@ -100,8 +119,10 @@ def test_a_method_defined_here_runs_in_fig4_through_the_command_line(table, tmp_
     pngs = sorted(out.glob("*.png"))
     assert pngs and _pixels_near(pngs[0], "tab:purple") > 50 and _pixels_near(pngs[0], "tab:blue") > 50
     checkpoints = {path.name for path in (out / "checkpoints").glob("*_l1_state_seed0*.pt")}
-    assert {"reach_n8000_sigma0.5_l1_state_seed0.pt", "reach_n8000_sigma0.5_l1_state_seed0_initsigma-spread.pt"
-            } <= checkpoints
+    assert {
+        "reach_n8000_sigma0.5_l1_state_seed0.pt",
+        "reach_n8000_sigma0.5_l1_state_seed0_initsigma-spread.pt",
+    } <= checkpoints
 
 
 def test_an_unknown_method_is_a_one_line_error(capsys):
@@ -112,8 +133,9 @@ def test_an_unknown_method_is_a_one_line_error(capsys):
 def test_a_registered_method_asks_for_one_worker(table, tmp_path, capsys):
     """Spawned workers start from the shipped table: a method registered here would be unknown there."""
     register(L1("l1", "L1", "tab:purple"))
-    assert main(["experiment", "fig4", "--methods", "l1", "--seeds", "0", "--workers", "2",
-                 "--out", str(tmp_path)]) == 2
+    assert (
+        main(["experiment", "fig4", "--methods", "l1", "--seeds", "0", "--workers", "2", "--out", str(tmp_path)]) == 2
+    )
     assert "l1: registered in this process only" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
 
@@ -127,15 +149,20 @@ def _compares_a_name(node: ast.AST) -> bool:
         if isinstance(side, ast.Constant) and side.value in NAMES:
             return True
         if isinstance(side, (ast.Tuple, ast.Set, ast.List)) and any(
-                isinstance(e, ast.Constant) and e.value in NAMES for e in side.elts):
+            isinstance(e, ast.Constant) and e.value in NAMES for e in side.elts
+        ):
             return True
     return False
 
 
 def test_no_code_outside_the_table_compares_a_method_name():
-    found = [f"{path.relative_to(PACKAGE)}:{node.lineno}"
-             for path in sorted(PACKAGE.rglob("*.py")) if path.name != "methods.py" or path.parent != PACKAGE
-             for node in ast.walk(ast.parse(path.read_text())) if _compares_a_name(node)]
+    found = [
+        f"{path.relative_to(PACKAGE)}:{node.lineno}"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if path.name != "methods.py" or path.parent != PACKAGE
+        for node in ast.walk(ast.parse(path.read_text()))
+        if _compares_a_name(node)
+    ]
     assert not found
     assert _compares_a_name(ast.parse('reg == "vd"').body[0].value)
     assert _compares_a_name(ast.parse('m in ("vd", "l2")').body[0].value)

@@ -9,6 +9,7 @@ how it is written: a policy always carries a subscript or an argument, the numbe
 A second test keeps out the collisions the book had before the table (the same letter for the KL warm-up,
 TRPO's step and DAgger's mixture, and so on): each is written as a pattern of the old usage.
 """
+
 import re
 from pathlib import Path
 
@@ -17,22 +18,28 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
-GREEK = ("alpha beta gamma delta epsilon varepsilon zeta eta theta vartheta iota kappa lambda mu nu xi pi rho "
-         "varrho sigma varsigma tau upsilon phi varphi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Phi Psi "
-         "Omega").split()
-UNICODE = dict(zip("αβγδεζηθικλμνξπρστυφχψωΓΔΘΛΞΠΣΦΨΩ",
-                   "alpha beta gamma delta epsilon zeta eta theta iota kappa lambda mu nu xi pi rho sigma tau "
-                   "upsilon phi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Phi Psi Omega".split()))
-TOKEN = re.compile(r"\\(" + "|".join(sorted(GREEK, key=len, reverse=True)) + r")(?![A-Za-z])(\s*[_(])?|(["
-                   + "".join(UNICODE) + r"])")
+GREEK = (
+    "alpha beta gamma delta epsilon varepsilon zeta eta theta vartheta iota kappa lambda mu nu xi pi rho "
+    "varrho sigma varsigma tau upsilon phi varphi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Phi Psi "
+    "Omega"
+).split()
+UNICODE = dict(
+    zip(
+        "αβγδεζηθικλμνξπρστυφχψωΓΔΘΛΞΠΣΦΨΩ",
+        "alpha beta gamma delta epsilon zeta eta theta iota kappa lambda mu nu xi pi rho sigma tau "
+        "upsilon phi chi psi omega Gamma Delta Theta Lambda Xi Pi Sigma Phi Psi Omega".split(),
+    )
+)
+TOKEN = re.compile(
+    r"\\(" + "|".join(sorted(GREEK, key=len, reverse=True)) + r")(?![A-Za-z])(\s*[_(])?|([" + "".join(UNICODE) + r"])"
+)
 
 #: Usages the book had before the notation table, each now written with its own symbol (the table's notes).
 OLD_USAGES = {
     r"\\beta\s*(?:=\s*\\sqrt|\\,?\s*[su]\b|F\^)": "TRPO's step scale is eta, not beta",
     r"\\beta_[ik0]|\\beta\^[ik]": "DAgger's mixture is xi, not beta",
     r"\\Sigma_\\alpha|\\alpha\\,\\hat\\Sigma|prior \$\\alpha\$": "DART's total error is bar e, not alpha",
-    r"\\mathcal\{N\}\(\s*\\theta|\\theta_\{ij\}|\\log\\theta\^2|\\theta\s*\\odot":
-        "a weight's mean is bar w, not theta",
+    r"\\mathcal\{N\}\(\s*\\theta|\\theta_\{ij\}|\\log\\theta\^2|\\theta\s*\\odot": "a weight's mean is bar w, not theta",
     r"\\log\s*\\sigma\^2|\\sigma\^2_\{ij\}|\\sigma_\{ij\}": "a weight's variance is omega^2, not sigma^2",
     r"\\lambda\^2\s*I|damping \$\\lambda\$": "the IK damping is zeta, not lambda",
     r"\\lambda\s*\\sum|\\lambda\s*=\s*\\texttt": "the L2 coefficient is kappa, not lambda",
@@ -45,7 +52,9 @@ OLD_USAGES = {
 
 def _markdown(path: Path) -> str:
     cells = nbformat.read(path, as_version=4).cells
-    return "\n".join(c.source for c in cells if c.cell_type == "markdown" and c.get("id") not in ("notation", "glossary"))
+    return "\n".join(
+        c.source for c in cells if c.cell_type == "markdown" and c.get("id") not in ("notation", "glossary")
+    )
 
 
 def _symbols(text: str) -> set[str]:
@@ -84,8 +93,10 @@ def test_the_notation_table_has_one_row_per_symbol():
 def test_each_greek_symbol_is_used_as_its_row_says(notebook):
     rows, chapter = notation_table(), notebook.stem.split("_")[0]
     missing = sorted(s for s in _symbols(_markdown(notebook)) if chapter not in rows.get(s, ()))
-    assert not missing, (f"chapter {chapter} uses {missing}: add the chapter to the symbol's row in 00's notation "
-                         "table if it means the same there, else use another symbol")
+    assert not missing, (
+        f"chapter {chapter} uses {missing}: add the chapter to the symbol's row in 00's notation "
+        "table if it means the same there, else use another symbol"
+    )
 
 
 @pytest.mark.parametrize("notebook", NOTEBOOKS, ids=lambda p: p.stem)

@@ -1,6 +1,7 @@
 """The project's own promises: dependency lists agree, notebooks carry no outputs and remove the temporary
 folders they make, the quick switch is read in one place, CI runs the README's test command, and every
 notebook is under test."""
+
 import json
 import re
 import tomllib
@@ -23,7 +24,7 @@ def _conda_requirements(name: str = "environment.yml") -> dict[str, str]:
     """An environment file's conda-forge packages, by their PyPI names, with their ranges."""
     text = (ROOT / name).read_text()
     listed = {}
-    for line in text[text.index("dependencies:"):].splitlines():
+    for line in text[text.index("dependencies:") :].splitlines():
         if m := re.match(r"\s*-\s+([A-Za-z0-9_.\-]+)(\S*)", line):
             listed[CONDA_NAMES.get(m[1], m[1])] = m[2]
     return {name: spec for name, spec in listed.items() if name not in ("python", "pip")}
@@ -34,7 +35,7 @@ def _pip_step_requirements(name: str) -> dict[str, str]:
     lines = (ROOT / name).read_text().splitlines()
     line = next(line for line in lines if line.startswith("#") and "pip install" in line)
     quoted = re.findall(r'"([^"]+)"', line)
-    return {_name(r): r[len(_name(r)):] for r in quoted}
+    return {_name(r): r[len(_name(r)) :] for r in quoted}
 
 
 def test_environment_files_match_pyproject():
@@ -46,7 +47,7 @@ def test_environment_files_match_pyproject():
     extras = project["optional-dependencies"]
 
     def ranges(texts):
-        return {_name(r): r[len(_name(r)):].split(";")[0].strip() for r in texts}
+        return {_name(r): r[len(_name(r)) :].split(";")[0].strip() for r in texts}
 
     learner = ranges(project["dependencies"] + extras["lab"] + extras["book"])
     listed = _conda_requirements()
@@ -66,8 +67,11 @@ def test_the_lock_pins_every_requirement_within_its_range():
     from packaging.requirements import Requirement
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    locked = dict(line.split("==") for line in (ROOT / "constraints-py311.txt").read_text().splitlines()
-                  if line and not line.startswith("#"))
+    locked = dict(
+        line.split("==")
+        for line in (ROOT / "constraints-py311.txt").read_text().splitlines()
+        if line and not line.startswith("#")
+    )
     locked = {re.sub(r"[-_.]+", "-", k).lower(): v for k, v in locked.items()}
     for text in project["dependencies"] + project["optional-dependencies"]["test"]:
         requirement = Requirement(text)
@@ -115,7 +119,7 @@ def test_ci_runs_the_readme_test_command():
     install = 'pip install -c constraints-py311.txt -e ".[test]"'
     test_line = "pytest -n 2 --nbmake tests notebooks"
     assert f"{install} && VDTUTORIAL_QUICK=1 {test_line}" in readme
-    assert "python -m pip install --quiet -c constraints-py311.txt -e \".[test]\"" in ci
+    assert 'python -m pip install --quiet -c constraints-py311.txt -e ".[test]"' in ci
     assert f"\n{test_line}\n" in ci and "export VDTUTORIAL_QUICK=1" in ci
     assert "<!-- colab-cell" in readme and "colab_cell.py" in ci
 
@@ -169,8 +173,11 @@ def test_no_shipped_file_names_the_machine_that_made_it():
     """Shipped records name folders and commands relative to the folder holding data/ (settings.recorded_path)."""
     files = [p for p in sorted((ROOT / "data").rglob("*")) if p.is_file()]
     assert len(files) > 50
-    found = {str(p.relative_to(ROOT)): hits for p in files
-             if (hits := [h for text in _shipped_texts(p) for h in _absolute_paths(text)])}
+    found = {
+        str(p.relative_to(ROOT)): hits
+        for p in files
+        if (hits := [h for text in _shipped_texts(p) for h in _absolute_paths(text)])
+    }
     assert not found
 
 
@@ -179,21 +186,28 @@ def test_the_absolute_path_check_sees_paths_in_every_kind_of_record(tmp_path):
 
     import torch
 
-    assert _absolute_paths('"argv": ["/home/ada/vdtutorial/__main__.py", "--out", "data/results/fig4"]') == \
-        ["/home/ada/vdtutorial/__main__.py"]
-    assert _absolute_paths(r"--demos C:\Users\ada\data\demos\x.npz, 3e5 steps / 200, log alpha > 3") == \
-        [r"C:\Users\ada\data\demos\x.npz"]
-    torch.save({"meta": {"command": "python -m vdtutorial pretrain --demos /work/x/data/demos/a.npz"}},
-               tmp_path / "a.pt")
+    assert _absolute_paths('"argv": ["/home/ada/vdtutorial/__main__.py", "--out", "data/results/fig4"]') == [
+        "/home/ada/vdtutorial/__main__.py"
+    ]
+    assert _absolute_paths(r"--demos C:\Users\ada\data\demos\x.npz, 3e5 steps / 200, log alpha > 3") == [
+        r"C:\Users\ada\data\demos\x.npz"
+    ]
+    torch.save(
+        {"meta": {"command": "python -m vdtutorial pretrain --demos /work/x/data/demos/a.npz"}}, tmp_path / "a.pt"
+    )
     (tmp_path / "b.csv.gz").write_bytes(gzip.compress(b"run,/tmp/state\n"))
-    assert [h for p in (tmp_path / "a.pt", tmp_path / "b.csv.gz") for t in _shipped_texts(p)
-            for h in _absolute_paths(t)] == ["/work/x/data/demos/a.npz", "/tmp/state"]
+    assert [
+        h for p in (tmp_path / "a.pt", tmp_path / "b.csv.gz") for t in _shipped_texts(p) for h in _absolute_paths(t)
+    ] == ["/work/x/data/demos/a.npz", "/tmp/state"]
 
 
 def test_every_shipped_result_was_made_under_the_locked_versions():
     """One set of versions behind all shipped results, and the lock file installs it (python: its minor)."""
-    locked = dict(line.split("==") for line in (ROOT / "constraints-py311.txt").read_text().splitlines()
-                  if line and not line.startswith("#"))
+    locked = dict(
+        line.split("==")
+        for line in (ROOT / "constraints-py311.txt").read_text().splitlines()
+        if line and not line.startswith("#")
+    )
     for record in sorted((ROOT / "data" / "results").glob("*/*.json")):
         versions = json.loads(record.read_text())["versions"]
         assert versions["torch"].split("+")[0] == locked["torch"], record
@@ -207,5 +221,7 @@ def test_the_wheel_lists_every_subpackage():
     or the wheel silently leaves it out (the installed package then fails on import)."""
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     source = Path(vdtutorial.__file__).parent
-    subpackages = {".".join(("vdtutorial", *init.parent.relative_to(source).parts)) for init in source.rglob("__init__.py")}
+    subpackages = {
+        ".".join(("vdtutorial", *init.parent.relative_to(source).parts)) for init in source.rglob("__init__.py")
+    }
     assert subpackages <= listed, f"missing from pyproject.toml's packages: {sorted(subpackages - listed)}"

@@ -5,6 +5,7 @@ for each platform must name the same packages: that is why its route is conda-fo
 
 These tests ask PyPI: they skip when it cannot be reached, unless VDTUTORIAL_NETWORK_TESTS=1 (CI) makes that
 a failure."""
+
 import os
 import re
 import shutil
@@ -39,8 +40,10 @@ def _pypi_reachable() -> bool:
 @pytest.fixture(autouse=True)
 def _needs_pypi_and_uv():
     required = os.environ.get("VDTUTORIAL_NETWORK_TESTS") == "1"
-    for missing, why in ((shutil.which("uv") is None, "uv is not installed (pip install uv)"),
-                         (not _pypi_reachable(), "PyPI cannot be reached")):
+    for missing, why in (
+        (shutil.which("uv") is None, "uv is not installed (pip install uv)"),
+        (not _pypi_reachable(), "PyPI cannot be reached"),
+    ):
         if missing:
             if required:
                 pytest.fail(why)
@@ -59,16 +62,34 @@ def without_wheels(requirements: list[str], platform: str, python: str = "3.13")
     package the resolver names as having none, until the rest resolves."""
     missing, left = set(), list(requirements)
     while True:
-        run = subprocess.run(["uv", "pip", "compile", "-", "--python-platform", platform, "--python-version", python,
-                              "--only-binary", ":all:", "--no-header", "--quiet"],
-                             input="\n".join(left), capture_output=True, text=True, timeout=300)
+        run = subprocess.run(
+            [
+                "uv",
+                "pip",
+                "compile",
+                "-",
+                "--python-platform",
+                platform,
+                "--python-version",
+                python,
+                "--only-binary",
+                ":all:",
+                "--no-header",
+                "--quiet",
+            ],
+            input="\n".join(left),
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         if run.returncode == 0:
             return missing
         named = re.search(r"Because (?:all versions of |only )?([A-Za-z0-9_.\-]+)", run.stderr)
         assert named, run.stderr
         name = named[1].lower()
-        assert name not in missing and any(Requirement(r).name.lower() == name for r in left), \
+        assert name not in missing and any(Requirement(r).name.lower() == name for r in left), (
             f"{name} stops the resolution but is not one of the requirements:\n{run.stderr}"
+        )
         missing.add(name)
         left = [r for r in left if Requirement(r).name.lower() != name]
 

@@ -1,5 +1,6 @@
 """The learning-curve figures: titles that tell the shipped variants apart, bands inside each measure's range,
 one thin line per seed, the expert's band named for what it is."""
+
 import json
 
 import numpy as np

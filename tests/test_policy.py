@@ -1,4 +1,5 @@
 """Tests of vdtutorial.policy: the Fig. 2 network in its three kinds and the Gaussian policy."""
+
 import json
 import math
 
@@ -19,11 +20,13 @@ JOINT_LIMIT = np.float32(2 * math.pi)
 
 
 def rgbd_space(size: int = IMAGE) -> gym.spaces.Dict:
-    return gym.spaces.Dict({
-        "rgb": gym.spaces.Box(0, 255, shape=(3, size, size), dtype=np.uint8),
-        "depth": gym.spaces.Box(0.0, 3.0, shape=(size * size,), dtype=np.float32),
-        "joints": gym.spaces.Box(-JOINT_LIMIT, JOINT_LIMIT, shape=(6,), dtype=np.float32),
-    })
+    return gym.spaces.Dict(
+        {
+            "rgb": gym.spaces.Box(0, 255, shape=(3, size, size), dtype=np.uint8),
+            "depth": gym.spaces.Box(0.0, 3.0, shape=(size * size,), dtype=np.float32),
+            "joints": gym.spaces.Box(-JOINT_LIMIT, JOINT_LIMIT, shape=(6,), dtype=np.float32),
+        }
+    )
 
 
 def state_space() -> gym.spaces.Box:
@@ -138,7 +141,7 @@ def test_act_on_single_and_batched_numpy_observations(kind):
     policy = make_policy(space, 6)
     space.seed(0)
     single = space.sample()
-    stacked = ({key: np.stack([single[key]] * 3) for key in single} if kind == "rgbd" else np.stack([single] * 3))
+    stacked = {key: np.stack([single[key]] * 3) for key in single} if kind == "rgbd" else np.stack([single] * 3)
     action = policy.act(single)
     assert isinstance(action, np.ndarray) and action.shape == (6,) and action.dtype == np.float32
     assert policy.act(stacked).shape == (3, 6)
@@ -201,8 +204,9 @@ def test_compacting_a_trained_and_pruned_policy_keeps_its_outputs():
 
 def test_compacting_an_image_network():
     torch.manual_seed(6)
-    net = PolicyNet("rgbd", {"rgb": (3, IMAGE, IMAGE), "depth": (IMAGE * IMAGE,), "joints": (6,)}, 6,
-                       variational=True).eval()
+    net = PolicyNet(
+        "rgbd", {"rgb": (3, IMAGE, IMAGE), "depth": (IMAGE * IMAGE,), "joints": (6,)}, 6, variational=True
+    ).eval()
     with torch.no_grad():
         for layer in vd.svdo_layers(net):
             layer.log_sigma2.copy_(torch.where(torch.rand_like(layer.weight) < 0.7, 10.0, -10.0))

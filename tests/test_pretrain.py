@@ -1,4 +1,5 @@
 """Behavioural cloning: what VD and L2 pre-training train, freeze, report and save."""
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -9,8 +10,14 @@ from vdtutorial.demos import generate_demos
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.experiments.checkpoints import CheckpointError, checkpoint_path, load_checkpoint, save_checkpoint
 from vdtutorial.experiments.evaluation import PolicyController, successes_per_episode
-from vdtutorial.pretrain import (HeldOutStop, PretrainConfig, demo_observations, evaluate_imitation, pretrain,
-                                 split_by_episode)
+from vdtutorial.pretrain import (
+    HeldOutStop,
+    PretrainConfig,
+    demo_observations,
+    evaluate_imitation,
+    pretrain,
+    split_by_episode,
+)
 from vdtutorial.vd import LinearSVDO
 
 
@@ -32,7 +39,7 @@ def test_imitation_error_falls_and_sigma_is_frozen(demos, trained):
     from vdtutorial.policy import make_policy
     from vdtutorial.pretrain import observation_space
 
-    guess_zero = float((demos.actions ** 2).mean())  # held-out error of always predicting no motion
+    guess_zero = float((demos.actions**2).mean())  # held-out error of always predicting no motion
     for reg, (policy, history) in trained.items():
         assert history[-1]["val_mse"] < history[0]["val_mse"] and history[-1]["val_mse"] < 0.9 * guess_zero, reg
         torch.manual_seed(0)
@@ -61,8 +68,10 @@ def test_without_a_configuration_pretrain_uses_the_one_its_docstring_names():
     doc = " ".join(pretrain.__doc__.split())
     assert "(default: ``PretrainConfig()``, the paper's setting" in doc and "default: :func:`default_config`" not in doc
     small = generate_demos("reach", 120, 0.3, seed=4, progress=False)
-    (plain, _), (named, _) = (pretrain(small, seed=0, progress=False),
-                              pretrain(small, PretrainConfig(), seed=0, progress=False))
+    (plain, _), (named, _) = (
+        pretrain(small, seed=0, progress=False),
+        pretrain(small, PretrainConfig(), seed=0, progress=False),
+    )
     for p, q in zip(plain.state_dict().values(), named.state_dict().values()):
         assert torch.equal(p, q)
 
@@ -102,8 +111,13 @@ def test_rgbd_pretraining_runs_on_rerendered_images(demos):
     obs = demo_observations(small, "rgbd", image_size=64)
     assert obs["rgb"].shape == (40, 3, 64, 64) and obs["rgb"].dtype == np.uint8
     assert obs["depth"].shape == (40, 64 * 64)
-    policy, history = pretrain(small, PretrainConfig(reg="vd", obs_mode="rgbd", image_size=64, epochs=1, batch_size=20, val_fraction=0.3),
-                               seed=0, progress=False, observations=obs)
+    policy, history = pretrain(
+        small,
+        PretrainConfig(reg="vd", obs_mode="rgbd", image_size=64, epochs=1, batch_size=20, val_fraction=0.3),
+        seed=0,
+        progress=False,
+        observations=obs,
+    )
     assert np.isfinite(history[-1]["val_mse"])
 
 
@@ -189,8 +203,11 @@ def test_cloning_keeps_sigma_fixed_but_draws_its_weight_noise_as_the_docstring_s
     finally:
         pretrain_module.make_policy = original
     assert True in modes, "sigma's VD layers were never in training mode during cloning"
-    assert all(torch.equal(value, made[0][key]) for key, value in policy.sigma.state_dict().items()
-               if not key.endswith("bias") or "head" not in key)
+    assert all(
+        torch.equal(value, made[0][key])
+        for key, value in policy.sigma.state_dict().items()
+        if not key.endswith("bias") or "head" not in key
+    )
     assert "draw weight noise" in pretrain_module.__doc__
 
 

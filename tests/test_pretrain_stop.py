@@ -1,5 +1,6 @@
 """Image pre-training stopped on the held-out loss against the fixed epochs (experiments.pretrain_stop): the
 settings it compares, its grid and its comparison (the grid itself is a long image run, not run here)."""
+
 from pathlib import Path
 
 import numpy as np
@@ -35,10 +36,28 @@ def test_the_comparison_is_stopped_minus_fixed_per_method():
     for kind, shift in ((ps.FIXED, 0.0), (ps.STOPPED, 2.0)):
         for reg in ("vd", "l2"):
             for seed in (0, 1, 2):
-                rows.append({"kind": kind, "method": reg, "seed": seed, "stage": "pre-RL", "epochs_run": 40 + 10 * shift,
-                             "val_mse": 0.02, "successes": 10 + shift + seed})
-                rows += [{"kind": kind, "method": reg, "seed": seed, "stage": "RL", "successes": 30 + shift + i,
-                          "env_steps": 200 * (i + 1)} for i in range(3)]
+                rows.append(
+                    {
+                        "kind": kind,
+                        "method": reg,
+                        "seed": seed,
+                        "stage": "pre-RL",
+                        "epochs_run": 40 + 10 * shift,
+                        "val_mse": 0.02,
+                        "successes": 10 + shift + seed,
+                    }
+                )
+                rows += [
+                    {
+                        "kind": kind,
+                        "method": reg,
+                        "seed": seed,
+                        "stage": "RL",
+                        "successes": 30 + shift + i,
+                        "env_steps": 200 * (i + 1),
+                    }
+                    for i in range(3)
+                ]
     comparison = ps.compare(rows, (0, 1, 2))
     assert [c["measure"].split()[0] for c in comparison[:4]] == ["epochs", "held-out", "successes", "successes"]
     epochs, _, pre_rl, rl = comparison[:4]
@@ -50,11 +69,16 @@ def test_the_comparison_is_stopped_minus_fixed_per_method():
 
 def _comparison(pre_rl: tuple[float, float], rl: tuple[float, float]) -> list[dict]:
     """A comparison whose two success measures have the given intervals, and wide ones elsewhere."""
+
     def measure(name, low, high):
         return {"method": "vd", "measure": name, "low": low, "high": high}
-    return [measure("epochs of cloning", 30.0, 90.0), measure("held-out MSE of the kept mu", -0.01, -0.001),
-            measure("successes per 200 steps before RL (mean action)", *pre_rl),
-            measure("successes per 200 steps, mean over the first 10000 RL steps", *rl)]
+
+    return [
+        measure("epochs of cloning", 30.0, 90.0),
+        measure("held-out MSE of the kept mu", -0.01, -0.001),
+        measure("successes per 200 steps before RL (mean action)", *pre_rl),
+        measure("successes per 200 steps, mean over the first 10000 RL steps", *rl),
+    ]
 
 
 def test_only_an_interval_of_the_successes_that_excludes_zero_is_material():

@@ -1,6 +1,7 @@
 """Every command a shipped file records remakes that file (issue 44): each is parsed by the command line it names
 (no run) and must name the file's own output -- an experiment record its folder, a data set or a checkpoint its
 file name -- and, for a record merged from several commands, list each part and the merge that joined them."""
+
 import json
 import shlex
 import zipfile
@@ -46,8 +47,9 @@ def _commands(node, found):
 RECORDS = sorted(p.relative_to(DATA).as_posix() for p in (DATA / "results").glob("*/*.json"))
 TABLES = sorted(p.relative_to(DATA).as_posix() for p in (DATA / "results").glob("table1*/*.txt"))
 DEMOS = sorted(p.relative_to(DATA).as_posix() for p in DATA.rglob("*.npz"))
-CHECKPOINTS = sorted(p.relative_to(DATA).as_posix() for p in DATA.rglob("*.pt")
-                     if "state" not in p.parts and "checkpoints" in p.parts)
+CHECKPOINTS = sorted(
+    p.relative_to(DATA).as_posix() for p in DATA.rglob("*.pt") if "state" not in p.parts and "checkpoints" in p.parts
+)
 
 
 def _folder(path: str) -> str:
@@ -67,14 +69,17 @@ def test_every_command_of_a_record_parses_and_writes_its_folder(path):
     added = {other for e in merges for args in [parse(e["command"])] for other in args.add + args.add_other_cpu}
     for entry in merges:
         assert parse(entry["command"]).folders == [_folder(path)], entry["command"]
-    for entry in runs:   # each part wrote the record's folder, or a folder a merge added to it
+    for entry in runs:  # each part wrote the record's folder, or a folder a merge added to it
         args = parse(entry["command"])
         assert args.out == _folder(path) or args.out in added, entry["command"]
         assert args.seeds == entry["seeds"] and entry["kernels"] is not None
     if merged:
         assert sorted(s for e in runs for s in e["seeds"]) == record["seeds"] and record["argv"] is None
-        assert len(added) == len(runs) - 1 and record["kernels"] == "mixed" or all(
-            e["kernels"] == runs[0]["kernels"] for e in runs)
+        assert (
+            len(added) == len(runs) - 1
+            and record["kernels"] == "mixed"
+            or all(e["kernels"] == runs[0]["kernels"] for e in runs)
+        )
 
 
 def test_the_merged_records_name_the_merge_and_each_parts_kernels():
@@ -83,8 +88,10 @@ def test_the_merged_records_name_the_merge_and_each_parts_kernels():
         merged = json.loads((DATA / "results" / fig / f"{fig}.json").read_text())["merged"]
         assert [e.get("seeds") for e in merged[:3]] == [[0, 1, 2, 3, 4], [5, 6, 7, 8, 9], None]
         assert merged[0]["kernels"] == NOT_RECORDED and isinstance(merged[1]["kernels"], dict)
-        assert merged[2]["command"] == f"python -m vdtutorial rederive data/results/{fig} --add-other-cpu " \
-                                       f"runs/{fig}_state_seeds5-9"
+        assert (
+            merged[2]["command"] == f"python -m vdtutorial rederive data/results/{fig} --add-other-cpu "
+            f"runs/{fig}_state_seeds5-9"
+        )
         # Fig. 5's 2000-demonstration set has more seeds: their command names that data set and those methods only
         assert len(merged) == (5 if fig == "fig5" else 3)
     more = json.loads((DATA / "results" / "fig5" / "fig5.json").read_text())["merged"][3]

@@ -2,6 +2,7 @@
 the newest releases on PyPI, and what conda-forge builds for each of the five platforms; no upper bound that a
 new release can cross but the reasoned caps. The reference files in tests/reference/ say where and when each
 version was read."""
+
 import csv
 import re
 import tomllib
@@ -77,8 +78,9 @@ def test_every_dependency_admits_the_newest_release():
     newest = {_canonical(row["package"]): row["newest"] for row in _rows("pypi-newest.tsv")}
     assert newest["torch"] == "2.15.0"
     for requirement in _requirements():
-        assert requirement.specifier.contains(newest[_canonical(requirement.name)]), \
+        assert requirement.specifier.contains(newest[_canonical(requirement.name)]), (
             f"{requirement} refuses the newest release, {newest[_canonical(requirement.name)]}"
+        )
 
 
 @pytest.mark.parametrize("next_release", ["minor", "major"])
@@ -86,7 +88,7 @@ def test_only_the_reasoned_caps_bound_a_dependency_from_above(next_release):
     """A range without a cap admits the next minor and the next major release of its newest; a cap stands only
     where pyproject.toml gives its reason on the line above ("# cap: ...")."""
     text = (ROOT / "pyproject.toml").read_text()
-    lines = text[text.index("[project]"):text.index("[project.scripts]")].splitlines()
+    lines = text[text.index("[project]") : text.index("[project.scripts]")].splitlines()
     newest = {_canonical(row["package"]): Version(row["newest"]) for row in _rows("pypi-newest.tsv")}
     capped = set()
     for i, line in enumerate(lines):
@@ -97,7 +99,9 @@ def test_only_the_reasoned_caps_bound_a_dependency_from_above(next_release):
                 capped.add(requirement.name)
                 continue
             v = newest[_canonical(requirement.name)]
-            following = Version(f"{v.major}.{v.minor + 1}.0") if next_release == "minor" else Version(f"{v.major + 1}.0.0")
+            following = (
+                Version(f"{v.major}.{v.minor + 1}.0") if next_release == "minor" else Version(f"{v.major + 1}.0.0")
+            )
             assert requirement.specifier.contains(following), f"{text} refuses {following}"
     assert capped == {"meshcat", "nbgrader"}
 
@@ -110,7 +114,7 @@ def test_each_conda_spec_admits_what_conda_forge_has_on_every_platform(environme
     forge = {row["package"]: row for row in _rows("conda-forge.tsv")}
     text = (ROOT / environment).read_text()
     specs = {}
-    for line in text[text.index("dependencies:"):].splitlines():
+    for line in text[text.index("dependencies:") :].splitlines():
         if m := re.match(r"\s*-\s+([A-Za-z0-9_.\-]+)(\S*)", line):
             specs[m[1]] = m[2]
     assert {"pybullet", "pytorch-cpu", "numpy"} <= set(specs)
@@ -121,5 +125,6 @@ def test_each_conda_spec_admits_what_conda_forge_has_on_every_platform(environme
         for platform in PLATFORMS:
             version = row[platform].strip()
             assert version not in ("", "-"), f"{package} has no conda-forge build for {platform}"
-            assert SpecifierSet(spec.split(";")[0]).contains(version, prereleases=True), \
+            assert SpecifierSet(spec.split(";")[0]).contains(version, prereleases=True), (
                 f"{package}{spec} refuses conda-forge's {version} on {platform}"
+            )

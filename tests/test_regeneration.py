@@ -17,6 +17,7 @@ shipped pre-training, whose logged loss differs in the 8th digit there. On it th
 the stated cross-CPU tolerance and a warning says that this machine does not regenerate them bit for bit;
 a change of the code still fails, unless it moves the first iterations by less than that tolerance.
 """
+
 import vdtutorial  # first, as in conftest: the module also runs as a script (see IMAGE_REFERENCE_COMMAND)
 import json
 import math
@@ -33,8 +34,7 @@ from conftest import require_recorded_numerics
 
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments.results import NOT_RECORDED
-from vdtutorial.experiments import (expert_reference, finetune, merge_seeds, read_rows, rederive, results_file,
-                                    write_csv)
+from vdtutorial.experiments import expert_reference, finetune, merge_seeds, read_rows, rederive, results_file, write_csv
 from vdtutorial.experiments.checkpoints import checkpoint_path
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import data_dir
@@ -49,8 +49,17 @@ RESULTS = data_dir() / "results"
 #: RGBD encoding, convolutional policy, TRPO with the whole-batch Gauss-Newton Fisher and with the 10% one)
 #: without a start-sigma fit, which would cost about 10 minutes per pre-trained image run. One run of the seeds 5-9
 #: merged into Figs. 4-7 from another CPU (only seeds 0-2 have shipped checkpoints, so one without pre-training).
-RUNS = [("fig4", "vd", 0), ("fig5", "vd", 0), ("fig6", "vd", 0), ("fig7", "vd", 0), ("fig4", "none", 1),
-        ("fig4_state_fvp0.1", "l2", 0), ("fig4_rgbd", "none", 0), ("fig4_rgbd_fvp0.1", "none", 0), ("fig7", "none", 5)]
+RUNS = [
+    ("fig4", "vd", 0),
+    ("fig5", "vd", 0),
+    ("fig6", "vd", 0),
+    ("fig7", "vd", 0),
+    ("fig4", "none", 1),
+    ("fig4_state_fvp0.1", "l2", 0),
+    ("fig4_rgbd", "none", 0),
+    ("fig4_rgbd_fvp0.1", "none", 0),
+    ("fig7", "none", 5),
+]
 COUNTS = ("iteration", "env_steps", "successes", "episodes", "failures")
 FLOATS = ("mean_return", "mean_kl", "entropy", "surrogate_improvement", "line_search")
 #: The image run whose first :data:`IMAGE_ITERATIONS` iterations pin the exact speed-ups of the image update
@@ -58,8 +67,10 @@ FLOATS = ("mean_return", "mean_kl", "entropy", "surrogate_improvement", "line_se
 IMAGE_RUN, IMAGE_ITERATIONS = ("fig4_rgbd", "none", 0), 20
 IMAGE_REFERENCE = Path(__file__).parent / "reference" / "fig4_rgbd_none_seed0_20_iterations.json"
 #: Made with the code at 29355d1 (before issue 31's speed-ups), this test module run as a script.
-IMAGE_REFERENCE_COMMAND = ("git worktree add /tmp/before 29355d1 && VDTUTORIAL_QUICK=1 PYTHONPATH=/tmp/before "
-                           "python tests/test_regeneration.py")
+IMAGE_REFERENCE_COMMAND = (
+    "git worktree add /tmp/before 29355d1 && VDTUTORIAL_QUICK=1 PYTHONPATH=/tmp/before "
+    "python tests/test_regeneration.py"
+)
 
 
 @pytest.fixture(autouse=True)
@@ -77,15 +88,18 @@ def record_name(folder: str) -> str:
 def _shipped(folder: str, method: str, seed: int):
     record = json.loads((RESULTS / folder / f"{record_name(folder)}.json").read_text())
     run = next(r for r in record["runs"] if r["method"] == method and r["seed"] == seed)
-    rows = [r for r in read_rows(results_file(RESULTS / folder, record_name(folder)))
-            if r["method"] == method and r["seed"] == seed and r["samples"] == run["samples"]
-            and r["noise"] == run["noise"]]
+    rows = [
+        r
+        for r in read_rows(results_file(RESULTS / folder, record_name(folder)))
+        if r["method"] == method and r["seed"] == seed and r["samples"] == run["samples"] and r["noise"] == run["noise"]
+    ]
     return record, run, rows
 
 
 @dataclass(frozen=True)
 class Tolerance:
     """How far a regenerated float (``rel``, ``abs``) or tensor (``rel``, ``tensor_abs``) may be from the shipped one."""
+
     rel: float
     abs: float
     tensor_abs: float
@@ -112,8 +126,10 @@ def tolerance(probe) -> Tolerance:
     history, first = [probe[0]], probe[1]
     if history[0] == first:
         return BIT_FOR_BIT
-    warnings.warn(f"this CPU does not regenerate the shipped rows bit for bit (one epoch's train_loss "
-                  f"{history[0]['train_loss']!r}, shipped {first['train_loss']!r}): comparing within {ACROSS_CPUS}")
+    warnings.warn(
+        f"this CPU does not regenerate the shipped rows bit for bit (one epoch's train_loss "
+        f"{history[0]['train_loss']!r}, shipped {first['train_loss']!r}): comparing within {ACROSS_CPUS}"
+    )
     return ACROSS_CPUS
 
 
@@ -146,8 +162,9 @@ def _run_again(folder: str, method: str, seed: int, iterations: int, root: Path)
     """The log rows of the first ``iterations`` iterations of a shipped run, re-run on one thread with the
     record's settings (its checkpoints and any new ones under ``root``)."""
     record, run, _ = _shipped(folder, method, seed)
-    pretrain = PretrainConfig(reg="l2" if method == "none" else method, obs_mode=run["obs_mode"],
-                              **record["pretrain_config"])
+    pretrain = PretrainConfig(
+        reg="l2" if method == "none" else method, obs_mode=run["obs_mode"], **record["pretrain_config"]
+    )
     demos = None
     if method != "none":
         demos = demo_path(run["task"], run["samples"], run["noise"], 0)
@@ -160,10 +177,18 @@ def _run_again(folder: str, method: str, seed: int, iterations: int, root: Path)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        _, rows = finetune(method, run["task"], demos, run["obs_mode"], seed,
-                           iterations * record["steps_per_iteration"], pretrain_config=pretrain,
-                           trpo_config=TRPOConfig(**record["trpo_config"]), num_envs=record["num_envs"],
-                           checkpoints_root=root)
+        _, rows = finetune(
+            method,
+            run["task"],
+            demos,
+            run["obs_mode"],
+            seed,
+            iterations * record["steps_per_iteration"],
+            pretrain_config=pretrain,
+            trpo_config=TRPOConfig(**record["trpo_config"]),
+            num_envs=record["num_envs"],
+            checkpoints_root=root,
+        )
     finally:
         torch.set_num_threads(threads)
     return rows
@@ -201,8 +226,10 @@ def test_image_updates_match_the_code_before_the_speed_ups(probe, image_rows):
     were recorded: on a CPU that rounds like the recording one (the :func:`probe` logs the recorded loss)."""
     reference = json.loads(IMAGE_REFERENCE.read_text())
     if probe[0]["train_loss"] != reference["probe_train_loss"]:
-        pytest.skip(f"the reference was recorded on a CPU that rounds otherwise (probe train_loss "
-                    f"{reference['probe_train_loss']!r}, here {probe[0]['train_loss']!r})")
+        pytest.skip(
+            f"the reference was recorded on a CPU that rounds otherwise (probe train_loss "
+            f"{reference['probe_train_loss']!r}, here {probe[0]['train_loss']!r})"
+        )
     assert len(reference["rows"]) == len(image_rows) == IMAGE_ITERATIONS
     for again, then in zip(image_rows, reference["rows"]):
         assert {k: again[k] for k in COUNTS if k in then} == {k: then[k] for k in COUNTS if k in then}
@@ -276,9 +303,11 @@ def _seeds_of(folder, seeds, dest, methods=None):
     write_csv(results_file(dest, record["experiment"]), [r for r in rows if kept(r)])
     parts = record["command"].split(" --seeds ")
     rest = parts[1].split(" --", 1)[1] + ("" if methods is None else " --methods " + " ".join(methods))
-    record.pop("merged", None)   # a folder run with those seeds, not the merge that made the shipped one
-    record.update(runs=[run for run in record["runs"] if kept(run)],
-                  command=f"{parts[0]} --seeds {' '.join(map(str, seeds))} --{rest}")
+    record.pop("merged", None)  # a folder run with those seeds, not the merge that made the shipped one
+    record.update(
+        runs=[run for run in record["runs"] if kept(run)],
+        command=f"{parts[0]} --seeds {' '.join(map(str, seeds))} --{rest}",
+    )
     (dest / f"{record['experiment']}.json").write_text(json.dumps(record))
     return dest
 
@@ -292,10 +321,12 @@ def test_seeds_run_apart_merge_into_the_experiment_with_all_of_them(tmp_path):
     claims = merged.record["summary"]["claims"]
     assert all(e["batches"] == [[0, 1], [0, 1]] and not e["across_batches"] for e in claims if "batches" in e)
     unmarked = [{k: v for k, v in e.items() if k not in ("batches", "across_batches")} for e in claims]
-    assert merged.record["command"] == shipped["command"] and {**merged.record["summary"], "claims": unmarked} == \
-        shipped["summary"]
+    assert (
+        merged.record["command"] == shipped["command"]
+        and {**merged.record["summary"], "claims": unmarked} == shipped["summary"]
+    )
     assert [run["name"] for run in merged.record["runs"]] == [run["name"] for run in shipped["runs"]]
-    assert [e.get("seeds") for e in merged.record["merged"]] == [[0, 2], [1], None]   # the two parts, then the merge
+    assert [e.get("seeds") for e in merged.record["merged"]] == [[0, 2], [1], None]  # the two parts, then the merge
     assert merged.record["merged"][2]["command"].startswith("python -m vdtutorial rederive ")
     assert " --add " in merged.record["merged"][2]["command"] and merged.record["argv"] is None
     with pytest.raises(ValueError, match="share seeds"):
@@ -312,7 +343,9 @@ def test_more_seeds_of_some_curves_merge_and_the_record_says_how_many_each_has(t
     later = _seeds_of("fig4_rgbd", (2,), tmp_path / "later", methods=("vd", "l2"))
     command = json.loads((first / "fig4.json").read_text())["command"]
     merged = merge_seeds(first, later)
-    per_method = {m: sorted({r["seed"] for r in merged.rows if r["method"] == m}) for m in ("vd", "l2", "none", "expert")}
+    per_method = {
+        m: sorted({r["seed"] for r in merged.rows if r["method"] == m}) for m in ("vd", "l2", "none", "expert")
+    }
     assert per_method == {"vd": [0, 1, 2], "l2": [0, 1, 2], "none": [0, 1], "expert": [0, 1]}
     assert "2 to 3 seeds" in merged.record["title"] and merged.record["command"] == command
     assert [e.get("seeds") for e in merged.record["merged"]] == [[0, 1], [2], None]
@@ -333,8 +366,11 @@ def test_seeds_run_on_another_cpu_merge_only_when_asked_and_the_record_says_so(t
         merge_seeds(first, later)
     merged = merge_seeds(first, later, other_cpu=True)
     assert merged.record["kernels"] == "mixed" and merged.record["seeds"] == [0, 1, 2]
-    assert [entry.get("kernels") for entry in merged.record["merged"]] == [NOT_RECORDED, {"torch_cpu_capability": "AVX2"},
-                                                                          None]
+    assert [entry.get("kernels") for entry in merged.record["merged"]] == [
+        NOT_RECORDED,
+        {"torch_cpu_capability": "AVX2"},
+        None,
+    ]
     assert " --add-other-cpu " in merged.record["merged"][2]["command"]
     assert merged.rows == read_rows(results_file(RESULTS / "fig4_state_fvp0.1", "fig4"))
 
@@ -368,10 +404,18 @@ def write_image_reference(path: Path = IMAGE_REFERENCE) -> None:
         rows = _run_again(*IMAGE_RUN, IMAGE_ITERATIONS, Path(root))
     keep = COUNTS + ("mean_kl", "line_search", "surrogate_improvement")
     path.parent.mkdir(exist_ok=True)
-    path.write_text(json.dumps({
-        "command": IMAGE_REFERENCE_COMMAND, "code": str(Path(vdtutorial.__file__).parent),
-        "probe_train_loss": _first_epoch_again(2000, "state")[0][0]["train_loss"],
-        "rows": [{k: row[k] for k in keep if k in row} for row in rows]}, indent=1) + "\n")
+    path.write_text(
+        json.dumps(
+            {
+                "command": IMAGE_REFERENCE_COMMAND,
+                "code": str(Path(vdtutorial.__file__).parent),
+                "probe_train_loss": _first_epoch_again(2000, "state")[0][0]["train_loss"],
+                "rows": [{k: row[k] for k in keep if k in row} for row in rows],
+            },
+            indent=1,
+        )
+        + "\n"
+    )
 
 
 if __name__ == "__main__":
@@ -409,11 +453,18 @@ def test_a_shipped_beyond_run_regenerates(tolerance, tmp_path, monkeypatch):
     monkeypatch.setenv(settings.QUICK_ENV, "0")  # the shipped budgets; the shipped checkpoint is then read
     assert (beyond.samples(), beyond.pre_rl_episodes()) == (record["samples"], record["pre_rl_episodes"])
     variant = beyond.Variant("hand-set", "vd", 0.5)
-    shipped = [r for r in read_rows(results_file(RESULTS / "beyond", "beyond"))
-               if r["label"] == variant.label and r["seed"] == 0]
+    shipped = [
+        r
+        for r in read_rows(results_file(RESULTS / "beyond", "beyond"))
+        if r["label"] == variant.label and r["seed"] == 0
+    ]
     (tmp_path / "runs").mkdir()
-    pre, rl = _computed([beyond.PreRLJob(variant, 0, tmp_path, tmp_path / "runs"),
-                         beyond.RLJob(variant, 0, ITERATIONS * 200, tmp_path, tmp_path / "runs")])
+    pre, rl = _computed(
+        [
+            beyond.PreRLJob(variant, 0, tmp_path, tmp_path / "runs"),
+            beyond.RLJob(variant, 0, ITERATIONS * 200, tmp_path, tmp_path / "runs"),
+        ]
+    )
     then_pre = next(r for r in shipped if r["stage"] == beyond.PRE_RL)
     assert (pre[0]["successes"], pre[0]["trajectories"]) == (then_pre["successes"], then_pre["trajectories"])
     _assert_iterations_equal(rl, [r for r in shipped if r["stage"] == beyond.RL][:ITERATIONS], tolerance, "beyond")
@@ -435,13 +486,21 @@ def test_a_shipped_pretrain_stop_run_regenerates(tolerance, tmp_path, monkeypatc
     assert not record["quick"]
     monkeypatch.setenv(settings.QUICK_ENV, "0")
     assert ps.pre_rl_episodes() == record["pre_rl_episodes"]
-    shipped = [r for r in read_rows(results_file(folder, "pretrain_stop"))
-               if (r["kind"], r["method"], r["seed"]) == (ps.STOPPED, "l2", 0)]
+    shipped = [
+        r
+        for r in read_rows(results_file(folder, "pretrain_stop"))
+        if (r["kind"], r["method"], r["seed"]) == (ps.STOPPED, "l2", 0)
+    ]
     then_pre = next(r for r in shipped if r["stage"] == "pre-RL")
-    checkpoint = load_checkpoint(checkpoint_path({"task": ps.TASK, "samples": ps.SAMPLES, "noise": ps.NOISE}, "l2",
-                                                 ps.OBS, 0, patience=ps.PATIENCE))
+    checkpoint = load_checkpoint(
+        checkpoint_path(
+            {"task": ps.TASK, "samples": ps.SAMPLES, "noise": ps.NOISE}, "l2", ps.OBS, 0, patience=ps.PATIENCE
+        )
+    )
     assert (len(checkpoint.pretrain_info["history"]), checkpoint.pretrain_info["best_epoch"]) == (
-        then_pre["epochs_run"], then_pre["best_epoch"])
+        then_pre["epochs_run"],
+        then_pre["best_epoch"],
+    )
     jobs = ps.jobs((0,), tmp_path, tmp_path / "runs")
     pre = next(j for j in jobs if isinstance(j, ps.PreRLJob) and (j.kind, j.reg) == (ps.STOPPED, "l2"))
     rl = next(j for j in jobs if not isinstance(j, ps.PreRLJob) and (j.kind, j.spec.method) == (ps.STOPPED, "l2"))
@@ -451,5 +510,6 @@ def test_a_shipped_pretrain_stop_run_regenerates(tolerance, tmp_path, monkeypatc
     pre_rows, rl_rows = _computed([pre, rl])
     assert (pre_rows[0]["successes"], pre_rows[0]["trajectories"]) == (then_pre["successes"], then_pre["trajectories"])
     assert _close(pre_rows[0]["val_mse"], then_pre["val_mse"], tolerance)
-    _assert_iterations_equal(rl_rows, [r for r in shipped if r["stage"] == "RL"][:ITERATIONS], tolerance,
-                             "pretrain_stop")
+    _assert_iterations_equal(
+        rl_rows, [r for r in shipped if r["stage"] == "RL"][:ITERATIONS], tolerance, "pretrain_stop"
+    )

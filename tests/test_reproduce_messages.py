@@ -1,5 +1,6 @@
 """What the main job (``python -m vdtutorial reproduce``) prints: no line that reads as an error when nothing is
 wrong, bands as its figure draws them, and ``--quick`` meaning quick mode, recorded as such."""
+
 import json
 import os
 import re
@@ -20,12 +21,19 @@ def _curve(label, method, mean, low, high, seeds=3):
 
 
 def test_a_band_below_zero_is_printed_as_the_figure_draws_it():
-    curves = {"no pre-training": _curve("no pre-training", "none", [1.0, 1.49], [0.1, -0.54], [2.0, 3.53]),
-              "VD": _curve("VD", "vd", [2.0, 2.5], [1.0, 1.5], [3.0, 3.5])}
-    summary = {"final": {label: {"mean": c.mean[-1], "low": c.low[-1], "high": c.high[-1], "seeds": c.seeds}
-                         for label, c in curves.items()}}
-    text = format_summary(ExperimentResult("reproduce_quick", "runs/x", [], curves, None, summary,
-                                           record={"metric": "successes"}))
+    curves = {
+        "no pre-training": _curve("no pre-training", "none", [1.0, 1.49], [0.1, -0.54], [2.0, 3.53]),
+        "VD": _curve("VD", "vd", [2.0, 2.5], [1.0, 1.5], [3.0, 3.5]),
+    }
+    summary = {
+        "final": {
+            label: {"mean": c.mean[-1], "low": c.low[-1], "high": c.high[-1], "seeds": c.seeds}
+            for label, c in curves.items()
+        }
+    }
+    text = format_summary(
+        ExperimentResult("reproduce_quick", "runs/x", [], curves, None, summary, record={"metric": "successes"})
+    )
     assert "final 1.49 (95% band 0.00 to 3.53, clipped to possible values, 3 seeds)" in text
     assert "final 2.50 (95% band 1.50 to 3.50, 3 seeds)" in text
     assert not re.search(r"-\d", text)
@@ -38,9 +46,13 @@ def test_the_steps_panel_says_lower_is_better():
     assert "lower is better" in steps and "lower is better" not in successes
 
 
-@pytest.mark.parametrize("steps, expected", [(20_000.0, "first reaches L2's final level (1.50) at 2e+04 env steps, "
-                                                        "40% of these 50,000"),
-                                             (None, "stays below L2's final level (1.50) over these 50,000 steps")])
+@pytest.mark.parametrize(
+    "steps, expected",
+    [
+        (20_000.0, "first reaches L2's final level (1.50) at 2e+04 env steps, 40% of these 50,000"),
+        (None, "stays below L2's final level (1.50) over these 50,000 steps"),
+    ],
+)
 def test_the_reach_line_of_a_small_run_gives_no_verdict(steps, expected):
     reach = {"l2_final_level": 1.5, "steps": steps, "fraction_of_budget": None if steps is None else steps / 5e4}
     text = small_run_reach_text(reach, 50_000)
@@ -54,8 +66,12 @@ def test_reproduce_quick_is_quick_mode_and_says_so(tmp_path):
     and leaves no line that reads as a failure."""
     env = {key: value for key, value in os.environ.items() if key != "VDTUTORIAL_QUICK"}
     env.update(VDTUTORIAL_RUNS=str(tmp_path / "runs"), MPLBACKEND="Agg")
-    result = subprocess.run([sys.executable, "-m", "vdtutorial", "reproduce", "--quick", "--workers", "1"],
-                            env=env, capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, "-m", "vdtutorial", "reproduce", "--quick", "--workers", "1"],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     out = tmp_path / "runs" / "quick" / "reproduce_quick"
     record = json.loads((out / "reproduce_quick.json").read_text())

@@ -1,5 +1,6 @@
 """Run locks: one process at a time computes a run; a dead holder's lock is taken over; a grid that finds a
 run held by another grid waits for it and takes its result instead of computing it again."""
+
 import json
 import os
 import socket

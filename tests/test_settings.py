@@ -1,5 +1,6 @@
 """Quick mode and the folders are read when a run starts: ``use_quick`` reaches every budget, whatever was imported
 before, in the same process and in a running Jupyter kernel."""
+
 import ast
 import importlib
 import json
@@ -23,8 +24,13 @@ READ_WHEN_CALLED = {"budget", "is_quick", "data_dir", "runs_dir", "project_dir",
 
 def next_run_budgets() -> dict:
     """Every budget the next run would get, made now: configs, RL steps, seeds, expert episodes, smoothing."""
-    from vdtutorial.experiments import (RunSpec, default_expert_episodes, default_seeds, default_total_steps,
-                                        smooth_window)
+    from vdtutorial.experiments import (
+        RunSpec,
+        default_expert_episodes,
+        default_seeds,
+        default_total_steps,
+        smooth_window,
+    )
     from vdtutorial.experiments.figures import figure_specs
     from vdtutorial.experiments.checkpoints import default_config
     from vdtutorial.pretrain import PretrainConfig
@@ -32,8 +38,9 @@ def next_run_budgets() -> dict:
     specs = figure_specs("fig4")
     return {
         "PretrainConfig()": asdict(PretrainConfig()),
-        "default_config": {f"{reg} {obs}": asdict(default_config(reg, obs)) for reg in ("vd", "l2")
-                           for obs in ("state", "rgbd")},
+        "default_config": {
+            f"{reg} {obs}": asdict(default_config(reg, obs)) for reg in ("vd", "l2") for obs in ("state", "rgbd")
+        },
         "RunSpec total_steps": RunSpec("vd").total_steps,
         "default_total_steps": default_total_steps(),
         "fig4 seeds": sorted({spec.seed for spec in specs}),
@@ -91,8 +98,11 @@ def budgets_sized_at_import(source: str) -> list[str]:
                 found.append(f"line {node.lineno}: {name}() at import")
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
             body = node.body if isinstance(node.body, list) else [node.body]
-            outside = [*getattr(node, "decorator_list", []), *node.args.defaults,
-                       *[d for d in node.args.kw_defaults if d is not None]]
+            outside = [
+                *getattr(node, "decorator_list", []),
+                *node.args.defaults,
+                *[d for d in node.args.kw_defaults if d is not None],
+            ]
             for child in outside:
                 visit(child, at_import)
             for child in body:
@@ -106,14 +116,18 @@ def budgets_sized_at_import(source: str) -> list[str]:
 
 
 def test_the_check_finds_budgets_sized_at_import():
-    sized = ("from vdtutorial.settings import budget, data_dir\n"
-             "STEPS = budget(300, 2)\n"
-             "def f(n=settings.budget(5, 1), root=data_dir()):\n    return n\n"
-             "@dataclass\nclass C:\n    epochs: int = budget(150, 4)\n")
+    sized = (
+        "from vdtutorial.settings import budget, data_dir\n"
+        "STEPS = budget(300, 2)\n"
+        "def f(n=settings.budget(5, 1), root=data_dir()):\n    return n\n"
+        "@dataclass\nclass C:\n    epochs: int = budget(150, 4)\n"
+    )
     assert len(budgets_sized_at_import(sized)) == 4
-    at_call = ("def f(n=None):\n    return budget(5, 1) if n is None else n\n"
-               "class C:\n    epochs: list = field(default_factory=lambda: [budget(1, 2)])\n"
-               "    def __post_init__(self):\n        self.n = budget(3, 4)\n")
+    at_call = (
+        "def f(n=None):\n    return budget(5, 1) if n is None else n\n"
+        "class C:\n    epochs: list = field(default_factory=lambda: [budget(1, 2)])\n"
+        "    def __post_init__(self):\n        self.n = budget(3, 4)\n"
+    )
     assert budgets_sized_at_import(at_call) == []
 
 
@@ -124,8 +138,11 @@ def test_no_module_sizes_a_budget_at_import(path):
 
 def test_the_settings_module_holds_constants_only():
     """The mode and the folders are functions: a value stored at import would be the one a learner's switch misses."""
-    stored = {name for name, value in vars(settings).items()
-              if not name.startswith("__") and not callable(value) and not isinstance(value, type(os))}
+    stored = {
+        name
+        for name, value in vars(settings).items()
+        if not name.startswith("__") and not callable(value) and not isinstance(value, type(os))
+    }
     assert stored == {"QUICK_ENV", "DATA_ENV", "BOOK_RECORD", "_PACKAGE", "INSTALLED_COPY", "annotations"}
 
 
@@ -159,13 +176,21 @@ def test_a_running_kernel_switches_quick_mode_without_a_restart():
     from jupyter_client.manager import start_new_kernel
 
     chapter = json.loads((settings.shipped_dir() / "notebooks" / "00_start_here.ipynb").read_text())
-    mode_cell = next("".join(c["source"]) for c in chapter["cells"]
-                     if c["cell_type"] == "code" and "example: budget(200, 20)" in "".join(c["source"]))
+    mode_cell = next(
+        "".join(c["source"])
+        for c in chapter["cells"]
+        if c["cell_type"] == "code" and "example: budget(200, 20)" in "".join(c["source"])
+    )
     started = not settings.is_quick()
-    manager, client = start_new_kernel(kernel_name="python3", env={**os.environ, settings.QUICK_ENV: str(int(started))},
-                                       cwd=str(settings.shipped_dir() / "notebooks"))
+    manager, client = start_new_kernel(
+        kernel_name="python3",
+        env={**os.environ, settings.QUICK_ENV: str(int(started))},
+        cwd=str(settings.shipped_dir() / "notebooks"),
+    )
     try:
-        _run_in(client, f"import vdtutorial.experiments, runpy\nbudgets = runpy.run_path({__file__!r})['next_run_budgets']")
+        _run_in(
+            client, f"import vdtutorial.experiments, runpy\nbudgets = runpy.run_path({__file__!r})['next_run_budgets']"
+        )
         for quick in (started, not started, started):
             _run_in(client, f"from vdtutorial.settings import use_quick\nuse_quick({quick})")
             printed = _run_in(client, mode_cell)

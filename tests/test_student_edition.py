@@ -1,5 +1,6 @@
 """The self-learner's edition (issue 30): ``python -m vdtutorial notebooks DEST --student`` writes the
 exercises as ``classroom release`` makes them, and the solutions apart, in ``DEST/solutions``."""
+
 import json
 
 import nbformat
@@ -46,7 +47,7 @@ def test_student_edition_keeps_the_learners_answers(tmp_path):
     book = write_notebooks(tmp_path, student=True)
     assert book.chapters == book.solutions == len(classroom.chapters())
     assert book.appendices == len(list((shipped_dir() / "notebooks").glob("A[0-9]_*.ipynb"))) >= 3
-    write_notebooks(tmp_path, student=True)   # untouched: written again without a word
+    write_notebooks(tmp_path, student=True)  # untouched: written again without a word
     answer = tmp_path / "notebooks" / "01_environment.ipynb"
     answer.write_text(answer.read_text().replace("raise NotImplementedError()", "return 0.0", 1))
     with pytest.raises(EditedFilesError, match="01_environment.ipynb"):
@@ -59,8 +60,9 @@ def test_06b_two_bugs_are_the_librarys_whatever_the_learners_update():
     error sees the curves its answer key describes: the sign error falls below the library's run, the reversed KL
     runs as the library's."""
     nb = nbformat.read(classroom.chapters()["06b_trpo_assembled"], as_version=4)
-    answer = {c.metadata["nbgrader"]["grade_id"]: c.source for c in nb.cells
-              if c.metadata.get("nbgrader", {}).get("solution")}
+    answer = {
+        c.metadata["nbgrader"]["grade_id"]: c.source for c in nb.cells if c.metadata.get("nbgrader", {}).get("solution")
+    }
     first = next(c.source for c in nb.cells if "from unittest import mock" in c.source)
     runs = next(c.source for c in nb.cells if c.source.startswith("def pendulum_trpo("))
     bugs = next(c.source for c in nb.cells if "bug_returns = {}" in c.source)
@@ -73,8 +75,11 @@ def test_06b_two_bugs_are_the_librarys_whatever_the_learners_update():
     library = names["pendulum_trpo"](seed=0)
     rows = library.run(8 * names["PENDULUM_CONFIG"].steps_per_iter, progress=False)
     library.close()
-    names.update(mean_return=np.array([r["mean_return"] for r in rows]), kls=np.array([r["mean_kl"] for r in rows]),
-                 env_steps=np.array([r["env_steps"] for r in rows]))
+    names.update(
+        mean_return=np.array([r["mean_return"] for r in rows]),
+        kls=np.array([r["mean_kl"] for r in rows]),
+        env_steps=np.array([r["env_steps"] for r in rows]),
+    )
     exec(bugs, names)
     returns = names["bug_returns"]
     np.testing.assert_allclose(returns["KL reversed"], names["mean_return"], rtol=1e-3)

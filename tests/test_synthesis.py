@@ -1,4 +1,5 @@
 """The synthesis in words: every number in the README's and chapter 10's sentences comes from a shipped record."""
+
 import copy
 import json
 import re
@@ -13,8 +14,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _records() -> dict:
-    return {folder: json.loads(next((data_dir() / "results" / folder).glob("*.json")).read_text())
-            for folder in FOLDERS}
+    return {
+        folder: json.loads(next((data_dir() / "results" / folder).glob("*.json")).read_text()) for folder in FOLDERS
+    }
 
 
 def _claim(record: dict, text: str) -> dict:

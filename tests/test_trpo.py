@@ -1,5 +1,6 @@
 """Tests of vdtutorial.trpo and vdtutorial.trust_region: each piece against a hand or brute-force computation, then the
 whole algorithm on a tiny 1-D reaching task defined here."""
+
 import copy
 import math
 import time
@@ -16,8 +17,14 @@ from vdtutorial.experiments.pendulum import pendulum_policy
 from vdtutorial.policy import make_policy, obs_to_tensor
 from vdtutorial.rollout import iteration_seeds, make_vec_env
 from vdtutorial.trpo import TIMING_COLUMNS, TRPO, TRPOConfig, gae
-from vdtutorial.trust_region import (conjugate_gradient, double_backward_fvp, fisher_vector_product, flat_grad, line_search,
-                                     mean_kl)
+from vdtutorial.trust_region import (
+    conjugate_gradient,
+    double_backward_fvp,
+    fisher_vector_product,
+    flat_grad,
+    line_search,
+    mean_kl,
+)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -30,8 +37,9 @@ class PointReach(gymnasium.Env):
     def __init__(self, dict_obs: bool = False):
         self.dict_obs = dict_obs
         box = spaces.Box(-np.inf, np.inf, (1,), np.float32)
-        self.observation_space = (spaces.Dict({"joints": box, "image": spaces.Box(0, 1, (2, 2), np.float32)})
-                                  if dict_obs else box)
+        self.observation_space = (
+            spaces.Dict({"joints": box, "image": spaces.Box(0, 1, (2, 2), np.float32)}) if dict_obs else box
+        )
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
 
     def _obs(self):
@@ -75,7 +83,7 @@ class MaskedPolicy(nn.Module):
         self.log_std = nn.Parameter(torch.zeros(1))
 
     def distribution(self, obs):
-        features = torch.cat([obs, obs ** 2, torch.sin(3 * obs), torch.ones_like(obs)], dim=-1)
+        features = torch.cat([obs, obs**2, torch.sin(3 * obs), torch.ones_like(obs)], dim=-1)
         mean = features @ (self.weight * self.mask).T
         return Normal(mean, self.log_std.exp().expand_as(mean))
 
@@ -135,9 +143,9 @@ def test_gae_against_hand_computation():
     values = np.array([0.5, 1.0, 1.5, 2.0])
     dones = np.array([0.0, 1.0, 0.0, 0.0])  # the episode ends with step 1; steps 2-3 are cut off
     last_value = 10.0
-    d3 = 4 + 0.9 * 10.0 - 2.0                # bootstrapped with the baseline after the cut
+    d3 = 4 + 0.9 * 10.0 - 2.0  # bootstrapped with the baseline after the cut
     d2 = 3 + 0.9 * 2.0 - 1.5
-    d1 = 2 + 0.0 - 1.0                       # terminal: no value after it
+    d1 = 2 + 0.0 - 1.0  # terminal: no value after it
     d0 = 1 + 0.9 * 1.0 - 0.5
     expected = [d0 + 0.45 * d1, d1, d2 + 0.45 * d3, d3]
     np.testing.assert_allclose(gae(rewards, values, np.array(last_value), dones, gamma, lam), expected)
@@ -145,21 +153,26 @@ def test_gae_against_hand_computation():
     returns = gae(rewards, values, np.array(last_value), dones, gamma, 1.0) + values
     np.testing.assert_allclose(returns, [1 + 0.9 * 2, 2, 3 + 0.9 * 4 + 0.81 * 10, 4 + 0.9 * 10])
     # (T, N): columns are independent environments
-    two = gae(np.stack([rewards, rewards], 1), np.stack([values, values], 1), np.array([10.0, 10.0]),
-              np.stack([dones, dones], 1), gamma, lam)
+    two = gae(
+        np.stack([rewards, rewards], 1),
+        np.stack([values, values], 1),
+        np.array([10.0, 10.0]),
+        np.stack([dones, dones], 1),
+        gamma,
+        lam,
+    )
     np.testing.assert_allclose(two[:, 1], expected)
 
 
 def test_line_search_restores_parameters_when_no_step_is_acceptable():
     p = nn.Parameter(torch.tensor([1.0, 2.0]))
-    fraction, improvement, kl = line_search([p], torch.tensor([1.0, 1.0]), lambda: (-p.sum(), p.sum() * 0),
-                                            max_kl=0.01)
+    fraction, improvement, kl = line_search([p], torch.tensor([1.0, 1.0]), lambda: (-p.sum(), p.sum() * 0), max_kl=0.01)
     assert fraction is None and improvement == 0.0 and kl == 0.0
     assert p.tolist() == [1.0, 2.0]
     # accepts the first fraction (1, 0.5, 0.25, ...) whose KL is within the bound
-    fraction, improvement, kl = line_search([p], torch.tensor([1.0, 1.0]),
-                                            lambda: (p.sum(), (p - torch.tensor([1.0, 2.0])).pow(2).sum()),
-                                            max_kl=0.2)
+    fraction, improvement, kl = line_search(
+        [p], torch.tensor([1.0, 1.0]), lambda: (p.sum(), (p - torch.tensor([1.0, 2.0])).pow(2).sum()), max_kl=0.2
+    )
     assert fraction == 0.25 and kl == pytest.approx(0.125) and improvement == pytest.approx(0.5)
     assert p.tolist() == [1.25, 2.25]
 
@@ -209,8 +222,7 @@ def test_step_is_the_natural_gradient_with_fisher_on_the_subsample(fvp_subsample
     ratio = torch.exp(dist.log_prob(batch.actions).sum(-1) - old.log_prob(batch.actions).sum(-1))
     g = flat_grad((ratio * batch.advantages.double()).mean(), params)
     sub_old = Normal(old.mean[index], old.stddev[index])
-    fisher = torch.autograd.functional.hessian(
-        lambda flat: _kl_at(policy, flat, batch.obs[index], sub_old), theta_old)
+    fisher = torch.autograd.functional.hessian(lambda flat: _kl_at(policy, flat, batch.obs[index], sub_old), theta_old)
     damped = fisher + config.cg_damping * torch.eye(len(g), dtype=g.dtype)
     direction = torch.linalg.solve(damped, g)  # CG is exact here: 3 parameters, 10 iterations
     full_step = direction * np.sqrt(2 * config.max_kl / (direction @ damped @ direction).item())
@@ -251,7 +263,7 @@ def test_iterate_advances_the_iteration_and_logs_its_times():
     rows = [algo.iterate() for _ in range(3)]
     assert algo.iteration_index == 3 and algo.rows == rows
     assert [(r["iteration"], r["env_steps"]) for r in rows] == [(0, 40), (1, 80), (2, 120)]
-    assert list(rows[0])[-len(TIMING_COLUMNS):] == list(TIMING_COLUMNS)
+    assert list(rows[0])[-len(TIMING_COLUMNS) :] == list(TIMING_COLUMNS)
     assert all(r["collect_s"] > 0 and r["update_s"] > 0 for r in rows)
     # wall_time adds up the iterations: each one's collect and update seconds
     assert rows[-1]["wall_time"] == pytest.approx(sum(r["collect_s"] + r["update_s"] for r in rows), rel=1e-9)
@@ -344,7 +356,7 @@ def test_checkpoint_resume_reproduces_the_uninterrupted_run(tmp_path, fvp_subsam
 
     def without_timing(path):  # the timing columns are the last ones
         lines = path.read_text().splitlines()
-        assert lines[0].split(",")[-len(TIMING_COLUMNS):] == list(TIMING_COLUMNS)
+        assert lines[0].split(",")[-len(TIMING_COLUMNS) :] == list(TIMING_COLUMNS)
         return [line.rsplit(",", len(TIMING_COLUMNS))[0] for line in lines]
 
     full_lines = without_timing(tmp_path / "full.csv")
@@ -402,10 +414,15 @@ def pieces_step(policy, params, obs, actions, advantages, config):
     Fvp = double_backward_fvp(policy, params, obs, old, config.cg_damping)
     s = conjugate_gradient(Fvp, g, config.cg_iters)
     full_step = math.sqrt(2 * config.max_kl / (s @ Fvp(s)).item()) * s
-    fraction, improvement, kl = line_search(params, full_step, surrogate_and_kl, config.max_kl,
-                                            config.backtrack_iters, config.backtrack_coeff)
-    return {"mean_kl": kl, "entropy": old.entropy().sum(-1).mean().item(), "surrogate_improvement": improvement,
-            "line_search": "rejected" if fraction is None else fraction}
+    fraction, improvement, kl = line_search(
+        params, full_step, surrogate_and_kl, config.max_kl, config.backtrack_iters, config.backtrack_coeff
+    )
+    return {
+        "mean_kl": kl,
+        "entropy": old.entropy().sum(-1).mean().item(),
+        "surrogate_improvement": improvement,
+        "line_search": "rejected" if fraction is None else fraction,
+    }
 
 
 def test_a_step_from_the_library_pieces_reproduces_the_default_update():
@@ -441,7 +458,7 @@ def test_mean_kl_is_the_gaussian_kl_summed_over_actions_and_averaged_over_states
     gen = torch.Generator().manual_seed(0)
     mu0, mu1 = torch.randn(5, 3, generator=gen), torch.randn(5, 3, generator=gen)
     s0, s1 = torch.rand(5, 3, generator=gen) + 0.1, torch.rand(5, 3, generator=gen) + 0.1
-    by_hand = (torch.log(s1 / s0) + (s0 ** 2 + (mu0 - mu1) ** 2) / (2 * s1 ** 2) - 0.5).sum(-1).mean()
+    by_hand = (torch.log(s1 / s0) + (s0**2 + (mu0 - mu1) ** 2) / (2 * s1**2) - 0.5).sum(-1).mean()
     torch.testing.assert_close(mean_kl(Normal(mu0, s0), Normal(mu1, s1)), by_hand)
 
 

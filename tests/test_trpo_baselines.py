@@ -1,5 +1,6 @@
 """The optional value-network baseline of vdtutorial.baselines and bootstrapping at time limits; the
 default (rllab's linear baseline, value 0 after every episode end) is covered by test_trpo.py."""
+
 import gymnasium
 import numpy as np
 import pytest
@@ -57,7 +58,10 @@ def test_critic_state_survives_save_load_and_the_run_resumes_exactly(tmp_path):
     assert second.baseline.fits == 2
     for a, b in zip(first.baseline.net.parameters(), second.baseline.net.parameters()):
         assert torch.equal(a, b)
-    assert second.baseline.optimizer.state_dict()["state"][0]["step"] == first.baseline.optimizer.state_dict()["state"][0]["step"]
+    assert (
+        second.baseline.optimizer.state_dict()["state"][0]["step"]
+        == first.baseline.optimizer.state_dict()["state"][0]["step"]
+    )
     second_rows = second.run(4 * 40, progress=False)
 
     def without_wall_time(rows):
@@ -73,7 +77,14 @@ def test_checkpoint_written_before_the_critic_fields_existed_still_loads(tmp_pat
     algo.iterate()
     algo.save(tmp_path / "ckpt.pt")
     state = torch.load(tmp_path / "ckpt.pt", weights_only=True)
-    for key in ("baseline", "critic_hidden", "critic_lr", "critic_epochs", "critic_batch_size", "bootstrap_time_limits"):
+    for key in (
+        "baseline",
+        "critic_hidden",
+        "critic_lr",
+        "critic_epochs",
+        "critic_batch_size",
+        "bootstrap_time_limits",
+    ):
         del state["config"][key]
     torch.save(state, tmp_path / "old.pt")
     resumed = TRPO(LinearPolicy(), make_vec_env(lambda: PointReach(), 2), TRPOConfig(steps_per_iter=40), seed=1)
@@ -120,16 +131,17 @@ class KnownValue:
 @pytest.mark.parametrize("bootstrap", [True, False])
 def test_time_limit_bootstrap_uses_v_of_the_final_observation_only_where_truncated(bootstrap):
     ends = [(True, False), (False, True), (True, True)]  # terminated; time limit; both (a termination)
-    env = gymnasium.vector.SyncVectorEnv([lambda e=e: ThreeSteps(*e) for e in ends],
-                                         autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+    env = gymnasium.vector.SyncVectorEnv(
+        [lambda e=e: ThreeSteps(*e) for e in ends], autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP
+    )
     gamma = 0.5
     config = TRPOConfig(steps_per_iter=9, gamma=gamma, gae_lambda=1.0, baseline="mlp", bootstrap_time_limits=bootstrap)
     algo = TRPO(LinearPolicy(), env, config, seed=0, baseline=KnownValue())
     batch = algo.collect()
     # With lambda = 1 the value network's targets A + V are the discounted returns, bootstrapped
     # with gamma * V(final observation) = 0.5 * 13 after a time limit (and with 0 after a termination).
-    plain = [1 + gamma + gamma ** 2, 1 + gamma, 1.0]
-    bootstrapped = [1 + gamma + gamma ** 2 + gamma ** 3 * 13, 1 + gamma + gamma ** 2 * 13, 1 + gamma * 13]
+    plain = [1 + gamma + gamma**2, 1 + gamma, 1.0]
+    bootstrapped = [1 + gamma + gamma**2 + gamma**3 * 13, 1 + gamma + gamma**2 * 13, 1 + gamma * 13]
     expected = np.array([[plain[t], bootstrapped[t] if bootstrap else plain[t], plain[t]] for t in range(3)])
     np.testing.assert_allclose(batch.returns, expected.reshape(-1))  # time-major: (t, env)
     assert batch.episode_returns == [3.0, 3.0, 3.0]  # the logged returns are the rewards only
@@ -140,4 +152,7 @@ def test_a_value_network_config_without_the_network_is_refused_with_where_to_fin
     with pytest.raises(ValueError, match=r"is a value network: pass TRPO\(baseline=vdtutorial.beyond.value_baseline"):
         TRPO(LinearPolicy(), make_vec_env(lambda: PointReach(), 2), MLP_CONFIG, seed=0)
     algo = mlp_trpo(0)
-    assert isinstance(algo.baseline, MLPBaseline) and algo.baseline.net[0].in_features == PointReach().observation_space.shape[0]
+    assert (
+        isinstance(algo.baseline, MLPBaseline)
+        and algo.baseline.net[0].in_features == PointReach().observation_space.shape[0]
+    )

@@ -1,5 +1,6 @@
 """Tests of vdtutorial.vd: the KL approximation, local reparameterisation, masks, pruning, compaction,
 sparsity reports and the digits validation (quick budget)."""
+
 import math
 
 import numpy as np
@@ -109,9 +110,10 @@ def test_eval_mask_zeroes_exactly_the_high_log_alpha_weights():
 
 def test_layers_are_drop_in_replacements_for_torch_layers():
     torch.manual_seed(5)
-    for svdo, plain, x in [(vd.LinearSVDO(5, 3), nn.Linear(5, 3), torch.randn(2, 5)),
-                           (vd.Conv2dSVDO(2, 3, 3, stride=2, padding=1), nn.Conv2d(2, 3, 3, stride=2, padding=1),
-                            torch.randn(2, 2, 7, 7))]:
+    for svdo, plain, x in [
+        (vd.LinearSVDO(5, 3), nn.Linear(5, 3), torch.randn(2, 5)),
+        (vd.Conv2dSVDO(2, 3, 3, stride=2, padding=1), nn.Conv2d(2, 3, 3, stride=2, padding=1), torch.randn(2, 2, 7, 7)),
+    ]:
         with torch.no_grad():
             svdo.weight.copy_(torch.where(svdo.weight.abs() < 0.01, 0.1, svdo.weight))  # none pruned at birth
             plain.weight.copy_(svdo.weight)
@@ -196,17 +198,18 @@ def test_compact_conv_stack_gives_identical_outputs_with_fewer_parameters():
     model = nn.Sequential(c1, nn.ReLU(), c2, nn.Tanh(), c3, nn.ReLU(), nn.Flatten(), fc1, nn.Tanh(), fc2)
     for layer in vd.svdo_layers(model):
         _prune_at_random_keeping_units(layer, 0.3)
-    _set_pruned(c1, (1,))                  # c1 channel 1 dead-in, but c2 pads: kept (not foldable)
-    _set_pruned(c2, (slice(None), 4))      # c1 channel 4 dead-out: removed
-    _set_pruned(c2, (2,))                  # c2 channel 2 dead-in, c3 has no padding: folded, removed
+    _set_pruned(c1, (1,))  # c1 channel 1 dead-in, but c2 pads: kept (not foldable)
+    _set_pruned(c2, (slice(None), 4))  # c1 channel 4 dead-out: removed
+    _set_pruned(c2, (2,))  # c2 channel 2 dead-in, c3 has no padding: folded, removed
     _set_pruned(fc1, (slice(None), slice(3 * 16, 4 * 16)))  # c3 channel 3 dead-out through Flatten
-    _set_pruned(fc1, (5,))                 # fc1 unit 5 dead-in: folded into fc2's bias
+    _set_pruned(fc1, (5,))  # fc1 unit 5 dead-in: folded into fc2's bias
     model.eval()
     small = compact(model)
     assert all(type(m) in (nn.Conv2d, nn.Linear) for m in weight_layers(small))
     assert [m.weight.shape[0] for m in weight_layers(small)] == [5, 4, 3, 6, 3]
     assert sum(p.numel() for p in small.parameters()) < sum(
-        m.weight.numel() + m.bias.numel() for m in weight_layers(model))
+        m.weight.numel() + m.bias.numel() for m in weight_layers(model)
+    )
     x = torch.randn(8, 3, 12, 12)
     with torch.no_grad():
         assert torch.allclose(small(x), model(x), atol=1e-5)
@@ -219,10 +222,10 @@ def test_sparsity_report_on_hand_built_network():
     with torch.no_grad():
         for layer in (l1, l2):
             layer.weight.fill_(1.0)  # log theta^2 = 0, so log alpha = log sigma^2 (clamped)
-    _set_pruned(l1, (0,))                 # unit 0: all 4 incoming weights pruned -> dead-in
-    _set_pruned(l1, (1, 2))               # one more pruned weight: 5 of 12
-    _set_pruned(l2, (slice(None), 2))     # unit 2: both outgoing weights pruned -> dead-out
-    _set_pruned(l2, (1, 0))               # unit 0 keeps one outgoing weight: 3 of 6 pruned
+    _set_pruned(l1, (0,))  # unit 0: all 4 incoming weights pruned -> dead-in
+    _set_pruned(l1, (1, 2))  # one more pruned weight: 5 of 12
+    _set_pruned(l2, (slice(None), 2))  # unit 2: both outgoing weights pruned -> dead-out
+    _set_pruned(l2, (1, 0))  # unit 0 keeps one outgoing weight: 3 of 6 pruned
     report = sparsity_report(nn.Sequential(l1, nn.ReLU(), l2))
     first, last = report.layers
     assert (first.weights, first.pruned_weights, first.hidden_units) == (12, 5, 3)
@@ -263,7 +266,9 @@ def test_pruned_fraction_is_the_reports_weight_fraction_exactly():
     net = nn.Sequential(vd.LinearSVDO(6, 5), nn.ReLU(), vd.LinearSVDO(5, 3))
     with torch.no_grad():
         for layer in vd.svdo_layers(net):
-            layer.log_sigma2.copy_(torch.where(torch.rand_like(layer.weight) < 0.4, 5.0, -10.0) + torch.log(layer.weight ** 2))
+            layer.log_sigma2.copy_(
+                torch.where(torch.rand_like(layer.weight) < 0.4, 5.0, -10.0) + torch.log(layer.weight**2)
+            )
     mu = load_checkpoint(checkpoint_path(Demos.load(demo_path("reach", 8000, 0.5, 0)).meta, "vd", "state", 0)).mu
     for module in (net, mu):
         assert vd.pruned_fraction(module) == sparsity_report(module).weight_fraction

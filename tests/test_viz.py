@@ -4,6 +4,7 @@ The pose checks compute each visual's world pose a second way, through pybullet'
 helpers (and, where possible, through the collision shapes or the AABB), and compare it with the
 transforms composed from the recorded meshcat scene tree.
 """
+
 import base64
 import gzip
 import html
@@ -37,13 +38,21 @@ def scene():
     """A DIRECT client with the arm, a box table and a cylinder cup; yields (client, bodies)."""
     cid = p.connect(p.DIRECT)
     arm = p.loadURDF(str(JACO_URDF), useFixedBase=True, physicsClientId=cid)
-    table_shape = p.createVisualShape(p.GEOM_BOX, halfExtents=TABLE_HALF_EXTENTS,
-                                      rgbaColor=(0.6, 0.45, 0.3, 1.0), physicsClientId=cid)
+    table_shape = p.createVisualShape(
+        p.GEOM_BOX, halfExtents=TABLE_HALF_EXTENTS, rgbaColor=(0.6, 0.45, 0.3, 1.0), physicsClientId=cid
+    )
     table = p.createMultiBody(0, -1, table_shape, basePosition=(0.6, 0.0, -0.02), physicsClientId=cid)
-    cup_shape = p.createVisualShape(p.GEOM_CYLINDER, radius=CUP_RADIUS, length=CUP_LENGTH,
-                                    rgbaColor=(0.8, 0.2, 0.2, 1.0), physicsClientId=cid)
-    cup = p.createMultiBody(0, -1, cup_shape, basePosition=(0.5, 0.2, CUP_LENGTH / 2),
-                            baseOrientation=p.getQuaternionFromEuler((0.1, -0.2, 0.3)), physicsClientId=cid)
+    cup_shape = p.createVisualShape(
+        p.GEOM_CYLINDER, radius=CUP_RADIUS, length=CUP_LENGTH, rgbaColor=(0.8, 0.2, 0.2, 1.0), physicsClientId=cid
+    )
+    cup = p.createMultiBody(
+        0,
+        -1,
+        cup_shape,
+        basePosition=(0.5, 0.2, CUP_LENGTH / 2),
+        baseOrientation=p.getQuaternionFromEuler((0.1, -0.2, 0.3)),
+        physicsClientId=cid,
+    )
     yield cid, {"arm": arm, "table": table, "cup": cup}
     p.disconnect(cid)
 
@@ -103,8 +112,11 @@ def pybullet_visual_poses(cid, body):
 
 
 def link_name(cid, body, link):
-    raw = p.getBodyInfo(body, physicsClientId=cid)[0] if link == -1 else \
-        p.getJointInfo(body, link, physicsClientId=cid)[12]
+    raw = (
+        p.getBodyInfo(body, physicsClientId=cid)[0]
+        if link == -1
+        else p.getJointInfo(body, link, physicsClientId=cid)[12]
+    )
     return raw.decode()
 
 
@@ -117,8 +129,8 @@ def recorded_commands(page):
     data = _unpacked(re.search(r'await inflate\("([^"]*)"\)', page).group(1))
     commands, at = [], 0
     while at < len(data):
-        size = int.from_bytes(data[at:at + 4], "big")
-        commands.append(umsgpack.unpackb(data[at + 4:at + 4 + size]))
+        size = int.from_bytes(data[at : at + 4], "big")
+        commands.append(umsgpack.unpackb(data[at + 4 : at + 4 + size]))
         at += 4 + size
     return commands
 
@@ -196,8 +208,9 @@ def test_in_a_notebook_kernel_only_the_first_scene_carries_the_viewer(scene, mon
 
 def test_shape_dimensions_follow_pybullet_conventions(scene):
     cid, bodies = scene
-    capsule = p.createMultiBody(0, -1, p.createVisualShape(p.GEOM_CAPSULE, radius=0.05, length=0.3,
-                                                           physicsClientId=cid), physicsClientId=cid)
+    capsule = p.createMultiBody(
+        0, -1, p.createVisualShape(p.GEOM_CAPSULE, radius=0.05, length=0.3, physicsClientId=cid), physicsClientId=cid
+    )
     rec = viz.Recorder()
     viz.mirror_bodies(rec, cid, {**bodies, "capsule": capsule})
     p.removeBody(capsule, physicsClientId=cid)
@@ -270,14 +283,18 @@ def test_base_link_frame_with_offset_inertial_frame(tmp_path):
     cid = p.connect(p.DIRECT)
     try:
         orientation = p.getQuaternionFromEuler((0.0, 0.0, 0.7))
-        from_urdf = p.loadURDF(str(urdf), basePosition=(1, 2, 3), baseOrientation=orientation,
-                               physicsClientId=cid)
+        from_urdf = p.loadURDF(str(urdf), basePosition=(1, 2, 3), baseOrientation=orientation, physicsClientId=cid)
         box = dict(halfExtents=(0.05, 0.05, 0.05), physicsClientId=cid)
         from_shapes = p.createMultiBody(
-            1.0, p.createCollisionShape(p.GEOM_BOX, collisionFramePosition=(0.5, 0, 0), **box),
+            1.0,
+            p.createCollisionShape(p.GEOM_BOX, collisionFramePosition=(0.5, 0, 0), **box),
             p.createVisualShape(p.GEOM_BOX, visualFramePosition=(0.5, 0, 0), **box),
-            basePosition=(1, 2, 3), baseOrientation=orientation, baseInertialFramePosition=(0.1, 0.2, 0.3),
-            baseInertialFrameOrientation=p.getQuaternionFromEuler((0.3, 0.2, 0.1)), physicsClientId=cid)
+            basePosition=(1, 2, 3),
+            baseOrientation=orientation,
+            baseInertialFramePosition=(0.1, 0.2, 0.3),
+            baseInertialFrameOrientation=p.getQuaternionFromEuler((0.3, 0.2, 0.1)),
+            physicsClientId=cid,
+        )
         bodies = {"urdf": from_urdf, "shapes": from_shapes}
         rec = viz.Recorder()
         viz.mirror_bodies(rec, cid, bodies)
@@ -343,10 +360,20 @@ def test_mirroring_twice_replaces_old_geometry_and_meshes(scene, tmp_path):
 
     obj = tmp_path / "tetra.obj"
     obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
-    mesh = p.createMultiBody(0, -1, p.createVisualShape(p.GEOM_MESH, fileName=str(obj), meshScale=(0.1, 0.2, 0.3),
-                                                        physicsClientId=cid), physicsClientId=cid)
-    raw = p.createMultiBody(0, -1, p.createVisualShape(p.GEOM_MESH, vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]],
-                                                       indices=[0, 1, 2], physicsClientId=cid), physicsClientId=cid)
+    mesh = p.createMultiBody(
+        0,
+        -1,
+        p.createVisualShape(p.GEOM_MESH, fileName=str(obj), meshScale=(0.1, 0.2, 0.3), physicsClientId=cid),
+        physicsClientId=cid,
+    )
+    raw = p.createMultiBody(
+        0,
+        -1,
+        p.createVisualShape(
+            p.GEOM_MESH, vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], indices=[0, 1, 2], physicsClientId=cid
+        ),
+        physicsClientId=cid,
+    )
     with pytest.warns(UserWarning, match="mesh"):
         viz.mirror_bodies(rec, cid, {"mesh": mesh, "raw": raw})
     for body in (mesh, raw):
@@ -370,8 +397,11 @@ def test_show_and_save(scene, tmp_path):
     shown = rec.show(height=300)
     assert shown._repr_html_() == shown.data
     # 300 px high at most, in the shape frame_view frames the scene for
-    match = re.fullmatch(r'<div style="[^"]*max-width: 400px; aspect-ratio: 400 / 300;[^"]*"><iframe srcdoc="([^"]*)" '
-                         r'[^>]*></iframe></div>', shown.data)
+    match = re.fullmatch(
+        r'<div style="[^"]*max-width: 400px; aspect-ratio: 400 / 300;[^"]*"><iframe srcdoc="([^"]*)" '
+        r"[^>]*></iframe></div>",
+        shown.data,
+    )
     assert viz.VIEW_ASPECT == 400 / 300
     assert match and html.unescape(match.group(1)) == rec.html()
     assert "<iframe srcdoc=" in rec._repr_html_()
@@ -383,11 +413,13 @@ def test_show_and_save(scene, tmp_path):
 
 def test_import_hides_meshcats_zmq_deprecation_warning():
     # A fresh interpreter: in this process meshcat is already imported and pytest filters warnings.
-    code = ("import warnings\n"
-            "with warnings.catch_warnings(record=True) as caught:\n"
-            "    warnings.simplefilter('always')\n"
-            "    import vdtutorial.course.viz\n"
-            "assert not [w for w in caught if 'zmq' in str(w.message)], caught\n")
+    code = (
+        "import warnings\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    import vdtutorial.course.viz\n"
+        "assert not [w for w in caught if 'zmq' in str(w.message)], caught\n"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
 
 
@@ -425,8 +457,11 @@ def test_frames_animation_is_a_sized_player_that_needs_nothing_from_another_host
 def _view_of(rec):
     """The recorded camera position and the page's look-at point, both in the world frame (z up)."""
     page = rec.html()
-    x, y_up, minus_y = [c for c in recorded_commands(page) if c["type"] == "set_property"
-                        and c["path"] == "/Cameras/default/rotated/<object>"][-1]["value"]
+    x, y_up, minus_y = [
+        c
+        for c in recorded_commands(page)
+        if c["type"] == "set_property" and c["path"] == "/Cameras/default/rotated/<object>"
+    ][-1]["value"]
     look_at = json.loads(re.search(r"const lookAt = (.*?);", page).group(1))
     return np.array([x, -minus_y, y_up]), np.array([look_at[0], -look_at[2], look_at[1]])
 

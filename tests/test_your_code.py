@@ -1,4 +1,5 @@
 """A learner's answers read from an earlier chapter's notebook (chapter 10's capstone)."""
+
 import nbformat
 import pytest
 import torch
@@ -21,7 +22,9 @@ def _notebook(path, cells):
 
 
 def test_the_teachers_layer_of_chapter_04_is_the_librarys():
-    layer = load_answers(shipped_dir() / "notebooks" / "04_sparse_variational_dropout.ipynb", ["MyLinearSVDO"])["MyLinearSVDO"]
+    layer = load_answers(shipped_dir() / "notebooks" / "04_sparse_variational_dropout.ipynb", ["MyLinearSVDO"])[
+        "MyLinearSVDO"
+    ]
     torch.manual_seed(0)
     mine, ref = layer(4, 3), LinearSVDO(4, 3)
     with torch.no_grad():
@@ -32,14 +35,17 @@ def test_the_teachers_layer_of_chapter_04_is_the_librarys():
 
 
 def test_answers_run_in_order_after_the_setup_cell_and_a_failing_one_defines_nothing(tmp_path, capsys):
-    path = _notebook(tmp_path / "ch.ipynb", [
-        ("c002", "SCALE = 3\nprint('setup')", None),
-        ("other", "raise RuntimeError('not run: not an answer')", None),
-        ("a1", "def double(x):\n    return 2 * x", "ex_double"),
-        ("a2", "result = chapter_variable + 1", "ex_broken"),        # reads a variable of the chapter: fails
-        ("a3", "def scaled(x):\n    return SCALE * double(x)", "ex_scaled"),
-        ("a4", "def unsolved():\n    raise NotImplementedError()", "ex_unsolved"),
-    ])
+    path = _notebook(
+        tmp_path / "ch.ipynb",
+        [
+            ("c002", "SCALE = 3\nprint('setup')", None),
+            ("other", "raise RuntimeError('not run: not an answer')", None),
+            ("a1", "def double(x):\n    return 2 * x", "ex_double"),
+            ("a2", "result = chapter_variable + 1", "ex_broken"),  # reads a variable of the chapter: fails
+            ("a3", "def scaled(x):\n    return SCALE * double(x)", "ex_scaled"),
+            ("a4", "def unsolved():\n    raise NotImplementedError()", "ex_unsolved"),
+        ],
+    )
     answers = load_answers(path, ["scaled", "unsolved"])
     assert answers["scaled"](2) == 12 and "result" not in answers
     with pytest.raises(NotImplementedError):

@@ -8,6 +8,7 @@ else (no environment variable, no global setting).
 
 Taught in chapter 00.
 """
+
 __version__ = "0.1.0"
 
 try:

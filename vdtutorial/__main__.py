@@ -2,6 +2,7 @@
 
 Taught in chapter 00.
 """
+
 import sys
 
 from vdtutorial.cli import build_parser, main

@@ -7,6 +7,7 @@ has seen their own returns. Its state is in ``state_dict``, so a checkpointed ru
 
 Taught in chapter 06b.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,7 +48,7 @@ class LinearFeatureBaseline:
     def design(features: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
         f = np.clip(features, -10.0, 10.0)
         t = np.asarray(timesteps, dtype=np.float64).reshape(-1, 1) / 100.0
-        return np.concatenate([f, f ** 2, t, t ** 2, t ** 3, np.ones_like(t)], axis=1)
+        return np.concatenate([f, f**2, t, t**2, t**3, np.ones_like(t)], axis=1)
 
     def predict(self, features: np.ndarray, timesteps: np.ndarray) -> np.ndarray:
         if self.weights is None:

@@ -15,6 +15,7 @@ Files are zip archives of ``.npy`` arrays plus a JSON metadata record, written w
 
 Taught in chapter 03.
 """
+
 from __future__ import annotations
 
 import io
@@ -113,7 +114,11 @@ class Demos:
                 buf = io.BytesIO()
                 np.lib.format.write_array(buf, np.ascontiguousarray(getattr(self, name)), allow_pickle=False)
                 zf.writestr(zipfile.ZipInfo(f"{name}.npy", _ZIP_TIME), buf.getvalue(), zipfile.ZIP_DEFLATED)
-            zf.writestr(zipfile.ZipInfo("meta.json", _ZIP_TIME), json.dumps(self.meta, sort_keys=True, indent=1), zipfile.ZIP_DEFLATED)
+            zf.writestr(
+                zipfile.ZipInfo("meta.json", _ZIP_TIME),
+                json.dumps(self.meta, sort_keys=True, indent=1),
+                zipfile.ZIP_DEFLATED,
+            )
         os.replace(tmp, path)
         return path
 
@@ -130,19 +135,29 @@ class Demos:
         try:
             with zipfile.ZipFile(path) as zf:
                 meta = json.loads(zf.read("meta.json"))
-                arrays = {n: np.lib.format.read_array(io.BytesIO(zf.read(f"{n}.npy")), allow_pickle=False) for n in ARRAYS}
+                arrays = {
+                    n: np.lib.format.read_array(io.BytesIO(zf.read(f"{n}.npy")), allow_pickle=False) for n in ARRAYS
+                }
         except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError) as exc:
-            raise DemoFileError(f"demonstrations file {path} is corrupt or not a demonstrations file ({exc}). {hint}") from exc
+            raise DemoFileError(
+                f"demonstrations file {path} is corrupt or not a demonstrations file ({exc}). {hint}"
+            ) from exc
         if meta.get("format_version") != FORMAT_VERSION:
-            raise DemoFileError(f"demonstrations file {path} has format version {meta.get('format_version')}, "
-                                f"this package reads version {FORMAT_VERSION}. {_regenerate_hint(path, meta)}")
+            raise DemoFileError(
+                f"demonstrations file {path} has format version {meta.get('format_version')}, "
+                f"this package reads version {FORMAT_VERSION}. {_regenerate_hint(path, meta)}"
+            )
         for key, want in expected.items():
             if meta.get(key) != want:
-                raise DemoFileError(f"demonstrations file {path} has {key}={meta.get(key)!r}, expected {want!r}. "
-                                    f"{_regenerate_hint(path, {**meta, **expected})}")
+                raise DemoFileError(
+                    f"demonstrations file {path} has {key}={meta.get(key)!r}, expected {want!r}. "
+                    f"{_regenerate_hint(path, {**meta, **expected})}"
+                )
         n = len(arrays["actions"])
         if n != meta.get("samples") or any(len(a) != n for a in arrays.values()):
-            raise DemoFileError(f"demonstrations file {path} is inconsistent (array lengths vs samples={meta.get('samples')}). {hint}")
+            raise DemoFileError(
+                f"demonstrations file {path} is inconsistent (array lengths vs samples={meta.get('samples')}). {hint}"
+            )
         return cls(meta=meta, **arrays)
 
 
@@ -157,17 +172,24 @@ def _regenerate_hint(path: Path, meta: dict) -> str:
     values = dict(meta)
     match = _NAME.fullmatch(path.name)
     if match and not all(k in values for k in keys):
-        parsed = {"task": match["task"], "samples": int(match["samples"]), "noise": float(match["noise"]),
-                  "seed": int(match["seed"])}
+        parsed = {
+            "task": match["task"],
+            "samples": int(match["samples"]),
+            "noise": float(match["noise"]),
+            "seed": int(match["seed"]),
+        }
         values = {**parsed, **{k: v for k, v in values.items() if k in keys}}
     if all(k in values for k in keys) and values["task"] in ENV_IDS:
         return f"Regenerate it with: {demo_command(*(values[k] for k in keys))} --out {path}"
-    return ("Make it with: python -m vdtutorial demos --task {reach,grasp} --samples N --noise SIGMA --seed SEED "
-            f"--out {path}")
+    return (
+        "Make it with: python -m vdtutorial demos --task {reach,grasp} --samples N --noise SIGMA --seed SEED "
+        f"--out {path}"
+    )
 
 
-def generate_demos(task: str = "reach", samples: int = 8000, noise: float = 0.5, seed: int = 0,
-                   progress: bool = True) -> Demos:
+def generate_demos(
+    task: str = "reach", samples: int = 8000, noise: float = 0.5, seed: int = 0, progress: bool = True
+) -> Demos:
     """Roll out the noisy expert (eqs. 5-7) until ``samples`` state-action pairs (eq. 8) are collected.
 
     Parameters
@@ -180,13 +202,28 @@ def generate_demos(task: str = "reach", samples: int = 8000, noise: float = 0.5,
     """
     if not np.isfinite(noise) or noise < 0:
         raise ValueError(f"noise (Sigma) must be a finite standard deviation >= 0, got {noise!r}")
-    demos, record = collect(task, samples, seed, lambda state, a_exp, rng: a_exp + rng.normal(0.0, noise, size=a_exp.shape),
-                            progress, f"{task} demos (Sigma={noise:g})")
+    demos, record = collect(
+        task,
+        samples,
+        seed,
+        lambda state, a_exp, rng: a_exp + rng.normal(0.0, noise, size=a_exp.shape),
+        progress,
+        f"{task} demos (Sigma={noise:g})",
+    )
     demos.meta = {
-        "format_version": FORMAT_VERSION, "task": task, "samples": int(samples), "noise": float(noise), "seed": int(seed),
-        "episodes": record["episodes"], "noisy_success_rate": success_rate(record),
-        "env_id": ENV_IDS[task], "image_size": record["image_size"], "vdtutorial": vdtutorial.__version__,
-        "gymnasium": gym.__version__, "pybullet": pybullet.getAPIVersion(), "command": demo_command(task, samples, noise, seed),
+        "format_version": FORMAT_VERSION,
+        "task": task,
+        "samples": int(samples),
+        "noise": float(noise),
+        "seed": int(seed),
+        "episodes": record["episodes"],
+        "noisy_success_rate": success_rate(record),
+        "env_id": ENV_IDS[task],
+        "image_size": record["image_size"],
+        "vdtutorial": vdtutorial.__version__,
+        "gymnasium": gym.__version__,
+        "pybullet": pybullet.getAPIVersion(),
+        "command": demo_command(task, samples, noise, seed),
     }
     return demos
 
@@ -252,7 +289,13 @@ def collect(task: str, samples: int, seed: int, behaviour, progress: bool = Fals
     finally:
         bar.close()
         env.close()
-    record = {"episodes": episodes, "finished": finished, "successes": successes, "expert_queries": n,
-              "expert_seconds": expert_seconds, "image_size": env.unwrapped.scene.image_size}
+    record = {
+        "episodes": episodes,
+        "finished": finished,
+        "successes": successes,
+        "expert_queries": n,
+        "expert_seconds": expert_seconds,
+        "image_size": env.unwrapped.scene.image_size,
+    }
     dtypes = {"joints": np.float32, "cup": np.float32, "actions": np.float32, "episode": np.int32, "t": np.int16}
     return Demos(**{k: np.asarray(v, dtype=dtypes[k]) for k, v in rows.items()}), record

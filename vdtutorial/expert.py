@@ -21,6 +21,7 @@ Two changes to eq. 10 taken literally, both needed to reach the goal:
 
 Taught in chapter 02.
 """
+
 from __future__ import annotations
 
 import math
@@ -99,11 +100,21 @@ def solve_ik(scene: JacoScene, position, orientation, seed_q, refinements: int =
     try:
         for _ in range(refinements):
             scene.set_joints(q)
-            q = np.array(p.calculateInverseKinematics(
-                arm, LINKS["tcp"], position, orientation, lowerLimits=lo.tolist(), upperLimits=hi.tolist(),
-                jointRanges=(hi - lo).tolist(), restPoses=list(seed_q), maxNumIterations=100,
-                residualThreshold=1e-5, physicsClientId=c,
-            )[:N_JOINTS])
+            q = np.array(
+                p.calculateInverseKinematics(
+                    arm,
+                    LINKS["tcp"],
+                    position,
+                    orientation,
+                    lowerLimits=lo.tolist(),
+                    upperLimits=hi.tolist(),
+                    jointRanges=(hi - lo).tolist(),
+                    restPoses=list(seed_q),
+                    maxNumIterations=100,
+                    residualThreshold=1e-5,
+                    physicsClientId=c,
+                )[:N_JOINTS]
+            )
         if np.any(q < lo - 1e-6) or np.any(q > hi + 1e-6):
             return None
         scene.set_joints(q)

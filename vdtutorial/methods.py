@@ -23,6 +23,7 @@ registered in a running Python is known to that process only: run its experiment
 
 Taught in chapter 05.
 """
+
 from __future__ import annotations
 
 import math
@@ -95,14 +96,16 @@ class WeightDecay(Method):
     """The paper's baseline: ``config.l2 * sum(W^2)`` over the weights of mu (biases excluded)."""
 
     def penalty(self, mu: nn.Module, at: CloningStep) -> Tensor:
-        return at.config.l2 * sum((p ** 2).sum() for name, p in mu.named_parameters() if name.endswith("weight"))
+        return at.config.l2 * sum((p**2).sum() for name, p in mu.named_parameters() if name.endswith("weight"))
 
 
 #: The paper's two regularisers, no pre-training and the expert's reference line.
-SHIPPED = (SparseVD("vd", "VD", "tab:blue", variational=True, prunes=True, spread_from=None),
-           WeightDecay("l2", "L2", "tab:orange"),
-           Method("none", "no pre-training", "tab:gray", spread_from=None, pretrains=False),
-           Method("expert", "IK expert", "black", spread_from=None, pretrains=False, finetuned=False))
+SHIPPED = (
+    SparseVD("vd", "VD", "tab:blue", variational=True, prunes=True, spread_from=None),
+    WeightDecay("l2", "L2", "tab:orange"),
+    Method("none", "no pre-training", "tab:gray", spread_from=None, pretrains=False),
+    Method("expert", "IK expert", "black", spread_from=None, pretrains=False, finetuned=False),
+)
 #: The table, by name, in the order of figures and legends: the shipped entries, then the registered ones.
 METHODS: dict[str, Method] = {entry.name: entry for entry in SHIPPED}
 

@@ -14,6 +14,7 @@ Every layer is a plain or a sparse variational dropout layer according to one fl
 
 Taught in chapter 05.
 """
+
 from __future__ import annotations
 
 import math
@@ -151,9 +152,21 @@ class PolicyNet(nn.Module):
         for a laptop CPU with one thread per process (their cost: docs/results.md, "Measurements behind the code").
     """
 
-    def __init__(self, kind: str, obs_shape, out_dim: int, variational: bool = False, *, obs_low=None, obs_high=None,
-                 conv_channels=(8, 16, 16), conv_kernels=(8, 4, 3), conv_strides=(4, 2, 2),
-                 scene_hidden=(64, 64, 32), joint_hidden=(64, 64, 32)):
+    def __init__(
+        self,
+        kind: str,
+        obs_shape,
+        out_dim: int,
+        variational: bool = False,
+        *,
+        obs_low=None,
+        obs_high=None,
+        conv_channels=(8, 16, 16),
+        conv_kernels=(8, 4, 3),
+        conv_strides=(4, 2, 2),
+        scene_hidden=(64, 64, 32),
+        joint_hidden=(64, 64, 32),
+    ):
         super().__init__()
         if kind not in KINDS:
             raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
@@ -172,8 +185,10 @@ class PolicyNet(nn.Module):
             streams = [scene, joints]
         elif kind == "state":
             self._register_bounds(obs_low, obs_high, slice(-CUP_DIMS, None), CUP_DIMS)
-            streams = [_mlp(CUP_DIMS, scene_hidden, variational),
-                       _mlp(2 * (obs_shape[0] - CUP_DIMS), joint_hidden, variational)]
+            streams = [
+                _mlp(CUP_DIMS, scene_hidden, variational),
+                _mlp(2 * (obs_shape[0] - CUP_DIMS), joint_hidden, variational),
+            ]
         else:
             self._register_bounds(obs_low, obs_high, slice(None), obs_shape[0])
             streams = [_mlp(obs_shape[0], scene_hidden, variational)]
@@ -242,17 +257,39 @@ class GaussianPolicy(nn.Module):
         revives the useful ones in ``mu``; in the untrained ``sigma`` they are dropped by :meth:`prune_`.
     """
 
-    def __init__(self, kind: str, obs_shape, action_dim: int, variational: bool = False, sizes: dict | None = None,
-                 init_std: float = 0.3, min_std: float = 0.01, obs_low=None, obs_high=None):
+    def __init__(
+        self,
+        kind: str,
+        obs_shape,
+        action_dim: int,
+        variational: bool = False,
+        sizes: dict | None = None,
+        init_std: float = 0.3,
+        min_std: float = 0.01,
+        obs_low=None,
+        obs_high=None,
+    ):
         super().__init__()
         if not init_std > min_std >= 0:
             raise ValueError(f"need init_std > min_std >= 0, got {init_std}, {min_std}")
-        self.config = _jsonable(dict(kind=kind, obs_shape=obs_shape, action_dim=action_dim, variational=variational,
-                                     sizes=dict(sizes or {}), init_std=init_std, min_std=min_std, obs_low=obs_low,
-                                     obs_high=obs_high))
+        self.config = _jsonable(
+            dict(
+                kind=kind,
+                obs_shape=obs_shape,
+                action_dim=action_dim,
+                variational=variational,
+                sizes=dict(sizes or {}),
+                init_std=init_std,
+                min_std=min_std,
+                obs_low=obs_low,
+                obs_high=obs_high,
+            )
+        )
         self.min_std = min_std
-        nets = [PolicyNet(kind, obs_shape, action_dim, variational, obs_low=obs_low, obs_high=obs_high,
-                             **(sizes or {})) for _ in range(2)]
+        nets = [
+            PolicyNet(kind, obs_shape, action_dim, variational, obs_low=obs_low, obs_high=obs_high, **(sizes or {}))
+            for _ in range(2)
+        ]
         self.mu, self.sigma = nets
         with torch.no_grad():
             for net in nets:
@@ -311,8 +348,16 @@ class GaussianPolicy(nn.Module):
         return self
 
 
-def make_policy(observation_space, action_dim: int, variational: bool = False, kind: str = "auto",
-                init_std: float = 0.3, min_std: float = 0.01, normalise: bool = True, **sizes) -> GaussianPolicy:
+def make_policy(
+    observation_space,
+    action_dim: int,
+    variational: bool = False,
+    kind: str = "auto",
+    init_std: float = 0.3,
+    min_std: float = 0.01,
+    normalise: bool = True,
+    **sizes,
+) -> GaussianPolicy:
     """Gaussian policy for a gymnasium observation space.
 
     kind: ``"rgbd"`` (Dict with "rgb", "depth" and "joints"), ``"state"`` (Box of joint angles then cup x, y, z),

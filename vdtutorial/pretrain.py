@@ -24,6 +24,7 @@ weights of ``mu`` (weight decay; biases excluded).
 
 Taught in chapter 05.
 """
+
 from __future__ import annotations
 
 import math
@@ -57,7 +58,9 @@ def sigma_option(value: str | float) -> str:
     try:
         number = float(value)
     except ValueError:
-        raise ValueError(f"initial sigma must be a number (a fixed sigma), 'demos' or 'spread', got {value!r}") from None
+        raise ValueError(
+            f"initial sigma must be a number (a fixed sigma), 'demos' or 'spread', got {value!r}"
+        ) from None
     if not number > 0:
         raise ValueError(f"a fixed initial sigma must be > 0, got {value!r}")
     return f"{number:g}"
@@ -127,8 +130,10 @@ class PretrainConfig:
         if self.kl_divisor is not None and self.kl_divisor < 1:
             raise ValueError(f"kl_divisor must be None or a positive integer, got {self.kl_divisor!r}")
         if self.patience is not None and (self.patience < 1 or self.val_fraction == 0):
-            raise ValueError(f"patience must be None or a positive integer, with a held-out split (val_fraction > 0); "
-                             f"got patience={self.patience!r}, val_fraction={self.val_fraction!r}")
+            raise ValueError(
+                f"patience must be None or a positive integer, with a held-out split (val_fraction > 0); "
+                f"got patience={self.patience!r}, val_fraction={self.val_fraction!r}"
+            )
 
 
 def observation_space(task: str, obs_mode: str, image_size: int = 128) -> gym.Space:
@@ -138,8 +143,9 @@ def observation_space(task: str, obs_mode: str, image_size: int = 128) -> gym.Sp
     return space
 
 
-def demo_observations(demos: Demos, obs_mode: str, image_size: int = 128, progress: bool = False,
-                      indices: np.ndarray | None = None):
+def demo_observations(
+    demos: Demos, obs_mode: str, image_size: int = 128, progress: bool = False, indices: np.ndarray | None = None
+):
     """The policy inputs of the samples ``indices`` (default: every sample): the state vectors, or RGBD
     images re-rendered from the stored states (:meth:`Demos.observations`; depth as float16 to halve its
     memory, converted per batch) with the stored joint angles."""
@@ -188,8 +194,14 @@ class HeldOutStop:
             net.load_state_dict(self.best_state)
 
 
-def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
-             observations=None, device: torch.device | str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
+def pretrain(
+    demos: Demos,
+    config: PretrainConfig | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    observations=None,
+    device: torch.device | str = "cpu",
+) -> tuple[GaussianPolicy, list[dict]]:
     """Behavioural cloning of ``demos`` with the method ``config.reg`` (default: ``PretrainConfig()``, the paper's
     setting; the experiments pass ``experiments.checkpoints.default_config``), then sigma fixed at
     ``config.initial_sigma`` (:func:`set_fixed_sigma`). Returns the policy (in eval mode, sigma trainable again;
@@ -210,8 +222,10 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     if not entry.pretrains:
         raise ValueError(f"method {cfg.reg!r} does not pre-train")
     if cfg.initial_sigma in SIGMA_FITS:
-        raise ValueError(f"initial_sigma={cfg.initial_sigma!r} is fitted after cloning: use "
-                         "vdtutorial.experiments.initial_sigma.pretrain_with_sigma (pretrain fixes sigma only)")
+        raise ValueError(
+            f"initial_sigma={cfg.initial_sigma!r} is fitted after cloning: use "
+            "vdtutorial.experiments.initial_sigma.pretrain_with_sigma (pretrain fixes sigma only)"
+        )
     device = torch_device(device)  # refused before any work when this machine has no such device
     torch.manual_seed(seed)
     task = demos.meta["task"]
@@ -244,8 +258,12 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
                 optimiser.step()
                 losses.append(loss.item())
                 step += 1
-            row = {"epoch": epoch + 1, "train_loss": float(np.mean(losses)),
-                   **evaluate_imitation(policy, obs, actions, val_idx), **entry.epoch_record(policy.mu)}
+            row = {
+                "epoch": epoch + 1,
+                "train_loss": float(np.mean(losses)),
+                **evaluate_imitation(policy, obs, actions, val_idx),
+                **entry.epoch_record(policy.mu),
+            }
             history.append(row)
             bar.set_postfix(loss=f"{row['train_loss']:.3f}", val_mse=f"{row['val_mse']:.4f}")
             if stop is not None and stop.should_stop(epoch + 1, row["val_mse"], policy.mu):
@@ -255,9 +273,14 @@ def pretrain(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, 
     policy.eval()
     policy.sigma.requires_grad_(True)  # frozen for behavioural cloning only: the RL phase trains sigma too
     sigma_record = set_fixed_sigma(policy, float(cfg.initial_sigma))
-    policy.pretrain_info = {"config": asdict(cfg), "seed": seed, "demos": dict(demos.meta), "history": history,
-                            "initial_sigma": sigma_record,
-                            **({} if stop is None else {"epochs_run": len(history), "best_epoch": stop.best_epoch})}
+    policy.pretrain_info = {
+        "config": asdict(cfg),
+        "seed": seed,
+        "demos": dict(demos.meta),
+        "history": history,
+        "initial_sigma": sigma_record,
+        **({} if stop is None else {"epochs_run": len(history), "best_epoch": stop.best_epoch}),
+    }
     return policy, history
 
 
@@ -272,7 +295,7 @@ def evaluate_imitation(policy: GaussianPolicy, obs, actions: torch.Tensor, idx: 
     device = next(policy.parameters()).device
     se = ll = 0.0
     for start in range(0, len(idx), batch):
-        part = idx[start:start + batch]
+        part = idx[start : start + batch]
         dist, expert = policy.distribution(observation_rows(obs, part, device)), actions[part].to(device)
         se += ((dist.mean - expert) ** 2).sum().item()
         ll += dist.log_prob(expert).sum().item()

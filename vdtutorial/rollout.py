@@ -4,6 +4,7 @@ seeds of (run seed, iteration) alone (:func:`iteration_seeds`), so a run resumed
 
 Taught in chapter 06b.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,8 +19,9 @@ from vdtutorial.baselines import Obs
 from vdtutorial.policy import obs_to_tensor, stack_obs
 
 
-def make_vec_env(env: str | Callable[[], gymnasium.Env], num_envs: int = 1, asynchronous: bool = False,
-                 **make_kwargs) -> gymnasium.vector.VectorEnv:
+def make_vec_env(
+    env: str | Callable[[], gymnasium.Env], num_envs: int = 1, asynchronous: bool = False, **make_kwargs
+) -> gymnasium.vector.VectorEnv:
     """A vector environment with same-step autoreset, as TRPO expects. ``env`` is a registered id (made with
     ``gymnasium.make(env, **make_kwargs)``) or a function returning an environment; ``asynchronous=True`` runs each
     copy in its own process.
@@ -36,9 +38,11 @@ def make_vec_env(env: str | Callable[[], gymnasium.Env], num_envs: int = 1, asyn
 def check_vec_env(env: gymnasium.vector.VectorEnv, steps_per_iter: int) -> None:
     mode = env.metadata.get("autoreset_mode")
     if mode != gymnasium.vector.AutoresetMode.SAME_STEP:
-        raise ValueError(f"TRPO needs a vector env with autoreset_mode=AutoresetMode.SAME_STEP, got {mode}: "
-                         "with NEXT_STEP the step after an episode end is a reset, not a transition "
-                         "(use vdtutorial.rollout.make_vec_env)")
+        raise ValueError(
+            f"TRPO needs a vector env with autoreset_mode=AutoresetMode.SAME_STEP, got {mode}: "
+            "with NEXT_STEP the step after an episode end is a reset, not a transition "
+            "(use vdtutorial.rollout.make_vec_env)"
+        )
     if steps_per_iter % env.num_envs:
         raise ValueError(f"steps_per_iter={steps_per_iter} is not a multiple of num_envs={env.num_envs}")
 
@@ -60,27 +64,33 @@ def _time_major(steps: list[np.ndarray]) -> np.ndarray:
 class Rollout:
     """What running the policy for one batch gave, before any baseline: T steps of N sub-environments."""
 
-    observations: Obs             # (T * N, ...) the observations acted on, time-major
-    actions: torch.Tensor         # (T * N, action_dim) the sampled (unclipped) actions
-    timesteps: np.ndarray         # (T * N,) step index within the episode
-    rewards: np.ndarray           # (T, N)
-    dones: np.ndarray             # (T, N) True where an episode ended with the step
-    last_obs: Obs                 # (N, ...) the observations after the last step (where the batch cut off)
-    last_timesteps: np.ndarray    # (N,) their steps within the episode
+    observations: Obs  # (T * N, ...) the observations acted on, time-major
+    actions: torch.Tensor  # (T * N, action_dim) the sampled (unclipped) actions
+    timesteps: np.ndarray  # (T * N,) step index within the episode
+    rewards: np.ndarray  # (T, N)
+    dones: np.ndarray  # (T, N) True where an episode ended with the step
+    last_obs: Obs  # (N, ...) the observations after the last step (where the batch cut off)
+    last_timesteps: np.ndarray  # (N,) their steps within the episode
     episode_returns: list[float]  # undiscounted returns of the episodes that ended in the batch
-    successes: int                # how many of those ended with info["is_success"] True
+    successes: int  # how many of those ended with info["is_success"] True
     time_limit_ends: list[tuple]  # (step, env, final observation, its time step) where a time limit struck
 
 
-def rollout(policy: nn.Module, env: gymnasium.vector.VectorEnv, steps_per_env: int, env_seeds: list[int],
-            generator: torch.Generator, keep_time_limit_ends: bool = False) -> Rollout:
+def rollout(
+    policy: nn.Module,
+    env: gymnasium.vector.VectorEnv,
+    steps_per_env: int,
+    env_seeds: list[int],
+    generator: torch.Generator,
+    keep_time_limit_ends: bool = False,
+) -> Rollout:
     """Step 1: reset ``env`` with ``env_seeds`` and run ``policy`` for ``steps_per_env`` vector steps, one policy
     forward per step, the action noise drawn from ``generator`` and the actions clipped to the action space. An episode
     that ends is reset in the same step; those still running at the end are cut off. ``keep_time_limit_ends`` records
     the episodes that a time limit ended, with their final observations (for ``TRPOConfig.bootstrap_time_limits``)."""
     n, space = env.num_envs, env.single_action_space
     obs, _ = env.reset(seed=env_seeds)
-    t = np.zeros(n, dtype=np.int64)        # step within the current episode, per env
+    t = np.zeros(n, dtype=np.int64)  # step within the current episode, per env
     running_return = np.zeros(n)
     observations, actions, timesteps = [], [], []
     rewards, dones = np.zeros((steps_per_env, n)), np.zeros((steps_per_env, n))
@@ -101,12 +111,23 @@ def rollout(policy: nn.Module, env: gymnasium.vector.VectorEnv, steps_per_env: i
             episode_returns.extend(running_return[done].tolist())
             running_return[done] = 0.0
             if keep_time_limit_ends:
-                time_limit_ends += [(k, i, info["final_obs"][i], t[i] + 1)
-                                    for i in np.flatnonzero(truncated & ~terminated)]
+                time_limit_ends += [
+                    (k, i, info["final_obs"][i], t[i] + 1) for i in np.flatnonzero(truncated & ~terminated)
+                ]
         t = np.where(done, 0, t + 1)
         obs = next_obs  # after an episode end this is already the next episode's first obs
-    return Rollout(stack_obs(_time_major, observations), torch.cat(actions), np.concatenate(timesteps), rewards, dones, obs, t,
-                   episode_returns, successes, time_limit_ends)
+    return Rollout(
+        stack_obs(_time_major, observations),
+        torch.cat(actions),
+        np.concatenate(timesteps),
+        rewards,
+        dones,
+        obs,
+        t,
+        episode_returns,
+        successes,
+        time_limit_ends,
+    )
 
 
 def _successes(final_info: dict, done: np.ndarray) -> int:

@@ -7,6 +7,7 @@ so :func:`use_quick` (or a changed working directory or variable) reaches every 
 
 Taught in chapter 00.
 """
+
 from __future__ import annotations
 
 import os

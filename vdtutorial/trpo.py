@@ -20,6 +20,7 @@ never do, and a weight that the forward pass multiplies by a 0/1 pruning mask ge
 product and so a step of exactly 0: pruned weights stay pruned. Every iteration is a pure function of
 (seed, iteration index, parameters and baseline at its start), so a checkpoint resumes a run exactly.
 """
+
 from __future__ import annotations
 
 import csv
@@ -107,14 +108,17 @@ class TRPOConfig:
         if self.baseline not in BASELINES:
             raise ValueError(f"baseline must be one of {BASELINES}, got {self.baseline!r}")
         if self.critic_epochs < 1 or self.critic_batch_size < 1:
-            raise ValueError(f"critic_epochs and critic_batch_size must be positive, got "
-                             f"{self.critic_epochs} and {self.critic_batch_size}")
+            raise ValueError(
+                f"critic_epochs and critic_batch_size must be positive, got "
+                f"{self.critic_epochs} and {self.critic_batch_size}"
+            )
         self.critic_hidden = tuple(self.critic_hidden)
 
 
 # -- Advantages ----------------------------------------------------------------------------------------------
-def gae(rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones: np.ndarray,
-        gamma: float, lam: float) -> np.ndarray:
+def gae(
+    rewards: np.ndarray, values: np.ndarray, last_values: np.ndarray, dones: np.ndarray, gamma: float, lam: float
+) -> np.ndarray:
     """Generalised advantage estimates, one per step.
 
     Arrays have shape (T, N) (time first; N parallel environments) or (T,). ``values[t]`` is the
@@ -175,21 +179,26 @@ def advantages_and_returns(
 class Batch:
     """One iteration's data, flattened over (time, environment) in time-major order."""
 
-    obs: TensorObs                # (n, ...) policy inputs
-    actions: torch.Tensor         # (n, action_dim) the sampled (unclipped) actions
-    advantages: torch.Tensor      # (n,) normalised GAE advantages
-    features: np.ndarray          # (n, k) baseline features of the observations
-    timesteps: np.ndarray         # (n,) step index within the episode
-    returns: np.ndarray           # (n,) the baseline's regression targets (see TRPOConfig.baseline)
+    obs: TensorObs  # (n, ...) policy inputs
+    actions: torch.Tensor  # (n, action_dim) the sampled (unclipped) actions
+    advantages: torch.Tensor  # (n,) normalised GAE advantages
+    features: np.ndarray  # (n, k) baseline features of the observations
+    timesteps: np.ndarray  # (n,) step index within the episode
+    returns: np.ndarray  # (n,) the baseline's regression targets (see TRPOConfig.baseline)
     episode_returns: list[float]  # undiscounted returns of the episodes that ended in the batch
-    successes: int                # how many of those ended with info["is_success"] True
+    successes: int  # how many of those ended with info["is_success"] True
     fvp_index: torch.Tensor | None = None  # (m,) the samples of the Fisher-vector products; None = all
 
     def to(self, device: torch.device) -> "Batch":
         """A copy with the policy update's tensors on ``device`` (the baseline's numpy arrays stay)."""
         index = None if self.fvp_index is None else self.fvp_index.to(device)
-        return replace(self, obs=obs_to_tensor(self.obs, device), actions=self.actions.to(device),
-                       advantages=self.advantages.to(device), fvp_index=index)
+        return replace(
+            self,
+            obs=obs_to_tensor(self.obs, device),
+            actions=self.actions.to(device),
+            advantages=self.advantages.to(device),
+            fvp_index=index,
+        )
 
 
 def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
@@ -199,8 +208,10 @@ def _check_deterministic(policy: nn.Module, obs: TensorObs) -> bool:
         first = policy.distribution(obs)
         second = policy.distribution(obs)
     if not (torch.equal(first.mean, second.mean) and torch.equal(first.stddev, second.stddev)):
-        raise ValueError("TRPO needs a deterministic policy: two evaluations on the same observations differ "
-                         "(a sparse-VD policy in training mode samples weight noise: call prune_() or eval() first)")
+        raise ValueError(
+            "TRPO needs a deterministic policy: two evaluations on the same observations differ "
+            "(a sparse-VD policy in training mode samples weight noise: call prune_() or eval() first)"
+        )
     return True
 
 
@@ -225,11 +236,18 @@ class TRPO:
         it.
     """
 
-    def __init__(self, policy: nn.Module, env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
-                 config: TRPOConfig | None = None, seed: int = 0,
-                 baseline_features: Callable[[Obs], np.ndarray] | None = None,
-                 baseline=None, fvp: FisherProduct = double_backward_fvp, device: torch.device | str = "cpu",
-                 step: Callable[..., dict] | None = None):
+    def __init__(
+        self,
+        policy: nn.Module,
+        env: gymnasium.vector.VectorEnv | Callable[[], gymnasium.vector.VectorEnv],
+        config: TRPOConfig | None = None,
+        seed: int = 0,
+        baseline_features: Callable[[Obs], np.ndarray] | None = None,
+        baseline=None,
+        fvp: FisherProduct = double_backward_fvp,
+        device: torch.device | str = "cpu",
+        step: Callable[..., dict] | None = None,
+    ):
         self.policy = policy
         self.fvp = fvp
         self.device = torch_device(device)
@@ -239,8 +257,10 @@ class TRPO:
         self.seed = seed
         self.baseline_features = baseline_features or default_baseline_features
         if baseline is None and self.config.baseline != "linear":
-            raise ValueError(f"config.baseline={self.config.baseline!r} is a value network: pass TRPO(baseline="
-                             "vdtutorial.beyond.value_baseline.value_baseline(config, env, seed))")
+            raise ValueError(
+                f"config.baseline={self.config.baseline!r} is a value network: pass TRPO(baseline="
+                "vdtutorial.beyond.value_baseline.value_baseline(config, env, seed))"
+            )
         self.baseline = LinearFeatureBaseline(self.config.baseline_reg) if baseline is None else baseline
         self.params = [p for p in policy.parameters() if p.requires_grad]
         self.iteration_index = 0
@@ -263,10 +283,17 @@ class TRPO:
         if cfg.fvp_subsample < 1.0:  # drawn after the actions, so the rollouts do not depend on it
             size = max(1, int(cfg.steps_per_iter * cfg.fvp_subsample))
             fvp_index = torch.randperm(cfg.steps_per_iter, generator=generator)[:size]
-        return Batch(obs=obs_to_tensor(trajectories.observations), actions=trajectories.actions,
-                     advantages=torch.as_tensor(advantages, dtype=torch.float32), features=features,
-                     timesteps=trajectories.timesteps, returns=returns, episode_returns=trajectories.episode_returns,
-                     successes=trajectories.successes, fvp_index=fvp_index)
+        return Batch(
+            obs=obs_to_tensor(trajectories.observations),
+            actions=trajectories.actions,
+            advantages=torch.as_tensor(advantages, dtype=torch.float32),
+            features=features,
+            timesteps=trajectories.timesteps,
+            returns=returns,
+            episode_returns=trajectories.episode_returns,
+            successes=trajectories.successes,
+            fvp_index=fvp_index,
+        )
 
     # -- 3-7. the update --------------------------------------------------------------------------
     def update(self, batch: Batch) -> dict:
@@ -318,8 +345,15 @@ class TRPO:
             full_step = math.sqrt(2 * cfg.max_kl / sFs) * direction
         else:
             full_step = torch.zeros_like(direction)
-        fraction, improvement, kl = line_search(self.params, full_step, surrogate_and_kl, cfg.max_kl,
-                                                cfg.backtrack_iters, cfg.backtrack_coeff, surrogate.item())
+        fraction, improvement, kl = line_search(
+            self.params,
+            full_step,
+            surrogate_and_kl,
+            cfg.max_kl,
+            cfg.backtrack_iters,
+            cfg.backtrack_coeff,
+            surrogate.item(),
+        )
         return {
             "mean_kl": kl,
             "entropy": old.entropy().sum(-1).mean().item(),
@@ -337,17 +371,28 @@ class TRPO:
         stats = self.update(batch)
         updated = time.perf_counter()
         previous_time = self.rows[-1]["wall_time"] if self.rows else 0.0
-        row = {"iteration": self.iteration_index, "env_steps": (self.iteration_index + 1) * self.config.steps_per_iter,
-               "successes": batch.successes, "episodes": len(batch.episode_returns),
-               "mean_return": float(np.mean(batch.episode_returns)) if batch.episode_returns else math.nan, **stats,
-               "collect_s": collected - start, "update_s": updated - collected,
-               "wall_time": previous_time + updated - start}
+        row = {
+            "iteration": self.iteration_index,
+            "env_steps": (self.iteration_index + 1) * self.config.steps_per_iter,
+            "successes": batch.successes,
+            "episodes": len(batch.episode_returns),
+            "mean_return": float(np.mean(batch.episode_returns)) if batch.episode_returns else math.nan,
+            **stats,
+            "collect_s": collected - start,
+            "update_s": updated - collected,
+            "wall_time": previous_time + updated - start,
+        }
         self.rows.append(row)
         self.iteration_index += 1
         return row
 
-    def run(self, total_steps: int, csv_path: str | os.PathLike | None = None,
-            checkpoint_path: str | os.PathLike | None = None, progress: bool = True) -> list[dict]:
+    def run(
+        self,
+        total_steps: int,
+        csv_path: str | os.PathLike | None = None,
+        checkpoint_path: str | os.PathLike | None = None,
+        progress: bool = True,
+    ) -> list[dict]:
         """Iterate until ``total_steps`` environment steps (counting iterations before a checkpoint) are collected,
         appending each log row to ``csv_path`` and checkpointing to ``checkpoint_path`` when given. Returns all rows."""
         total_iters = math.ceil(total_steps / self.config.steps_per_iter)
@@ -366,8 +411,14 @@ class TRPO:
     def checkpoint(self) -> dict:
         """Policy, baseline, iteration index, log rows: all a run needs to continue (noise comes from (seed,
         iteration))."""
-        return {"policy": self.policy.state_dict(), "baseline": self.baseline.state_dict(),
-                "iteration": self.iteration_index, "rows": self.rows, "seed": self.seed, "config": asdict(self.config)}
+        return {
+            "policy": self.policy.state_dict(),
+            "baseline": self.baseline.state_dict(),
+            "iteration": self.iteration_index,
+            "rows": self.rows,
+            "seed": self.seed,
+            "config": asdict(self.config),
+        }
 
     def restore(self, state: dict) -> None:
         """Continue from a :meth:`checkpoint` of a run with the same seed and config."""

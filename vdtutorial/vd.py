@@ -13,6 +13,7 @@ Reading and exploiting sparsity
 
 Taught in chapter 04.
 """
+
 from __future__ import annotations
 
 import math
@@ -166,8 +167,10 @@ class Conv2dSVDO(SVDOLayer):
         return F.conv2d(x, weight, bias, self.stride, self.padding)
 
     def extra_repr(self) -> str:
-        return (f"{self.in_channels}, {self.out_channels}, kernel_size={self.kernel_size}, stride={self.stride}, "
-                f"padding={self.padding}, bias={self.bias is not None}")
+        return (
+            f"{self.in_channels}, {self.out_channels}, kernel_size={self.kernel_size}, stride={self.stride}, "
+            f"padding={self.padding}, bias={self.bias is not None}"
+        )
 
 
 def make_linear(in_features: int, out_features: int, variational: bool, bias: bool = True) -> nn.Module:
@@ -175,11 +178,13 @@ def make_linear(in_features: int, out_features: int, variational: bool, bias: bo
     return (LinearSVDO if variational else nn.Linear)(in_features, out_features, bias=bias)
 
 
-def make_conv2d(in_channels: int, out_channels: int, kernel_size, stride=1, padding=0, variational: bool = False,
-                bias: bool = True) -> nn.Module:
+def make_conv2d(
+    in_channels: int, out_channels: int, kernel_size, stride=1, padding=0, variational: bool = False, bias: bool = True
+) -> nn.Module:
     """``Conv2dSVDO`` when ``variational`` else ``nn.Conv2d``."""
-    return (Conv2dSVDO if variational else nn.Conv2d)(in_channels, out_channels, kernel_size, stride=stride,
-                                                     padding=padding, bias=bias)
+    return (Conv2dSVDO if variational else nn.Conv2d)(
+        in_channels, out_channels, kernel_size, stride=stride, padding=padding, bias=bias
+    )
 
 
 def svdo_layers(module: nn.Module) -> list[SVDOLayer]:
@@ -209,4 +214,6 @@ def pruned_fraction(module: nn.Module, threshold: float = THRESHOLD) -> float:
     """Fraction of the weights (biases excluded) of ``module``'s sparse-VD layers with log alpha > ``threshold``, the
     number pre-training logs each epoch; :func:`vdtutorial.analysis.sparsity.sparsity_report` gives it per layer."""
     layers = svdo_layers(module)
-    return sum(int((~layer.keep_mask(threshold)).sum()) for layer in layers) / sum(layer.weight.numel() for layer in layers)
+    return sum(int((~layer.keep_mask(threshold)).sum()) for layer in layers) / sum(
+        layer.weight.numel() for layer in layers
+    )

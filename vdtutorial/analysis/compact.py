@@ -3,6 +3,7 @@ network with the same eval-mode outputs (a dead-in unit's constant folds into th
 
 Taught in chapter 04.
 """
+
 from __future__ import annotations
 
 import copy
@@ -36,8 +37,14 @@ def _plain_like(layer: nn.Module, weight: torch.Tensor, bias: torch.Tensor | Non
     else:
         if getattr(layer, "groups", 1) != 1 or tuple(getattr(layer, "dilation", (1, 1))) != (1, 1):
             raise TypeError(f"compact() does not handle grouped or dilated convolutions: {layer!r}")
-        new = nn.Conv2d(weight.shape[1], weight.shape[0], layer.kernel_size, stride=layer.stride,
-                        padding=layer.padding, bias=bias is not None)
+        new = nn.Conv2d(
+            weight.shape[1],
+            weight.shape[0],
+            layer.kernel_size,
+            stride=layer.stride,
+            padding=layer.padding,
+            bias=bias is not None,
+        )
     new.weight.copy_(weight)
     if bias is not None:
         new.bias.copy_(bias)

@@ -10,6 +10,7 @@ Wiring
 
 Taught in chapter 04.
 """
+
 from __future__ import annotations
 
 import math
@@ -120,8 +121,10 @@ def graph(module: nn.Module) -> list[Edge]:
         return module.weight_edges()
     if isinstance(module, nn.Sequential):
         return chain(module)[0]
-    raise TypeError(f"cannot tell how the layers of {type(module).__name__} are wired: use an nn.Sequential "
-                    "or give the module a weight_edges() method returning Edge objects")
+    raise TypeError(
+        f"cannot tell how the layers of {type(module).__name__} are wired: use an nn.Sequential "
+        "or give the module a weight_edges() method returning Edge objects"
+    )
 
 
 def kept_weights(layer: nn.Module, threshold: float = THRESHOLD) -> torch.Tensor:
@@ -138,7 +141,7 @@ def dead_units(layers, edges, masks) -> dict[nn.Module, tuple[torch.Tensor, torc
     dead_out = {}
     for e in edges:
         n = unit_count(e.src)
-        read = live_columns[e.dst][e.offset:e.offset + n * e.repeat].view(n, e.repeat).any(1)
+        read = live_columns[e.dst][e.offset : e.offset + n * e.repeat].view(n, e.repeat).any(1)
         dead_out[e.src] = dead_out.get(e.src, torch.ones(n, dtype=torch.bool, device=read.device)) & ~read
     return {layer: (~masks[layer].reshape(unit_count(layer), -1).any(1), d) for layer, d in dead_out.items()}
 
@@ -207,15 +210,20 @@ class SparsityReport:
         return self._neuron_fraction("dead_out")
 
     def __str__(self) -> str:
-        rows = [f"{'layer':<24}{'weights':>10}{'% pruned':>9}{'units':>7}{'dead-in':>9}{'dead-out':>10}"
-                f"{'units pruned':>14}"]
+        rows = [
+            f"{'layer':<24}{'weights':>10}{'% pruned':>9}{'units':>7}{'dead-in':>9}{'dead-out':>10}{'units pruned':>14}"
+        ]
         for layer in self.layers:
             pruned = layer.pruned_weights / layer.weights
-            rows.append(f"{layer.name:<24}{layer.weights:>10}{pruned:>9.1%}{layer.hidden_units:>7}"
-                        f"{layer.dead_in:>9}{layer.dead_out:>10}{layer.dead:>14}")
-        rows.append(f"weights pruned {self.weight_fraction:.1%} (compression x{self.compression:.1f}); neurons pruned "
-                    f"{self.neuron_fraction:.1%} (dead-in {self.neuron_fraction_in:.1%}, dead-out "
-                    f"{self.neuron_fraction_out:.1%}); threshold log alpha > {self.threshold:g}")
+            rows.append(
+                f"{layer.name:<24}{layer.weights:>10}{pruned:>9.1%}{layer.hidden_units:>7}"
+                f"{layer.dead_in:>9}{layer.dead_out:>10}{layer.dead:>14}"
+            )
+        rows.append(
+            f"weights pruned {self.weight_fraction:.1%} (compression x{self.compression:.1f}); neurons pruned "
+            f"{self.neuron_fraction:.1%} (dead-in {self.neuron_fraction_in:.1%}, dead-out "
+            f"{self.neuron_fraction_out:.1%}); threshold log alpha > {self.threshold:g}"
+        )
         return "\n".join(rows)
 
 
@@ -229,11 +237,22 @@ def sparsity_report(module: nn.Module, threshold: float = THRESHOLD) -> Sparsity
     dead = dead_units(layers, graph(module), masks)
     rows = []
     for layer in layers:
-        row = dict(name=names[layer], weights=masks[layer].numel(), pruned_weights=int((~masks[layer]).sum()),
-                   hidden_units=0, dead_in=0, dead_out=0, dead=0)
+        row = dict(
+            name=names[layer],
+            weights=masks[layer].numel(),
+            pruned_weights=int((~masks[layer]).sum()),
+            hidden_units=0,
+            dead_in=0,
+            dead_out=0,
+            dead=0,
+        )
         if layer in dead:
             dead_in, dead_out = dead[layer]
-            row.update(hidden_units=unit_count(layer), dead_in=int(dead_in.sum()), dead_out=int(dead_out.sum()),
-                       dead=int((dead_in | dead_out).sum()))
+            row.update(
+                hidden_units=unit_count(layer),
+                dead_in=int(dead_in.sum()),
+                dead_out=int(dead_out.sum()),
+                dead=int((dead_in | dead_out).sum()),
+            )
         rows.append(LayerSparsity(**row))
     return SparsityReport(rows, threshold)

@@ -24,6 +24,7 @@ rounds hand more and more of the steps to the learner. The data of every round k
 claim is about.
 Taught in chapter 09.
 """
+
 from __future__ import annotations
 
 from vdtutorial.beyond.imitation_rounds import RoundsResult, run_rounds
@@ -42,14 +43,22 @@ def mixture(policy, beta: float):
     return lambda state, a_exp, rng: a_exp if rng.random() < beta else policy.act(state, deterministic=True)
 
 
-def dagger(task: str = "reach", reg: str = "vd", samples: int = 8000, rounds: int = 4, beta: float = BETA,
-           seed: int = 0, config: PretrainConfig | None = None, progress: bool = False) -> RoundsResult:
+def dagger(
+    task: str = "reach",
+    reg: str = "vd",
+    samples: int = 8000,
+    rounds: int = 4,
+    beta: float = BETA,
+    seed: int = 0,
+    config: PretrainConfig | None = None,
+    progress: bool = False,
+) -> RoundsResult:
     """DAgger's rounds (module docstring, "Choices made here") with beta_i = ``beta``^i, cloning with ``reg``; ``samples``
     expert labels in all, split evenly over the rounds."""
     if not 0 <= beta <= 1:
         raise ValueError(f"beta must be in [0, 1], got {beta!r}")
 
     def plan(k, policy, demos):
-        return mixture(policy, beta ** k), {"beta": beta ** k}
+        return mixture(policy, beta**k), {"beta": beta**k}
 
     return run_rounds("dagger", task, reg, samples, rounds, seed, plan, config, progress)

@@ -17,6 +17,7 @@ worse at test time than on the training states.
 
 Taught in chapter 09.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -86,8 +87,16 @@ def sigma_per_joint(covariance: np.ndarray) -> np.ndarray:
     return np.sqrt(np.diag(np.asarray(covariance, dtype=np.float64)))
 
 
-def dart(task: str = "reach", reg: str = "vd", samples: int = 8000, rounds: int = 4, start_sigma: float = 0.05,
-         seed: int = 0, config: PretrainConfig | None = None, progress: bool = False) -> RoundsResult:
+def dart(
+    task: str = "reach",
+    reg: str = "vd",
+    samples: int = 8000,
+    rounds: int = 4,
+    start_sigma: float = 0.05,
+    seed: int = 0,
+    config: PretrainConfig | None = None,
+    progress: bool = False,
+) -> RoundsResult:
     """DART's rounds (module docstring, "chooses the noise instead") from Sigma_0 = ``start_sigma``^2 I, cloning with ``reg``.
 
     Each round's record holds the covariance it collected with and its per-joint standard deviation; the
@@ -105,9 +114,11 @@ def dart(task: str = "reach", reg: str = "vd", samples: int = 8000, rounds: int 
     cfg = cloning_config(reg, config)
 
     def plan(k, policy, demos):
-        covariance = start_sigma ** 2 * np.eye(N_JOINTS) if policy is None else estimate_noise(policy, demos, cfg, seed)
-        return noisy_expert(covariance), {"covariance": covariance.tolist(),
-                                          "sigma_per_joint": sigma_per_joint(covariance).tolist()}
+        covariance = start_sigma**2 * np.eye(N_JOINTS) if policy is None else estimate_noise(policy, demos, cfg, seed)
+        return noisy_expert(covariance), {
+            "covariance": covariance.tolist(),
+            "sigma_per_joint": sigma_per_joint(covariance).tolist(),
+        }
 
     result = run_rounds("dart", task, reg, samples, rounds, seed, plan, cfg, progress)
     learned = estimate_noise(result.policy, result.demos, cfg, seed)

@@ -14,6 +14,7 @@ fixed shares decided before the first round (:func:`round_sizes`) and every roun
 time spent in the expert are recorded.
 Taught in chapter 09.
 """
+
 from __future__ import annotations
 
 import time
@@ -74,8 +75,17 @@ def cloning_config(reg: str, config: PretrainConfig | None = None) -> PretrainCo
     return replace(config or PretrainConfig(), reg=reg, initial_sigma=PAPER_SIGMA_OPTION)
 
 
-def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed: int, plan,
-               config: PretrainConfig | None = None, progress: bool = False) -> RoundsResult:
+def run_rounds(
+    method: str,
+    task: str,
+    reg: str,
+    samples: int,
+    rounds: int,
+    seed: int,
+    plan,
+    config: PretrainConfig | None = None,
+    progress: bool = False,
+) -> RoundsResult:
     """``rounds`` rounds of collect -> aggregate -> re-train with the method ``reg`` (:mod:`vdtutorial.methods`).
 
     ``plan(k, policy, demos)`` is called at the start of round ``k`` with the policy of the round before
@@ -88,13 +98,30 @@ def run_rounds(method: str, task: str, reg: str, samples: int, rounds: int, seed
         behaviour, record = plan(k, policy, demos)
         part, rollout = collect(task, size, round_seed(seed, k), behaviour, progress, f"{method} round {k}")
         parts.append(part)
-        meta = {"format_version": FORMAT_VERSION, "task": task, "samples": sum(map(len, parts)), "seed": int(seed), "method": method, "reg": reg,
-                "rounds_done": k + 1}
+        meta = {
+            "format_version": FORMAT_VERSION,
+            "task": task,
+            "samples": sum(map(len, parts)),
+            "seed": int(seed),
+            "method": method,
+            "reg": reg,
+            "rounds_done": k + 1,
+        }
         demos = concatenate_demos(parts, meta)
         start = time.perf_counter()
         policy, history = pretrain(demos, cfg, seed=seed, progress=progress)
-        records.append({"round": k, **record, "labels": size, "labels_total": len(demos),
-                        "expert_queries": rollout["expert_queries"], "expert_seconds": rollout["expert_seconds"],
-                        "episodes": rollout["episodes"], "rollout_success_rate": success_rate(rollout),
-                        "pretrain_seconds": time.perf_counter() - start, "val_mse": history[-1]["val_mse"]})
+        records.append(
+            {
+                "round": k,
+                **record,
+                "labels": size,
+                "labels_total": len(demos),
+                "expert_queries": rollout["expert_queries"],
+                "expert_seconds": rollout["expert_seconds"],
+                "episodes": rollout["episodes"],
+                "rollout_success_rate": success_rate(rollout),
+                "pretrain_seconds": time.perf_counter() - start,
+                "val_mse": history[-1]["val_mse"],
+            }
+        )
     return RoundsResult(demos, policy, parts, records)

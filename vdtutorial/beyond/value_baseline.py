@@ -6,6 +6,7 @@ comparison with sb3-contrib's TRPO at its own best settings (:mod:`vdtutorial.ex
 
 Taught in chapter 06b.
 """
+
 from __future__ import annotations
 
 from typing import Callable
@@ -31,8 +32,15 @@ class MLPBaseline:
     the weights, Adam's moments and the fit count) continues exactly.
     """
 
-    def __init__(self, num_features: int, hidden: tuple[int, ...] = (64, 64), lr: float = 1e-3,
-                 epochs: int = 10, batch_size: int = 128, seed: int = 0):
+    def __init__(
+        self,
+        num_features: int,
+        hidden: tuple[int, ...] = (64, 64),
+        lr: float = 1e-3,
+        epochs: int = 10,
+        batch_size: int = 128,
+        seed: int = 0,
+    ):
         with torch.random.fork_rng(devices=[]):  # the global generator (policy init, ...) is untouched
             torch.manual_seed(seed)
             layers, width = [], num_features
@@ -70,10 +78,15 @@ class MLPBaseline:
         self.fits = state["fits"]
 
 
-def value_baseline(config: TRPOConfig, env: gymnasium.vector.VectorEnv, seed: int,
-                   features: Callable[[Obs], np.ndarray] = default_baseline_features) -> MLPBaseline:
+def value_baseline(
+    config: TRPOConfig,
+    env: gymnasium.vector.VectorEnv,
+    seed: int,
+    features: Callable[[Obs], np.ndarray] = default_baseline_features,
+) -> MLPBaseline:
     """The network that ``config``'s ``critic_*`` settings describe, for TRPO's ``baseline=``; its input width
     comes from the features of a sample of the (batched) observation space."""
     num_features = features(env.observation_space.sample()).shape[1]
-    return MLPBaseline(num_features, config.critic_hidden, config.critic_lr, config.critic_epochs,
-                       config.critic_batch_size, seed=seed)
+    return MLPBaseline(
+        num_features, config.critic_hidden, config.critic_lr, config.critic_epochs, config.critic_batch_size, seed=seed
+    )

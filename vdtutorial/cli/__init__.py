@@ -9,6 +9,7 @@ turns an error the user can fix into one line and exit code 2.
 
 Taught in chapter 00.
 """
+
 from __future__ import annotations
 
 import os
@@ -33,8 +34,10 @@ def _exact_kernels(args, argv) -> None:
         print("note: --exact-kernels: this CPU has no AVX2 kernels to pin, so it runs its own", file=sys.stderr)
         return
     if argv is not None:
-        raise CommandError("--exact-kernels restarts the command: run it as a program (python -m vdtutorial ...), "
-                           "or set the variables of vdtutorial.runner.kernels.PINNED before Python starts")
+        raise CommandError(
+            "--exact-kernels restarts the command: run it as a program (python -m vdtutorial ...), "
+            "or set the variables of vdtutorial.runner.kernels.PINNED before Python starts"
+        )
     env = dict(os.environ)
     pin_vector_kernels(env)
     sys.stdout.flush()
@@ -52,7 +55,12 @@ def main(argv=None) -> int:
         hint = getattr(args, "on_interrupt", None)
         print(f"interrupted{': ' + hint if hint else ''}", file=sys.stderr)
         return 130
-    except (CommandError, ValueError, OSError, ImportError) as exc:  # expected: bad path, corrupt file, bad value, Ray not installed
+    except (
+        CommandError,
+        ValueError,
+        OSError,
+        ImportError,
+    ) as exc:  # expected: bad path, corrupt file, bad value, Ray not installed
         if os.environ.get(TRACEBACK_VARIABLE):
             raise
         message = " ".join(str(exc).split()) or type(exc).__name__

@@ -3,6 +3,7 @@ errors, where a command may write, and the options several commands share.
 
 Not taught in a chapter: the command line's plumbing (chapter 00 shows the commands, vdtutorial/cli/).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,6 +23,7 @@ class CommandError(Exception):
 # -- argument types: bad values are refused at parse time ------------------------------------------------
 def _number_type(convert, accept, expected: str):
     """An argparse type: ``convert(text)``, refused with "expected EXPECTED" unless ``accept(value)``."""
+
     def parse(text: str):
         try:
             value = convert(text)
@@ -30,6 +32,7 @@ def _number_type(convert, accept, expected: str):
         if value is None or not accept(value):
             raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
         return value
+
     parse.__name__ = expected  # argparse names the type in some messages
     return parse
 
@@ -74,12 +77,12 @@ def progress_of(args) -> bool:
     return sys.stderr.isatty() if args.progress is None else args.progress
 
 
-
 # -- options several commands share ----------------------------------------------------------------------
 def help_when_shown(text_of):
     """An argparse action that stores its value as the default action does and whose help is ``text_of()``, called
     only when help is shown: a help text computed from the library (which loads torch) then costs nothing to a
     command, to a usage error or to the top-level ``--help``."""
+
     class StoreWithLateHelp(argparse._StoreAction):
         help = property(lambda self: text_of(), lambda self, value: None)
 
@@ -89,13 +92,19 @@ def help_when_shown(text_of):
 def epochs_help() -> str:
     from vdtutorial.experiments.checkpoints import default_config
 
-    return (f"passes over the training split (default: {default_config('vd', 'state').epochs} with --obs state, "
-            f"{default_config('vd', 'rgbd').epochs} with --obs rgbd)")
+    return (
+        f"passes over the training split (default: {default_config('vd', 'state').epochs} with --obs state, "
+        f"{default_config('vd', 'rgbd').epochs} with --obs rgbd)"
+    )
 
 
 def add_progress(p) -> None:
-    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                   help="progress bars on standard error (default: only in a terminal)")
+    p.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bars on standard error (default: only in a terminal)",
+    )
 
 
 def add_force(p) -> None:
@@ -103,6 +112,9 @@ def add_force(p) -> None:
 
 
 def add_exact_kernels(p) -> None:
-    p.add_argument("--exact-kernels", action="store_true",
-                   help="pin torch's and numpy's CPU kernels to AVX2 (the command starts again with them pinned), "
-                        "so that shipped results regenerate bit for bit; default: this CPU's own, faster kernels")
+    p.add_argument(
+        "--exact-kernels",
+        action="store_true",
+        help="pin torch's and numpy's CPU kernels to AVX2 (the command starts again with them pinned), "
+        "so that shipped results regenerate bit for bit; default: this CPU's own, faster kernels",
+    )

@@ -9,6 +9,7 @@ and with two worker processes (gymnasium's AsyncVectorEnv), and the IK expert's 
 
 Not taught in a chapter: measurements of this machine, whose numbers docs/results.md and docs/install.md quote.
 """
+
 from __future__ import annotations
 
 import time
@@ -29,8 +30,12 @@ from vdtutorial.trust_region import double_backward_fvp
 
 #: (task, obs_mode, image_size) rows of the env benchmark.
 ENV_CASES = (
-    ("reach", "state", 128), ("reach", "rgbd", 64), ("reach", "rgbd", 128),
-    ("grasp", "state", 256), ("grasp", "rgbd", 128), ("grasp", "rgbd", 256),
+    ("reach", "state", 128),
+    ("reach", "rgbd", 64),
+    ("reach", "rgbd", 128),
+    ("grasp", "state", 256),
+    ("grasp", "rgbd", 128),
+    ("grasp", "rgbd", 256),
 )
 
 
@@ -183,8 +188,10 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
         pruned = f"{report.weight_fraction:.1%} weights, {report.neuron_fraction:.1%} neurons pruned"
         print(f"       compacted from: {source}; {pruned}")
     for obs_mode in ("state", "rgbd"):
-        part = Demos(**{k: getattr(demos, k)[:samples] for k in ("joints", "cup", "actions", "episode", "t")},
-                     meta={**demos.meta, "samples": samples})
+        part = Demos(
+            **{k: getattr(demos, k)[:samples] for k in ("joints", "cup", "actions", "episode", "t")},
+            meta={**demos.meta, "samples": samples},
+        )
         obs = demo_observations(part, obs_mode, 128)
         for reg in ("l2", "vd"):
             start = time.perf_counter()
@@ -199,8 +206,8 @@ def bench_policy(samples: int | None = None, repeats: int | None = None) -> list
 #: (label, Fisher-vector product, fvp_subsample) of the fine-tuning benchmark's rows, per observation mode.
 FINETUNE_CASES = (
     ("double backward", "double_backward", 1.0),  # the library's defaults: plain policy, chapter 06's product
-    ("Gauss-Newton", "gauss_newton", 1.0),        # the experiments' options: vdtutorial.fast's policy and product
-    ("Gauss-Newton", "gauss_newton", 0.1),        # the same on a 10% subsample, a control
+    ("Gauss-Newton", "gauss_newton", 1.0),  # the experiments' options: vdtutorial.fast's policy and product
+    ("Gauss-Newton", "gauss_newton", 0.1),  # the same on a 10% subsample, a control
 )
 #: The products the cases name, as ``TRPO(fvp=...)`` takes them.
 FISHER_PRODUCTS = {"double_backward": double_backward_fvp, "gauss_newton": gauss_newton_fvp}
@@ -275,8 +282,15 @@ class PartTimedTRPO(TRPO):
 
     def __init__(self, policy, env, config, fvp, device, seed: int = 0):
         self.clock = UpdateClock()
-        super().__init__(policy, env, config, seed=seed, fvp=self.clock.fvp(fvp), device=device,
-                         baseline=self.clock.baseline(LinearFeatureBaseline(config.baseline_reg)))
+        super().__init__(
+            policy,
+            env,
+            config,
+            seed=seed,
+            fvp=self.clock.fvp(fvp),
+            device=device,
+            baseline=self.clock.baseline(LinearFeatureBaseline(config.baseline_reg)),
+        )
 
     def update(self, batch):
         self.clock.mark("gradient")
@@ -288,8 +302,9 @@ class PartTimedTRPO(TRPO):
         return self.clock.split()
 
 
-def bench_finetune(iterations: int | None = None, profile: bool = False,
-                   device: torch.device | str = "cpu") -> list[dict]:
+def bench_finetune(
+    iterations: int | None = None, profile: bool = False, device: torch.device | str = "cpu"
+) -> list[dict]:
     """TRPO fine-tuning of the pruned VD reach policy (8000 demonstrations, Sigma = 0.5, seed 0), state
     and rgbd 128 x 128, in one process with one torch thread: seconds per 200-step iteration spent
     collecting (rendering + policy) and updating, env steps per second end to end (wall clock, and per
@@ -324,14 +339,19 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
     torch.set_num_threads(1)
     demos = Demos.load(demo_path("reach", 8000, 0.5, 0))
     rows = []
-    print(f"{'obs':6} {'Fisher product':16} {'fvp_subsample':>13} {'collect s':>10} {'update s':>9} {'steps/s':>8} "
-          f"{'steps/cpu s':>11} {'mean KL':>8} {'step fraction':>13}")
+    print(
+        f"{'obs':6} {'Fisher product':16} {'fvp_subsample':>13} {'collect s':>10} {'update s':>9} {'steps/s':>8} "
+        f"{'steps/cpu s':>11} {'mean KL':>8} {'step fraction':>13}"
+    )
     for obs_mode in ("state", "rgbd"):
         env = make_vec_env(ENV_IDS["reach"], NUM_ENVS, obs_mode=obs_mode, image_size=128)
         # the shipped checkpoint with its own settings (any mode), else one pre-trained now with the defaults
         ckpt = checkpoint_path(demos.meta, "vd", obs_mode, 0)
-        config = (PretrainConfig(**load_checkpoint(ckpt).pretrain_info["config"]) if ckpt.exists()
-                  else default_config("vd", obs_mode))
+        config = (
+            PretrainConfig(**load_checkpoint(ckpt).pretrain_info["config"])
+            if ckpt.exists()
+            else default_config("vd", obs_mode)
+        )
         source = f"shipped {ckpt.name}" if ckpt.exists() else "pre-trained now (no shipped checkpoint)"
         runs = []
         for label, fisher, fvp_subsample in FINETUNE_CASES:
@@ -347,19 +367,31 @@ def bench_finetune(iterations: int | None = None, profile: bool = False,
                 if i > 0:  # the first iteration warms up
                     timed.append((row, time.process_time() - cpu, algo.update_split))
         for (label, fisher, fvp_subsample), (algo, timed) in zip(FINETUNE_CASES, runs):
-            row = {"obs_mode": obs_mode, "fisher": fisher, "fvp_subsample": fvp_subsample, "policy": source,
-                   **_finetune_summary(timed, algo.config.steps_per_iter)}
+            row = {
+                "obs_mode": obs_mode,
+                "fisher": fisher,
+                "fvp_subsample": fvp_subsample,
+                "policy": source,
+                **_finetune_summary(timed, algo.config.steps_per_iter),
+            }
             rows.append(row)
-            print(f"{obs_mode:6} {label:16} {fvp_subsample:>13g} {row['collect_s']:>10.3f} {row['update_s']:>9.3f} "
-                  f"{row['steps_per_s']:>8.1f} {row['steps_per_cpu_s']:>11.1f} {row['mean_kl']:>8.4f} "
-                  f"{row['step_fraction']:>13.3f}", flush=True)
-        _print_update_split(rows[-len(FINETUNE_CASES):], [label for label, *_ in FINETUNE_CASES])
-        old, new = rows[-len(FINETUNE_CASES):][:2]
-        print(f"       whole batch, Gauss-Newton / double backward: {new['steps_per_s'] / old['steps_per_s']:.2f}x env "
-              f"steps/s ({new['steps_per_cpu_s'] / old['steps_per_cpu_s']:.2f}x per CPU second), update "
-              f"{old['update_s'] / new['update_s']:.2f}x faster")
-        print(f"       policy: {source}, pruned; {iterations} iterations of 200 steps after one warm-up, per case; "
-              f"updates on {torch.device(device)}")
+            print(
+                f"{obs_mode:6} {label:16} {fvp_subsample:>13g} {row['collect_s']:>10.3f} {row['update_s']:>9.3f} "
+                f"{row['steps_per_s']:>8.1f} {row['steps_per_cpu_s']:>11.1f} {row['mean_kl']:>8.4f} "
+                f"{row['step_fraction']:>13.3f}",
+                flush=True,
+            )
+        _print_update_split(rows[-len(FINETUNE_CASES) :], [label for label, *_ in FINETUNE_CASES])
+        old, new = rows[-len(FINETUNE_CASES) :][:2]
+        print(
+            f"       whole batch, Gauss-Newton / double backward: {new['steps_per_s'] / old['steps_per_s']:.2f}x env "
+            f"steps/s ({new['steps_per_cpu_s'] / old['steps_per_cpu_s']:.2f}x per CPU second), update "
+            f"{old['update_s'] / new['update_s']:.2f}x faster"
+        )
+        print(
+            f"       policy: {source}, pruned; {iterations} iterations of 200 steps after one warm-up, per case; "
+            f"updates on {torch.device(device)}"
+        )
         if profile and obs_mode == "rgbd":
             print_profile(runs[FINETUNE_CASES.index(("Gauss-Newton", "gauss_newton", 1.0))][0], iterations)
         env.close()
@@ -377,10 +409,15 @@ def _finetune_summary(timed: list[tuple[dict, float, dict]], steps_per_iter: int
     steps = len(rows) * steps_per_iter
     fractions = [0.0 if r["line_search"] == "rejected" else r["line_search"] for r in rows]
     splits = [split for *_, split in timed]
-    return {"collect_s": collect / len(rows), "update_s": update / len(rows), "steps_per_s": steps / (collect + update),
-            "steps_per_cpu_s": steps / sum(cpu for _, cpu, _ in timed),
-            "mean_kl": float(np.mean([r["mean_kl"] for r in rows])), "step_fraction": float(np.mean(fractions)),
-            "split_cpu_s": {part: float(np.mean([s[part] for s in splits])) for part in splits[0]}}
+    return {
+        "collect_s": collect / len(rows),
+        "update_s": update / len(rows),
+        "steps_per_s": steps / (collect + update),
+        "steps_per_cpu_s": steps / sum(cpu for _, cpu, _ in timed),
+        "mean_kl": float(np.mean([r["mean_kl"] for r in rows])),
+        "step_fraction": float(np.mean(fractions)),
+        "split_cpu_s": {part: float(np.mean([s[part] for s in splits])) for part in splits[0]},
+    }
 
 
 def _print_update_split(rows: list[dict], labels: list[str]) -> None:
@@ -388,8 +425,10 @@ def _print_update_split(rows: list[dict], labels: list[str]) -> None:
     parts = list(rows[0]["split_cpu_s"])
     print(f"       update split, CPU s per iteration: {'':16} {'':>13} " + " ".join(f"{p:>12}" for p in parts))
     for label, row in zip(labels, rows):
-        print(f"{row['obs_mode']:6} {label:16} {row['fvp_subsample']:>13g} {'':>35}"
-              + " ".join(f"{row['split_cpu_s'][p]:>12.3f}" for p in parts))
+        print(
+            f"{row['obs_mode']:6} {label:16} {row['fvp_subsample']:>13g} {'':>35}"
+            + " ".join(f"{row['split_cpu_s'][p]:>12.3f}" for p in parts)
+        )
 
 
 def print_profile(algo: TRPO, iterations: int, top: int = 15) -> None:

@@ -3,6 +3,7 @@ command. Each imports what it needs when it runs, so ``--help`` and a usage erro
 
 Not taught in a chapter: the command line's plumbing (chapter 00 shows the commands, vdtutorial/cli/).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -12,6 +13,7 @@ from pathlib import Path
 
 from vdtutorial.cli.arguments import CommandError, device_of, output_path, progress_of
 from vdtutorial.settings import data_dir
+
 
 def demos_output(args) -> Path:
     """The file a ``demos`` command writes, before ``--force`` is checked: ``--out``, or the conventional name under
@@ -29,8 +31,13 @@ def pretrain_output(args, demos_meta: dict) -> Path:
     from vdtutorial.experiments.checkpoints import checkpoint_path
     from vdtutorial.experiments.paths import runs_dir
 
-    return Path(args.out) if args.out else checkpoint_path(demos_meta, args.reg, args.obs, args.seed, root=runs_dir(),
-                                                           initial_sigma=args.sigma, patience=args.patience)
+    return (
+        Path(args.out)
+        if args.out
+        else checkpoint_path(
+            demos_meta, args.reg, args.obs, args.seed, root=runs_dir(), initial_sigma=args.sigma, patience=args.patience
+        )
+    )
 
 
 def cmd_demos(args) -> None:
@@ -40,8 +47,10 @@ def cmd_demos(args) -> None:
     out = output_path(args.out, demos_output(args), args.force)
     demos = generate_demos(args.task, args.samples, noise, args.seed, progress=progress_of(args))
     demos.save(out)
-    print(f"{len(demos)} samples from {demos.meta['episodes']} noisy expert episodes "
-          f"(noisy success rate {demos.meta['noisy_success_rate']:.2f})")
+    print(
+        f"{len(demos)} samples from {demos.meta['episodes']} noisy expert episodes "
+        f"(noisy success rate {demos.meta['noisy_success_rate']:.2f})"
+    )
     print(f"wrote {out}")
 
 
@@ -50,8 +59,10 @@ def cmd_expert(args) -> None:
 
     for task in args.task:
         rate, mean_len = expert_success_rate(task, args.episodes, seed=args.seed, progress=progress_of(args))
-        print(f"expert {task}: success rate {rate:.3f} over {args.episodes} episodes "
-              f"(mean episode length {mean_len:.2f} steps)")
+        print(
+            f"expert {task}: success rate {rate:.3f} over {args.episodes} episodes "
+            f"(mean episode length {mean_len:.2f} steps)"
+        )
 
 
 def _pretraining_method(name: str):
@@ -71,8 +82,15 @@ def cmd_pretrain(args) -> None:
     import torch
 
     from vdtutorial.demos import Demos
-    from vdtutorial.experiments.checkpoints import (CheckpointError, checkpoint_path, default_config, load_checkpoint,
-                                                    pretrain_command, save_checkpoint, with_held_out_stop)
+    from vdtutorial.experiments.checkpoints import (
+        CheckpointError,
+        checkpoint_path,
+        default_config,
+        load_checkpoint,
+        pretrain_command,
+        save_checkpoint,
+        with_held_out_stop,
+    )
     from vdtutorial.analysis.sparsity import sparsity_report
     from vdtutorial.experiments.initial_sigma import pretrain_with_sigma
     from vdtutorial.experiments.paths import runs_dir
@@ -82,7 +100,7 @@ def cmd_pretrain(args) -> None:
     torch.set_num_threads(1)
     demos = Demos.load(args.demos)
     config = default_config(args.reg, args.obs)
-    if args.patience:   # --epochs is then the cap; VD's KL warm-up keeps its length in epochs
+    if args.patience:  # --epochs is then the cap; VD's KL warm-up keeps its length in epochs
         config = with_held_out_stop(config, args.epochs or config.epochs, args.patience)
     elif args.epochs:
         config = dataclasses.replace(config, epochs=args.epochs)
@@ -92,26 +110,34 @@ def cmd_pretrain(args) -> None:
     follows = entry.spread_from
     if config.initial_sigma == "spread" and follows not in (None, args.reg):  # no noise model: follow another's
         # its checkpoint pre-trained alike (same data, seed and stop), shipped or made by pretrain --reg FOLLOWS
-        paths = [checkpoint_path(demos.meta, follows, args.obs, args.seed, root=root, patience=args.patience)
-                 for root in (None, runs_dir())]
+        paths = [
+            checkpoint_path(demos.meta, follows, args.obs, args.seed, root=root, patience=args.patience)
+            for root in (None, runs_dir())
+        ]
         try:
             spread_net = load_checkpoint(next((p for p in paths if p.exists()), paths[0]), variational=True).mu
         except CheckpointError as exc:
-            raise CommandError(f"--sigma spread for {args.reg} follows the {follows} network pre-trained alike: "
-                               f"{exc}") from exc
-    policy, history = pretrain_with_sigma(demos, config, seed=args.seed, progress=progress_of(args), spread_net=spread_net,
-                                          device=device)
-    command = (pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
-               + (f" --epochs {args.epochs}" if args.epochs else "")
-               + (f" --patience {args.patience}" if args.patience else "")
-               + (f" --device {args.device}" if args.device != "cpu" else ""))
+            raise CommandError(
+                f"--sigma spread for {args.reg} follows the {follows} network pre-trained alike: {exc}"
+            ) from exc
+    policy, history = pretrain_with_sigma(
+        demos, config, seed=args.seed, progress=progress_of(args), spread_net=spread_net, device=device
+    )
+    command = (
+        pretrain_command(args.reg, args.demos, args.seed, args.obs, config.initial_sigma)
+        + (f" --epochs {args.epochs}" if args.epochs else "")
+        + (f" --patience {args.patience}" if args.patience else "")
+        + (f" --device {args.device}" if args.device != "cpu" else "")
+    )
     save_checkpoint(policy, out, {"command": command})
     kept = history[-1]
     if args.patience:
         info = policy.pretrain_info
         kept = history[info["best_epoch"] - 1]
-        print(f"stopped on the held-out MSE after {info['epochs_run']} of at most {config.epochs} epochs; "
-              f"mu is epoch {info['best_epoch']}'s")
+        print(
+            f"stopped on the held-out MSE after {info['epochs_run']} of at most {config.epochs} epochs; "
+            f"mu is epoch {info['best_epoch']}'s"
+        )
     print(f"held-out imitation MSE {kept['val_mse']:.4f}")
     if entry.variational:
         print(sparsity_report(policy.mu))
@@ -132,8 +158,10 @@ def cmd_evaluate(args) -> None:
     demos = Demos.load(args.demos)
     task = demos.meta["task"]
     folder = Path(args.checkpoints) if args.checkpoints else data_dir() / "checkpoints"
-    controllers = {reg: PolicyController(load_checkpoint(folder / checkpoint_path(demos.meta, reg, args.obs, args.seed).name))
-                   for reg in ("vd", "l2")}
+    controllers = {
+        reg: PolicyController(load_checkpoint(folder / checkpoint_path(demos.meta, reg, args.obs, args.seed).name))
+        for reg in ("vd", "l2")
+    }
     env = gym.make(ENV_IDS[task], obs_mode=args.obs)
     episodes = args.episodes or budget(5, 2)
     controllers["expert"] = ExpertController(env)
@@ -141,8 +169,10 @@ def cmd_evaluate(args) -> None:
         runs = [successes_per_episode(env, controller, seed=100 + k) for k in range(episodes)]
         wins = np.array([r["successes"] for r in runs])
         reward = np.array([r["reward"] for r in runs])
-        print(f"{name:7s} successes per 200-step episode {wins.mean():5.1f} +- {wins.std():4.1f}   "
-              f"reward per episode {reward.mean():8.1f}   ({episodes} episodes, mean action)")
+        print(
+            f"{name:7s} successes per 200-step episode {wins.mean():5.1f} +- {wins.std():4.1f}   "
+            f"reward per episode {reward.mean():8.1f}   ({episodes} episodes, mean action)"
+        )
     env.close()
 
 
@@ -150,8 +180,10 @@ def cmd_digits(args) -> None:
     from vdtutorial.experiments.digits import digits_validation
 
     result = digits_validation(seed=args.seed)
-    print(f"dense MLP accuracy {result.dense_accuracy:.4f}; sparse VD MLP accuracy {result.vd_accuracy:.4f} "
-          f"with {result.fraction_pruned:.1%} of weights pruned ({result.seconds:.1f} s)")
+    print(
+        f"dense MLP accuracy {result.dense_accuracy:.4f}; sparse VD MLP accuracy {result.vd_accuracy:.4f} "
+        f"with {result.fraction_pruned:.1%} of weights pruned ({result.seconds:.1f} s)"
+    )
     print(result.report)
 
 
@@ -205,11 +237,21 @@ def _state_only(args, backend: str) -> None:
     if args.obs != "state":
         raise CommandError(f"{name} runs in state mode only (--obs state)")
     if args.fvp_subsample is not None:
-        raise CommandError(f"{name} fine-tunes with the paper's TRPO settings: --fvp-subsample is an option of the figures")
+        raise CommandError(
+            f"{name} fine-tunes with the paper's TRPO settings: --fvp-subsample is an option of the figures"
+        )
     if args.device != "cpu":
         raise CommandError(f"{name} runs on the CPU: --device is an option of the figures")
-    options = dict(seeds=args.seeds, steps=args.steps, out=args.out, workers=args.workers, backend=backend,
-                   address=args.address, restart=args.restart, state_dir=args.state_dir)
+    options = dict(
+        seeds=args.seeds,
+        steps=args.steps,
+        out=args.out,
+        workers=args.workers,
+        backend=backend,
+        address=args.address,
+        restart=args.restart,
+        state_dir=args.state_dir,
+    )
     if args.checkpoint_every is not None:
         options["checkpoint_every"] = args.checkpoint_every
     try:
@@ -233,14 +275,29 @@ def _grid_only(args, backend: str) -> None:
     from vdtutorial.experiments import ResumeError
     from vdtutorial.experiments.pretrain_stop import format_comparison, pretrain_stop
 
-    fixed = [flag for flag, value in (("--steps", args.steps), ("--obs", None if args.obs == "state" else args.obs),
-                                      ("--fvp-subsample", args.fvp_subsample), ("--checkpoint-every", args.checkpoint_every),
-                                      ("--device", None if args.device == "cpu" else args.device)) if value is not None]
+    fixed = [
+        flag
+        for flag, value in (
+            ("--steps", args.steps),
+            ("--obs", None if args.obs == "state" else args.obs),
+            ("--fvp-subsample", args.fvp_subsample),
+            ("--checkpoint-every", args.checkpoint_every),
+            ("--device", None if args.device == "cpu" else args.device),
+        )
+        if value is not None
+    ]
     if fixed:
         raise CommandError(f"{args.name} sets {', '.join(fixed)} itself (it compares {GRID_ONLY[args.name]})")
     try:
-        record = pretrain_stop(seeds=args.seeds, out=args.out, workers=args.workers, backend=backend,
-                               address=args.address, restart=args.restart, state_dir=args.state_dir)
+        record = pretrain_stop(
+            seeds=args.seeds,
+            out=args.out,
+            workers=args.workers,
+            backend=backend,
+            address=args.address,
+            restart=args.restart,
+            state_dir=args.state_dir,
+        )
     except ResumeError as exc:
         raise CommandError(str(exc)) from exc
     print(format_comparison(record))
@@ -258,7 +315,9 @@ def _figure_options(args) -> dict:
     given = [f"--{key.replace('_', '-')}" for key, value in options.items() if value not in (None, 0)]
     if args.name not in FIGURES:
         if given:
-            raise CommandError(f"{' and '.join(given)} {'are options' if len(given) > 1 else 'is an option'} of the figures")
+            raise CommandError(
+                f"{' and '.join(given)} {'are options' if len(given) > 1 else 'is an option'} of the figures"
+            )
         return {}
     try:
         figure_methods(args.name, args.methods)
@@ -266,11 +325,15 @@ def _figure_options(args) -> dict:
     except ValueError as exc:
         raise CommandError(str(exc)) from exc
     task = FIGURES[args.name][2]
-    missing = [(n, sigma) for n, sigma in datasets if args.demo_seed and not demo_path(task, n, sigma, args.demo_seed).exists()]
+    missing = [
+        (n, sigma) for n, sigma in datasets if args.demo_seed and not demo_path(task, n, sigma, args.demo_seed).exists()
+    ]
     if missing and any(method(m).pretrains for m in figure_methods(args.name, args.methods)):
         n, sigma = missing[0]
-        raise CommandError(f"no demonstrations of seed {args.demo_seed} for {n} samples at Sigma {sigma:g}: make them with "
-                           f"{demo_command(task, n, sigma, args.demo_seed)} --out {recorded_path(demo_path(task, n, sigma, args.demo_seed))}")
+        raise CommandError(
+            f"no demonstrations of seed {args.demo_seed} for {n} samples at Sigma {sigma:g}: make them with "
+            f"{demo_command(task, n, sigma, args.demo_seed)} --out {recorded_path(demo_path(task, n, sigma, args.demo_seed))}"
+        )
     return options
 
 
@@ -289,16 +352,32 @@ def cmd_experiment(args) -> None:
         raise CommandError("--choices is an option of free_choices")
     figure_options = _figure_options(args)
     if args.name in PRE_RL_ONLY:
-        ignored = [flag for flag, value in (("--steps", args.steps), ("--fvp-subsample", args.fvp_subsample),
-                                            ("--state-dir", args.state_dir), ("--checkpoint-every", args.checkpoint_every),
-                                            ("--restart", args.restart or None),
-                                            ("--device", None if args.device == "cpu" else args.device))
-                   if value is not None]
+        ignored = [
+            flag
+            for flag, value in (
+                ("--steps", args.steps),
+                ("--fvp-subsample", args.fvp_subsample),
+                ("--state-dir", args.state_dir),
+                ("--checkpoint-every", args.checkpoint_every),
+                ("--restart", args.restart or None),
+                ("--device", None if args.device == "cpu" else args.device),
+            )
+            if value is not None
+        ]
         if ignored:
-            raise CommandError(f"{args.name} {PRE_RL_ONLY[args.name]}: {', '.join(ignored)} "
-                               f"{'are options' if len(ignored) > 1 else 'is an option'} of the figures")
-        experiments.table1(obs_mode=args.obs, seeds=args.seeds or (0,), kl_weighting=args.kl_weighting,
-                           out=args.out, workers=args.workers, backend=backend, address=args.address)
+            raise CommandError(
+                f"{args.name} {PRE_RL_ONLY[args.name]}: {', '.join(ignored)} "
+                f"{'are options' if len(ignored) > 1 else 'is an option'} of the figures"
+            )
+        experiments.table1(
+            obs_mode=args.obs,
+            seeds=args.seeds or (0,),
+            kl_weighting=args.kl_weighting,
+            out=args.out,
+            workers=args.workers,
+            backend=backend,
+            address=args.address,
+        )
         return
     if args.name in STATE_ONLY:
         _state_only(args, backend)
@@ -314,9 +393,20 @@ def cmd_experiment(args) -> None:
         warnings.simplefilter("default")
         try:
             result = getattr(experiments, args.name)(
-                seeds=args.seeds, total_steps=args.steps, obs_mode=args.obs, out=args.out, workers=args.workers,
-                trpo_config=trpo_config, backend=backend, address=args.address, state_dir=args.state_dir,
-                restart=args.restart, device=args.device, **figure_options, **resumable)
+                seeds=args.seeds,
+                total_steps=args.steps,
+                obs_mode=args.obs,
+                out=args.out,
+                workers=args.workers,
+                trpo_config=trpo_config,
+                backend=backend,
+                address=args.address,
+                state_dir=args.state_dir,
+                restart=args.restart,
+                device=args.device,
+                **figure_options,
+                **resumable,
+            )
         except experiments.ResumeError as exc:
             raise CommandError(str(exc)) from exc
     _print_summary(result)
@@ -331,12 +421,16 @@ def cmd_notebooks(args) -> None:
     except (EditedFilesError, NoNbgraderError) as exc:
         raise CommandError(str(exc)) from exc
     edition = "the student edition of " if args.student else ""
-    print(f"wrote {edition}{book.chapters} chapters, {book.appendices} appendices and {book.data_files} data files into "
-          f"{book.dest}; start with "
-          f"jupyter lab {book.dest / 'notebooks' / '00_start_here.ipynb'}")
+    print(
+        f"wrote {edition}{book.chapters} chapters, {book.appendices} appendices and {book.data_files} data files into "
+        f"{book.dest}; start with "
+        f"jupyter lab {book.dest / 'notebooks' / '00_start_here.ipynb'}"
+    )
     if book.solutions:
-        print(f"the {book.solutions} chapters with every exercise solved are in {book.dest / 'solutions'}: "
-              "open them when you have tried")
+        print(
+            f"the {book.solutions} chapters with every exercise solved are in {book.dest / 'solutions'}: "
+            "open them when you have tried"
+        )
 
 
 def cmd_book(args) -> None:
@@ -363,8 +457,10 @@ def cmd_rederive(args) -> None:
     experiments beyond the figures, whose records have a shape of their own, by their own rederive)."""
     from vdtutorial.experiments import beyond, format_summary, free_choices, merge_seeds, rederive
 
-    own = {"beyond": (beyond.rederive_beyond, beyond.format_summary),
-           "free_choices": (free_choices.rederive_free_choices, free_choices.format_table)}
+    own = {
+        "beyond": (beyond.rederive_beyond, beyond.format_summary),
+        "free_choices": (free_choices.rederive_free_choices, free_choices.format_table),
+    }
     names = {}
     for folder in args.folders + args.add + args.add_other_cpu:
         if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
@@ -373,8 +469,10 @@ def cmd_rederive(args) -> None:
     if (args.add or args.add_other_cpu) and len(args.folders) != 1:
         raise CommandError("--add merges into one experiment folder: name one")
     if (args.add or args.add_other_cpu) and set(names.values()) & set(own):
-        raise CommandError(f"--add merges the figures' seeds: {', '.join(sorted(set(names.values()) & set(own)))} "
-                           "takes more seeds by running it again with them")
+        raise CommandError(
+            f"--add merges the figures' seeds: {', '.join(sorted(set(names.values()) & set(own)))} "
+            "takes more seeds by running it again with them"
+        )
     for other in args.add:
         merge_seeds(args.folders[0], other)
     for other in args.add_other_cpu:

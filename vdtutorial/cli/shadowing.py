@@ -8,6 +8,7 @@ it reads from the package itself (its version, its registered environments).
 
 Not taught in a chapter: the command line's plumbing (chapter 00 shows the commands, vdtutorial/cli/).
 """
+
 from __future__ import annotations
 
 import os
@@ -33,7 +34,10 @@ def step_around_a_shadowing_folder() -> None:
     if not sys.flags.safe_path and os.path.abspath(folder) == os.path.abspath("vdtutorial"):
         sys.stdout.flush()
         os.execv(sys.executable, [sys.executable, "-P", "-m", "vdtutorial", *sys.argv[1:]])
-    print(f"error: the folder {os.path.abspath(folder)} (a clone of vdtutorial?) hides the installed package from "
-          "Python: run the command from another folder (cd into the clone, or cd ~), or take that folder's parent "
-          "off PYTHONPATH", file=sys.stderr)
+    print(
+        f"error: the folder {os.path.abspath(folder)} (a clone of vdtutorial?) hides the installed package from "
+        "Python: run the command from another folder (cd into the clone, or cd ~), or take that folder's parent "
+        "off PYTHONPATH",
+        file=sys.stderr,
+    )
     sys.exit(2)

@@ -23,6 +23,7 @@ time: it is the grader's first defence, not its last (see "What the grader guara
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
 """
+
 from __future__ import annotations
 
 import ast
@@ -69,8 +70,12 @@ FORBIDDEN: dict[str, tuple[str, ...]] = {
     # 06a: conjugate gradient
     "ch06_conjugate_gradient": ("conjugate_gradient",),
     # 06a: the Fisher-vector products: double backward, its inner product, and the fast Gauss-Newton form
-    "ch06_fisher_vector_product": ("double_backward_fvp", "fisher_vector_product", "gauss_newton_fvp",
-                                   "GaussNewtonFisher"),
+    "ch06_fisher_vector_product": (
+        "double_backward_fvp",
+        "fisher_vector_product",
+        "gauss_newton_fvp",
+        "GaussNewtonFisher",
+    ),
     # 06a: generalised advantage estimation, and the batch function that calls it
     "ch06_gae": ("gae", "advantages_and_returns"),
     # 06b: rllab's linear feature baseline (its design matrix and ridge fit)
@@ -99,16 +104,54 @@ FORBIDDEN: dict[str, tuple[str, ...]] = {
 
 #: What reaches code through a string, the kernel or the grader's machinery: builtins called by their plain name
 #: (``policy.eval()`` and ``re.compile`` are methods, not these) ...
-_ESCAPE_NAMES = {"exec", "eval", "compile", "__import__", "globals", "vars", "locals", "exit", "quit", "breakpoint",
-                 "get_ipython", "importlib", "inspect", "builtins", "__builtins__"}
+_ESCAPE_NAMES = {
+    "exec",
+    "eval",
+    "compile",
+    "__import__",
+    "globals",
+    "vars",
+    "locals",
+    "exit",
+    "quit",
+    "breakpoint",
+    "get_ipython",
+    "importlib",
+    "inspect",
+    "builtins",
+    "__builtins__",
+}
 #: ... attributes of any object ...
-_ESCAPE_ATTRIBUTES = {"__dict__", "__globals__", "__code__", "__closure__", "__subclasses__", "__class__",
-                      "__wrapped__", "__builtins__", "_exit", "showtraceback", "_showtraceback"}
+_ESCAPE_ATTRIBUTES = {
+    "__dict__",
+    "__globals__",
+    "__code__",
+    "__closure__",
+    "__subclasses__",
+    "__class__",
+    "__wrapped__",
+    "__builtins__",
+    "_exit",
+    "showtraceback",
+    "_showtraceback",
+}
 #: ... attributes of these modules (``sys.modules``, ``sys.exit``, ``os.kill``) ...
 _ESCAPE_MODULE_ATTRIBUTES = {"sys": {"modules", "exit", "settrace", "setprofile"}, "os": {"kill", "killpg", "abort"}}
 #: ... and modules an answer may not import.
-_ESCAPE_MODULES = {"importlib", "inspect", "gc", "builtins", "ctypes", "signal", "IPython", "ipykernel", "nbgrader",
-                   "nbformat", "nbclient", "jupyter_client"}
+_ESCAPE_MODULES = {
+    "importlib",
+    "inspect",
+    "gc",
+    "builtins",
+    "ctypes",
+    "signal",
+    "IPython",
+    "ipykernel",
+    "nbgrader",
+    "nbformat",
+    "nbclient",
+    "jupyter_client",
+}
 #: ... nor the grader's own package (its checks, its sandbox).
 _GRADER = "vdtutorial.course"
 
@@ -120,8 +163,16 @@ def _grader_module(dotted: str) -> set[str]:
 #: The attribute functions, allowed only with a plain string for the name.
 _ATTRIBUTE_CALLS = {"getattr", "setattr", "delattr", "hasattr"}
 #: Special methods that make an object compare or convert as it likes.
-_COMPARISON_HOOKS = {"__eq__", "__ne__", "__bool__", "__array__", "__array_ufunc__", "__array_function__",
-                     "__torch_function__", "__torch_dispatch__"}
+_COMPARISON_HOOKS = {
+    "__eq__",
+    "__ne__",
+    "__bool__",
+    "__array__",
+    "__array_ufunc__",
+    "__array_function__",
+    "__torch_function__",
+    "__torch_dispatch__",
+}
 
 
 def _is_alias(value: ast.AST | None, created: set[str]) -> bool:
@@ -148,7 +199,7 @@ def _created_names(tree: ast.AST) -> set[str]:
     exception names, and names bound to a new value (a call's result, a literal, an expression). A name bound to
     an existing object (an import, ``t = torch.testing``, a loop over a module list) is an alias, not a creation."""
     created = set()
-    for _ in range(3):   # aliases of aliases: a few passes reach a fixed point in practice
+    for _ in range(3):  # aliases of aliases: a few passes reach a fixed point in practice
         for node in ast.walk(tree):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
                 created.add(node.name)
@@ -156,12 +207,33 @@ def _created_names(tree: ast.AST) -> set[str]:
                 created.add(node.arg)
             elif isinstance(node, ast.ExceptHandler) and node.name:
                 created.add(node.name)
-            elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign, ast.NamedExpr, ast.For, ast.AsyncFor,
-                                   ast.comprehension, ast.withitem)):
-                value = (node.iter if isinstance(node, (ast.For, ast.AsyncFor, ast.comprehension)) else
-                         node.context_expr if isinstance(node, ast.withitem) else node.value)
-                targets = (node.targets if isinstance(node, ast.Assign) else
-                           [node.optional_vars] if isinstance(node, ast.withitem) else [node.target])
+            elif isinstance(
+                node,
+                (
+                    ast.Assign,
+                    ast.AnnAssign,
+                    ast.AugAssign,
+                    ast.NamedExpr,
+                    ast.For,
+                    ast.AsyncFor,
+                    ast.comprehension,
+                    ast.withitem,
+                ),
+            ):
+                value = (
+                    node.iter
+                    if isinstance(node, (ast.For, ast.AsyncFor, ast.comprehension))
+                    else node.context_expr
+                    if isinstance(node, ast.withitem)
+                    else node.value
+                )
+                targets = (
+                    node.targets
+                    if isinstance(node, ast.Assign)
+                    else [node.optional_vars]
+                    if isinstance(node, ast.withitem)
+                    else [node.target]
+                )
                 if not _is_alias(value, created):
                     created |= {name for target in targets for name in _target_names(target)}
     return created
@@ -195,7 +267,8 @@ def _escapes(node: ast.AST) -> set[str]:
     if isinstance(node, ast.Attribute):
         module = node.value.id if isinstance(node.value, ast.Name) else None
         return ({node.attr} & (_ESCAPE_ATTRIBUTES | _ESCAPE_MODULE_ATTRIBUTES.get(module, set()))) | (
-            {module} & _ESCAPE_MODULES)
+            {module} & _ESCAPE_MODULES
+        )
     if isinstance(node, ast.alias):
         return {node.name.split(".")[0], *_grader_module(node.name)} & (_ESCAPE_MODULES | {_GRADER})
     if isinstance(node, ast.ImportFrom) and node.module:
@@ -207,10 +280,11 @@ class Violation(NamedTuple):
     """One thing an answer cell may not do: ``kind`` is ``"forbidden"`` (it uses the library's piece ``name`` that
     the exercise rebuilds: that exercise scores 0) or ``"tampering"`` (it could change what any test of the
     notebook does: every exercise of the notebook scores 0); ``text`` says what, for the teacher."""
+
     kind: str
     line: int
     text: str
-    name: str = ""   # the forbidden name, for a "forbidden" violation
+    name: str = ""  # the forbidden name, for a "forbidden" violation
 
     def __str__(self) -> str:
         return f"line {self.line}: {self.text}"
@@ -244,12 +318,20 @@ def answer_violations(source: str, forbidden: tuple[str, ...] = ()) -> list[Viol
                 if not (isinstance(name, ast.Constant) and isinstance(name.value, str)):
                     say("tampering", line, f"calls {node.func.id} with a name that is not a plain string")
                 elif node.func.id in ("setattr", "delattr") and _root(node.args[0]) not in created:
-                    say("tampering", line, f"changes {_root(node.args[0]) or 'an object'}.{name.value}, which the "
-                                           "answer did not create")
+                    say(
+                        "tampering",
+                        line,
+                        f"changes {_root(node.args[0]) or 'an object'}.{name.value}, which the answer did not create",
+                    )
             elif node.func.id == "type" and len(node.args) == 1:
                 say("tampering", line, "takes the class of an object with type(...), which can reach the library's")
-        targets = (node.targets if isinstance(node, (ast.Assign, ast.Delete)) else
-                   [node.target] if isinstance(node, (ast.AugAssign, ast.AnnAssign)) else [])
+        targets = (
+            node.targets
+            if isinstance(node, (ast.Assign, ast.Delete))
+            else [node.target]
+            if isinstance(node, (ast.AugAssign, ast.AnnAssign))
+            else []
+        )
         for target in targets:
             if isinstance(target, (ast.Attribute, ast.Subscript)) and _root(target) not in created:
                 say("tampering", line, f"changes {ast.unparse(target)}, which the answer did not create")

@@ -16,6 +16,7 @@ but opened only on purpose.
 
 Taught in chapter 00.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -42,6 +43,7 @@ class NoNbgraderError(ImportError):
 class WrittenBook:
     """What :func:`write_notebooks` wrote: counts of chapters (``NN_*.ipynb``), appendices (``A1_*.ipynb``, no
     exercises: the same in both editions), data files and, in the student edition, solution notebooks."""
+
     dest: Path
     chapters: int
     data_files: int
@@ -82,8 +84,9 @@ def _student_edition(files: dict[str, Path], source: Path, scratch: Path) -> dic
     """``files`` with each chapter replaced by its student edition (released by nbgrader into ``scratch``) and
     the teacher's chapter moved to ``solutions/``."""
     if importlib.util.find_spec("nbgrader") is None:
-        raise NoNbgraderError("the student edition is made by nbgrader, which is not installed: "
-                              "pip install 'vdtutorial[classroom]'")
+        raise NoNbgraderError(
+            "the student edition is made by nbgrader, which is not installed: pip install 'vdtutorial[classroom]'"
+        )
     from vdtutorial.course.classroom import release
 
     files = dict(files)
@@ -93,8 +96,9 @@ def _student_edition(files: dict[str, Path], source: Path, scratch: Path) -> dic
     return files
 
 
-def write_notebooks(dest: str | Path, force: bool = False, source: Path | None = None,
-                    student: bool = False) -> WrittenBook:
+def write_notebooks(
+    dest: str | Path, force: bool = False, source: Path | None = None, student: bool = False
+) -> WrittenBook:
     """Copy the chapters and their data from ``source`` into ``dest``; with ``student``, the student edition
     and its solutions apart (module docstring, "writes the self-learner's edition").
 
@@ -110,18 +114,26 @@ def write_notebooks(dest: str | Path, force: bool = False, source: Path | None =
         if student:
             files = _student_edition(files, source, Path(scratch))
         digests = {name: _digest(path) for name, path in files.items()}
-        edited = [name for name in digests if (dest / name).is_file()
-                  and _digest(dest / name) not in (written.get(name), digests[name])]
+        edited = [
+            name
+            for name in digests
+            if (dest / name).is_file() and _digest(dest / name) not in (written.get(name), digests[name])
+        ]
         if edited and not force:
-            raise EditedFilesError(f"{dest} holds {len(edited)} file(s) changed since they were written, e.g. "
-                                   f"{edited[0]}: pass --force to overwrite them, or name another folder")
+            raise EditedFilesError(
+                f"{dest} holds {len(edited)} file(s) changed since they were written, e.g. "
+                f"{edited[0]}: pass --force to overwrite them, or name another folder"
+            )
         for name, path in files.items():
             (dest / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(path, dest / name)
     record = {"vdtutorial": vdtutorial.__version__, "files": digests}
     record_path.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
     notebooks = [name.split("/", 1)[1] for name in digests if name.startswith("notebooks/") and name.endswith(".ipynb")]
-    return WrittenBook(dest, sum(name[:2].isdigit() for name in notebooks),
-                       sum(name.startswith("data/") for name in digests),
-                       sum(name.startswith("solutions/") for name in digests),
-                       sum(name[0] == "A" and name[1].isdigit() for name in notebooks))
+    return WrittenBook(
+        dest,
+        sum(name[:2].isdigit() for name in notebooks),
+        sum(name.startswith("data/") for name in digests),
+        sum(name.startswith("solutions/") for name in digests),
+        sum(name[0] == "A" and name[1].isdigit() for name in notebooks),
+    )

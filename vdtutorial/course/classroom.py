@@ -25,6 +25,7 @@ Command line: ``python -m vdtutorial classroom release OUT`` and ``... classroom
 
 Not taught in a chapter: the teacher's tool (notebooks/TEACHING.md).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -53,8 +54,10 @@ CELL_TIMEOUT = 300
 MAX_NOTEBOOK_BYTES = 64 << 20
 #: The wall-clock budget (minutes) of one submission's grading with ``--full`` (chapters with live training runs).
 FULL_WALL_MINUTES = 360.0
-SAFETY_NOTE = ("the submissions run with your rights to files, network and processes. Grade in a container or "
-               "a throwaway account, as nbgrader's documentation advises.")
+SAFETY_NOTE = (
+    "the submissions run with your rights to files, network and processes. Grade in a container or "
+    "a throwaway account, as nbgrader's documentation advises."
+)
 
 
 @dataclass(frozen=True)
@@ -66,7 +69,7 @@ class Limits:
     memory_gb: float = 4.0
     cpu_minutes: float = 60.0
     sandbox: bool = True
-    wall_minutes: float = 30.0   # one submission's grading, all of it, measured from outside
+    wall_minutes: float = 30.0  # one submission's grading, all of it, measured from outside
 
 
 class ClassroomError(Exception):
@@ -90,7 +93,7 @@ def chapters(source: Path | None = None) -> dict[str, Path]:
     source = Path(source) if source is not None else notebooks_dir()
     if not source.is_dir():
         raise ClassroomError(f"no notebooks folder at {source}: pass --source with the teacher's notebooks")
-    found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]*_*.ipynb"))}   # a chapter in parts: 06a_..., 06b_...
+    found = {p.stem: p for p in sorted(source.glob("[0-9][0-9]*_*.ipynb"))}  # a chapter in parts: 06a_..., 06b_...
     if not found:
         raise ClassroomError(f"{source} holds no chapter notebooks (NN_name.ipynb or NNa_name.ipynb)")
     return found
@@ -127,8 +130,7 @@ def _api(course: Path, timeout: int, sockets: Path | None = None):
     return NbGraderAPI(config=config)
 
 
-def _generate(course: Path, source: Path, names: list[str], timeout: int = CELL_TIMEOUT,
-              sockets: Path | None = None):
+def _generate(course: Path, source: Path, names: list[str], timeout: int = CELL_TIMEOUT, sockets: Path | None = None):
     """Copy the teacher's chapters ``names`` into ``course/source`` and run nbgrader's generate_assignment."""
     found = chapters(source)
     src = course / "source" / ASSIGNMENT
@@ -153,8 +155,9 @@ def release(out, source: Path | None = None, force: bool = False) -> list[Path]:
     names = list(chapters(source))
     clash = [n for n in names if (out / f"{n}.ipynb").exists()]
     if clash and not force:
-        raise ClassroomError(f"{out} already holds {clash[0]}.ipynb (and {len(clash) - 1} more): "
-                             "choose an empty folder or pass --force")
+        raise ClassroomError(
+            f"{out} already holds {clash[0]}.ipynb (and {len(clash) - 1} more): choose an empty folder or pass --force"
+        )
     with tempfile.TemporaryDirectory(prefix="vdtutorial_release_") as tmp:
         _generate(Path(tmp), source, names)
         out.mkdir(parents=True, exist_ok=True)
@@ -204,8 +207,10 @@ def collect(paths, source: Path | None = None) -> list[Submission]:
         expected, got = grade_ids(found[path.stem]), grade_ids(path)
         if set(got) != set(expected):
             missing = sorted(set(expected) - set(got)) or sorted(set(got) - set(expected))
-            raise ClassroomError(f"{path} is not from this edition of {path.stem} (exercise cells differ: "
-                                 f"{', '.join(missing[:3])}): submit the notebook released by `classroom release`")
+            raise ClassroomError(
+                f"{path} is not from this edition of {path.stem} (exercise cells differ: "
+                f"{', '.join(missing[:3])}): submit the notebook released by `classroom release`"
+            )
         if (student, path.stem) in seen:
             raise ClassroomError(f"two submissions of {path.stem} for student {student!r}")
         seen.add((student, path.stem))
@@ -229,11 +234,19 @@ def _bounded_kernels(scratch: Path, limits: Limits, writable: list[Path] = ()) -
     for folder in (homes, runtime, spec, scratch / "empty"):
         folder.mkdir(parents=True)
     kernel = [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"]
-    argv = sandbox.command(kernel, max(1, int(limits.memory_gb * 2**30)), max(1, int(limits.cpu_minutes * 60)),
-                           home_under=homes, read_only=[*sandbox.python_paths(), *_library_mounts(scratch / "empty")],
-                           writable=[runtime, *writable], given=["{connection_file}"], sandboxed=limits.sandbox)
-    (spec / "kernel.json").write_text(json.dumps({"argv": argv, "display_name": "Python 3 (bounded grading)",
-                                                  "language": "python"}))
+    argv = sandbox.command(
+        kernel,
+        max(1, int(limits.memory_gb * 2**30)),
+        max(1, int(limits.cpu_minutes * 60)),
+        home_under=homes,
+        read_only=[*sandbox.python_paths(), *_library_mounts(scratch / "empty")],
+        writable=[runtime, *writable],
+        given=["{connection_file}"],
+        sandboxed=limits.sandbox,
+    )
+    (spec / "kernel.json").write_text(
+        json.dumps({"argv": argv, "display_name": "Python 3 (bounded grading)", "language": "python"})
+    )
     search = [str(scratch)] + [p for p in os.environ.get("JUPYTER_PATH", "").split(os.pathsep) if p]
     return {"JUPYTER_PATH": os.pathsep.join(search), "JUPYTER_RUNTIME_DIR": str(runtime)}
 
@@ -250,8 +263,10 @@ def _library_mounts(empty: Path) -> list[tuple[Path, Path]]:
     package = Path(vdtutorial.__file__).resolve().parent
     mounts = [(package, package)]
     if shipped_dir() == package.parent:
-        mounts += [(package.parent / "data", package.parent / "data"),
-                   (package.parent / "pyproject.toml", package.parent / "pyproject.toml")]
+        mounts += [
+            (package.parent / "data", package.parent / "data"),
+            (package.parent / "pyproject.toml", package.parent / "pyproject.toml"),
+        ]
     if (INSTALLED_COPY / "notebooks").is_dir():
         mounts.append((empty, INSTALLED_COPY / "notebooks"))
     return mounts
@@ -298,14 +313,24 @@ class Score:
     exercise: str
     score: float
     max_score: float
-    refused: str = ""   # why the grader gave 0 whatever the tests said (vdtutorial.course.answer_rules), or ""
-    failed: tuple[str, ...] = ()   # the trusted check's failures, in words (vdtutorial.course.checks)
-    sandboxed: bool = True   # False: graded with --no-sandbox
+    refused: str = ""  # why the grader gave 0 whatever the tests said (vdtutorial.course.answer_rules), or ""
+    failed: tuple[str, ...] = ()  # the trusted check's failures, in words (vdtutorial.course.checks)
+    sandboxed: bool = True  # False: graded with --no-sandbox
 
 
-def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_TIMEOUT, quick: bool = True,
-          limits: Limits = Limits(), workers: int = 1, backend: str = "local", address: str | None = None,
-          log=None, static_check: bool = True) -> list[Score]:
+def grade(
+    paths,
+    out="grades",
+    source: Path | None = None,
+    timeout: int = CELL_TIMEOUT,
+    quick: bool = True,
+    limits: Limits = Limits(),
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+    log=None,
+    static_check: bool = True,
+) -> list[Score]:
     """Autograde submissions with nbgrader; returns one :class:`Score` per exercise and student.
 
     ``out`` becomes an nbgrader course directory (``source/``, ``submitted/``, ``autograded/``, the SQLite
@@ -327,7 +352,7 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
 
     _refuse_without_sandbox(limits)
     source = Path(source) if source is not None else notebooks_dir()
-    out = Path(out).resolve()   # nbgrader's database URL and working directories need an absolute path
+    out = Path(out).resolve()  # nbgrader's database URL and working directories need an absolute path
     subs = collect(paths, source)
     teachers = chapters(source)
     refused = [refusals(sub.path, teachers[sub.chapter]) if static_check else (None, {}) for sub in subs]
@@ -338,12 +363,25 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
         api = _generate(out, source, sorted({s.chapter for s in subs}), timeout, sockets=Path(scratch))
         gradebook = (out / "gradebook.db").read_bytes()
         run = [k for k, (whole, _) in enumerate(refused) if whole is None]
-        jobs = [GradingJob(subs[k].student, subs[k].chapter, subs[k].path.read_bytes(),
-                           (out / "source" / ASSIGNMENT / f"{subs[k].chapter}.ipynb").read_bytes(), gradebook, timeout,
-                           quick, limits, secrets.randbits(63)) for k in run]
+        jobs = [
+            GradingJob(
+                subs[k].student,
+                subs[k].chapter,
+                subs[k].path.read_bytes(),
+                (out / "source" / ASSIGNMENT / f"{subs[k].chapter}.ipynb").read_bytes(),
+                gradebook,
+                timeout,
+                quick,
+                limits,
+                secrets.randbits(63),
+            )
+            for k in run
+        ]
         listener = _GradingLog(jobs, log) if log else None
         if backend == "local":
-            done = run_each(jobs, workers, limits.wall_minutes * 60, did_not_finish, listener.finished if listener else None)
+            done = run_each(
+                jobs, workers, limits.wall_minutes * 60, did_not_finish, listener.finished if listener else None
+            )
         else:
             done = run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address, listener=listener)
         graded = dict(zip(run, done))
@@ -357,8 +395,10 @@ def grade(paths, out="grades", source: Path | None = None, timeout: int = CELL_T
             if result.error is not None:
                 print(f"warning: nbgrader could not grade {sub.student}: {result.error}", file=sys.stderr)
             if result.unfinished is not None:
-                print(f"warning: the grading of {sub.student} {sub.chapter} did not finish: {result.unfinished}",
-                      file=sys.stderr)
+                print(
+                    f"warning: the grading of {sub.student} {sub.chapter} did not finish: {result.unfinished}",
+                    file=sys.stderr,
+                )
         scores = _record(api, subs, results, refused, out, sandboxed=limits.sandbox)
     write_reports(scores, out, ASSIGNMENT)
     return scores
@@ -369,8 +409,10 @@ def _refuse_without_sandbox(limits: Limits) -> None:
     from vdtutorial.course import sandbox
 
     if limits.sandbox and (why := sandbox.available()) is not None:
-        raise ClassroomError(f"no sandbox for the students' code ({why}): {sandbox.SAFE_ROUTES}; or pass "
-                             "--no-sandbox to run their code with your rights (the table then says so)")
+        raise ClassroomError(
+            f"no sandbox for the students' code ({why}): {sandbox.SAFE_ROUTES}; or pass "
+            "--no-sandbox to run their code with your rights (the table then says so)"
+        )
 
 
 def refusals(path: Path, teacher: Path) -> tuple[str | None, dict[str, str]]:
@@ -384,8 +426,9 @@ def refusals(path: Path, teacher: Path) -> tuple[str | None, dict[str, str]]:
 
     from vdtutorial.course.answer_rules import FORBIDDEN, answer_violations
 
-    chapter = {cell.get("id"): cell.source for cell in nbformat.read(teacher, as_version=4).cells
-               if cell.cell_type == "code"}
+    chapter = {
+        cell.get("id"): cell.source for cell in nbformat.read(teacher, as_version=4).cells if cell.cell_type == "code"
+    }
     every_name = tuple(sorted({name for names in FORBIDDEN.values() for name in names}))
     whole, each = [], {}
     for k, cell in enumerate(nbformat.read(path, as_version=4).cells):
@@ -395,7 +438,7 @@ def refusals(path: Path, teacher: Path) -> tuple[str | None, dict[str, str]]:
         found = answer_violations(cell.source, FORBIDDEN.get(grading.get("grade_id"), every_name))
         if grading.get("solution"):
             where = grading["grade_id"]
-        else:   # a chapter cell: only what the student's version adds to the teacher's counts
+        else:  # a chapter cell: only what the student's version adds to the teacher's counts
             where = f"cell {k + 1} (not an answer cell)"
             own = {(v.kind, v.text) for v in answer_violations(chapter.get(cell.get("id"), ""), every_name)}
             found = [v for v in found if (v.kind, v.text) not in own]
@@ -435,7 +478,7 @@ class Graded:
     failures: dict
     autograded: bytes | None
     error: str | None
-    unfinished: str | None = None   # why its grading process ended without a result (grading_process)
+    unfinished: str | None = None  # why its grading process ended without a result (grading_process)
 
 
 def did_not_finish(why: str) -> Graded:
@@ -463,24 +506,31 @@ def grade_one(job: GradingJob) -> Graded:
         for k, exercise in enumerate(_exercises(course / "source" / ASSIGNMENT / f"{job.chapter}.ipynb")):
             inputs[exercise] = checks.plain(checks.check(exercise).inputs(np.random.default_rng([job.seed, k])))
             checks.save(checks.inputs_path(exchange, exercise), inputs[exercise])
-        kernel_env = {QUICK_ENV: "1" if job.quick else "0", "MPLBACKEND": "Agg", "PATH": _path_with_our_scripts(),
-                      "VDTUTORIAL_RUNS": "runs", checks.EXCHANGE_ENV: str(exchange),
-                      **_bounded_kernels(scratch, job.limits, writable=[exchange])}
+        kernel_env = {
+            QUICK_ENV: "1" if job.quick else "0",
+            "MPLBACKEND": "Agg",
+            "PATH": _path_with_our_scripts(),
+            "VDTUTORIAL_RUNS": "runs",
+            checks.EXCHANGE_ENV: str(exchange),
+            **_bounded_kernels(scratch, job.limits, writable=[exchange]),
+        }
         api = _api(course, job.timeout, sockets=scratch / "runtime")
         with _environment(**kernel_env):
             result = api.autograde(ASSIGNMENT, job.student)
         error = None if result["success"] else (result.get("error") or "").strip()[-300:]
-        failures = {exercise: tuple(checks.judge(checks.check(exercise), given, _outputs(exchange, exercise)))
-                    for exercise, given in inputs.items()}
+        failures = {
+            exercise: tuple(checks.judge(checks.check(exercise), given, _outputs(exchange, exercise)))
+            for exercise, given in inputs.items()
+        }
         autograded = course / "autograded" / job.student / ASSIGNMENT / f"{job.chapter}.ipynb"
-        if autograded.is_file() and autograded.stat().st_size > MAX_NOTEBOOK_BYTES:   # outputs the kernel flooded
+        if autograded.is_file() and autograded.stat().st_size > MAX_NOTEBOOK_BYTES:  # outputs the kernel flooded
             return Graded(failures, None, f"the graded notebook is larger than {MAX_NOTEBOOK_BYTES >> 20} MB")
         return Graded(failures, autograded.read_bytes() if autograded.is_file() else None, error)
 
 
 def _exercises(chapter: Path) -> list[str]:
     """The exercises of a chapter notebook: the ``grade_id`` of each answer cell, in order."""
-    return [g[:-len("_tests")] for g in grade_ids(chapter) if g.endswith("_tests")]
+    return [g[: -len("_tests")] for g in grade_ids(chapter) if g.endswith("_tests")]
 
 
 def _outputs(exchange: Path, exercise: str) -> dict | None:
@@ -514,8 +564,11 @@ def _check_npz_sizes(path: Path, limit: int) -> None:
         for member in members:
             with archive.open(member) as fh:
                 version = np.lib.format.read_magic(fh)
-                shape, _, dtype = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0) else
-                                   np.lib.format.read_array_header_2_0(fh))
+                shape, _, dtype = (
+                    np.lib.format.read_array_header_1_0(fh)
+                    if version == (1, 0)
+                    else np.lib.format.read_array_header_2_0(fh)
+                )
             if dtype.hasobject or int(np.prod(shape, dtype=object)) * dtype.itemsize > member.file_size:
                 raise ValueError(f"{member.filename} declares more data than it holds, or objects")
 
@@ -536,12 +589,15 @@ class _GradingLog:
         self.done += 1
         job = self.jobs[index]
         passed = sum(not failed for failed in result.failures.values())
-        self.log(f"[{self.done}/{len(self.jobs)}] {job.student} {job.chapter}: {passed} of {len(result.failures)} "
-                 "exercises pass their checks" + ("" if result.error is None else " (the notebook stopped early)"))
+        self.log(
+            f"[{self.done}/{len(self.jobs)}] {job.student} {job.chapter}: {passed} of {len(result.failures)} "
+            "exercises pass their checks" + ("" if result.error is None else " (the notebook stopped early)")
+        )
 
 
-def _record(api, subs: list[Submission], results: list[Graded], refused: list[tuple], out: Path,
-            sandboxed: bool = True) -> list[Score]:
+def _record(
+    api, subs: list[Submission], results: list[Graded], refused: list[tuple], out: Path, sandboxed: bool = True
+) -> list[Score]:
     """Write every submission's points into the gradebook and into ``out/grades.csv``; returns them. An exercise
     scores its points when its trusted check passed and :func:`refusals` did not refuse it, else 0; the reason (the
     refusal, or the checks that failed) becomes the answer cell's comment, which nbgrader's formgrader shows."""
@@ -552,8 +608,11 @@ def _record(api, subs: list[Submission], results: list[Graded], refused: list[tu
             gb.update_or_create_submission(ASSIGNMENT, sub.student)
             for name in sorted(_test_cells(gb, sub.chapter)):
                 exercise, top = name.removesuffix("_tests"), _max_points(gb, sub.chapter, name)
-                why = whole or each.get(name, "") or (f"grading did not finish: {result.unfinished}"
-                                                      if result.unfinished else "")
+                why = (
+                    whole
+                    or each.get(name, "")
+                    or (f"grading did not finish: {result.unfinished}" if result.unfinished else "")
+                )
                 failed = result.failures.get(exercise, ("the notebook was not run",))
                 score = 0.0 if why or failed else top
                 cell = gb.find_grade(name, sub.chapter, ASSIGNMENT, sub.student)
@@ -561,8 +620,9 @@ def _record(api, subs: list[Submission], results: list[Graded], refused: list[tu
                 if why or failed:
                     with contextlib.suppress(Exception):  # an exercise whose answer cell has another name: no comment
                         comment = gb.find_comment(exercise, sub.chapter, ASSIGNMENT, sub.student)
-                        comment.manual_comment = (f"refused by the grader: {why}" if why else
-                                                  "hidden checks failed: " + "; ".join(failed))
+                        comment.manual_comment = (
+                            f"refused by the grader: {why}" if why else "hidden checks failed: " + "; ".join(failed)
+                        )
                 scores.append(Score(sub.student, sub.chapter, name, score, top, why, tuple(failed), sandboxed))
             gb.db.commit()
     write_csv(scores, out / "grades.csv")
@@ -584,8 +644,9 @@ def write_csv(scores: list[Score], path: Path) -> Path:
         writer = csv.writer(fh)
         writer.writerow(["student", "chapter", "exercise", "score", "max_score", "refused", "sandbox"])
         for s in scores:
-            writer.writerow([s.student, s.chapter, s.exercise, s.score, s.max_score, s.refused,
-                             "yes" if s.sandboxed else "NO"])
+            writer.writerow(
+                [s.student, s.chapter, s.exercise, s.score, s.max_score, s.refused, "yes" if s.sandboxed else "NO"]
+            )
     return path
 
 
@@ -603,8 +664,11 @@ def table(scores: list[Score]) -> str:
     possible = [sum(s.max_score for s in scores if s.student == st) for st in students]
     lines.append(f"{'total':<{width}} {'':>5} " + " ".join(f"{f'{t:g}/{p:g}':>12}" for t, p in zip(totals, possible)))
     if any(not s.sandboxed for s in scores):
-        lines.insert(0, "graded WITHOUT a sandbox (--no-sandbox): the submissions' code ran with the grader's rights "
-                        "to files, network and processes, and could have changed these points\n")
+        lines.insert(
+            0,
+            "graded WITHOUT a sandbox (--no-sandbox): the submissions' code ran with the grader's rights "
+            "to files, network and processes, and could have changed these points\n",
+        )
     reasons = sorted({(s.student, s.chapter, s.refused) for s in scores if s.refused})
     if reasons:
         lines.append("\n0! refused: the grader gave 0 whatever the tests said, because")
@@ -625,44 +689,74 @@ def _positive(name: str, value: float) -> None:
 
 #: The largest value each option takes: past them a limit no longer fits the system's (64-bit) counters, or
 #: means no limit at all.
-_LARGEST = {"--memory": 2.0**33, "--cpu-minutes": 2.0**40, "--timeout": 2.0**31, "--workers": 4096,
-            "--wall-minutes": 2.0**31}
+_LARGEST = {
+    "--memory": 2.0**33,
+    "--cpu-minutes": 2.0**40,
+    "--timeout": 2.0**31,
+    "--workers": 4096,
+    "--wall-minutes": 2.0**31,
+}
 
 
 def _cmd_grade(args) -> None:
     wall = args.wall_minutes
     if wall is None:
         wall = FULL_WALL_MINUTES if args.full else Limits.wall_minutes
-    for name, value in (("--memory", args.memory), ("--cpu-minutes", args.cpu_minutes), ("--timeout", args.timeout),
-                        ("--workers", args.workers), ("--wall-minutes", wall)):
+    for name, value in (
+        ("--memory", args.memory),
+        ("--cpu-minutes", args.cpu_minutes),
+        ("--timeout", args.timeout),
+        ("--workers", args.workers),
+        ("--wall-minutes", wall),
+    ):
         _positive(name, value)
     if args.workers != int(args.workers):
         raise ClassroomError(f"--workers must be a whole number, got {args.workers:g}")
     limits = Limits(args.memory, args.cpu_minutes, sandbox=not args.no_sandbox, wall_minutes=wall)
     _refuse_without_sandbox(limits)
-    print(f"each submission's kernel: at most {limits.memory_gb:g} GB of memory and {limits.cpu_minutes:g} CPU "
-          "minutes, " + ("in a sandbox (bubblewrap): no network, no file of this machine but the Python "
-                         "environment, read-only" if limits.sandbox else f"NO SANDBOX: {SAFETY_NOTE}"),
-          file=sys.stderr)
+    print(
+        f"each submission's kernel: at most {limits.memory_gb:g} GB of memory and {limits.cpu_minutes:g} CPU "
+        "minutes, "
+        + (
+            "in a sandbox (bubblewrap): no network, no file of this machine but the Python environment, read-only"
+            if limits.sandbox
+            else f"NO SANDBOX: {SAFETY_NOTE}"
+        ),
+        file=sys.stderr,
+    )
     if args.address is not None and args.backend == "local":
         raise ClassroomError("--address names a Ray cluster: use it with --backend ray")
     backend = args.backend or ("ray" if args.address is not None else "local")
-    scores = grade(args.submissions, args.out, Path(args.source), math.ceil(args.timeout), quick=not args.full,
-                   limits=limits, workers=int(args.workers), backend=backend, address=args.address,
-                   log=lambda line: print(line, file=sys.stderr), static_check=not args.no_static_check)
+    scores = grade(
+        args.submissions,
+        args.out,
+        Path(args.source),
+        math.ceil(args.timeout),
+        quick=not args.full,
+        limits=limits,
+        workers=int(args.workers),
+        backend=backend,
+        address=args.address,
+        log=lambda line: print(line, file=sys.stderr),
+        static_check=not args.no_static_check,
+    )
     print(table(scores))
-    print(f"\ngradebook {Path(args.out) / 'gradebook.db'}, table {Path(args.out) / 'grades.csv'}, "
-          f"each student's report {Path(args.out) / 'feedback'}/STUDENT/CHAPTER.md (no hidden check in it)")
+    print(
+        f"\ngradebook {Path(args.out) / 'gradebook.db'}, table {Path(args.out) / 'grades.csv'}, "
+        f"each student's report {Path(args.out) / 'feedback'}/STUDENT/CHAPTER.md (no hidden check in it)"
+    )
 
 
 def _run(func):
     """Run a classroom command; a :class:`ClassroomError` becomes one line on stderr and exit code 2."""
+
     def wrapped(args):
         try:
             func(args)
         except ClassroomError as exc:
             print(f"error: {exc}", file=sys.stderr)
             raise SystemExit(2) from None
+
     return wrapped
 
 
@@ -675,37 +769,74 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     r.add_argument("--force", action="store_true", help="overwrite notebooks already in OUT")
     r.add_argument("--source", default=str(notebooks_dir()), help="the teacher's notebooks (default: %(default)s)")
     r.set_defaults(func=_run(_cmd_release))
-    g = sub.add_parser("grade", help="autograde submitted notebooks (nbgrader autograde + gradebook), print a table",
-                       description="Each SUBMISSION is STUDENT/NN_chapter.ipynb or a folder STUDENT/ of them. "
-                                   "Each kernel is bounded: a memory and a CPU-time cap, a throwaway "
-                                   "folder and, on Linux where user namespaces are allowed, no network and "
-                                   "read-only files outside that folder.")
+    g = sub.add_parser(
+        "grade",
+        help="autograde submitted notebooks (nbgrader autograde + gradebook), print a table",
+        description="Each SUBMISSION is STUDENT/NN_chapter.ipynb or a folder STUDENT/ of them. "
+        "Each kernel is bounded: a memory and a CPU-time cap, a throwaway "
+        "folder and, on Linux where user namespaces are allowed, no network and "
+        "read-only files outside that folder.",
+    )
     g.add_argument("submissions", nargs="+", help="STUDENT/NN_chapter.ipynb files or STUDENT/ folders")
-    g.add_argument("--out", default="grades", help="nbgrader course folder with gradebook.db and grades.csv "
-                                                   "(default: %(default)s)")
+    g.add_argument(
+        "--out", default="grades", help="nbgrader course folder with gradebook.db and grades.csv (default: %(default)s)"
+    )
     g.add_argument("--timeout", type=float, default=CELL_TIMEOUT, help="seconds per cell (default: %(default)s)")
     g.add_argument("--full", action="store_true", help="run the submissions with full budgets (default: quick mode)")
-    g.add_argument("--memory", type=float, default=Limits.memory_gb, metavar="GB",
-                   help="memory cap (GB) of each submission's kernel (default: %(default)s)")
-    g.add_argument("--cpu-minutes", type=float, default=Limits.cpu_minutes, metavar="MIN",
-                   help="CPU-time cap of each submission's kernel; past it the kernel is killed (default: %(default)s)")
-    g.add_argument("--wall-minutes", type=float, default=None, metavar="MIN",
-                   help="wall-clock budget of each submission's whole grading, past which it scores 0 "
-                        f"(default: {Limits.wall_minutes:g}, or {FULL_WALL_MINUTES:g} with --full)")
+    g.add_argument(
+        "--memory",
+        type=float,
+        default=Limits.memory_gb,
+        metavar="GB",
+        help="memory cap (GB) of each submission's kernel (default: %(default)s)",
+    )
+    g.add_argument(
+        "--cpu-minutes",
+        type=float,
+        default=Limits.cpu_minutes,
+        metavar="MIN",
+        help="CPU-time cap of each submission's kernel; past it the kernel is killed (default: %(default)s)",
+    )
+    g.add_argument(
+        "--wall-minutes",
+        type=float,
+        default=None,
+        metavar="MIN",
+        help="wall-clock budget of each submission's whole grading, past which it scores 0 "
+        f"(default: {Limits.wall_minutes:g}, or {FULL_WALL_MINUTES:g} with --full)",
+    )
     g.add_argument("--source", default=str(notebooks_dir()), help="the teacher's notebooks (default: %(default)s)")
-    g.add_argument("--workers", type=float, default=available_cores(), metavar="N",
-                   help="submissions graded at once, each on its own kernel (default: the cores available, %(default)s)")
-    g.add_argument("--backend", choices=("local", "ray"), default=None,
-                   help="where the submissions are graded: local processes (default), or Ray, one task per "
-                        "submission (pip install -e '.[cluster]'); without --address Ray starts locally with --workers CPUs")
-    g.add_argument("--address", default=None,
-                   help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); its nodes need "
-                        "the same install (a submission travels with its job: no shared folder)")
-    g.add_argument("--no-sandbox", action="store_true",
-                   help="where no sandbox can be made (no bubblewrap, no user namespaces): run the submissions' "
-                        "code with your rights to files, network and processes; the table says so")
-    g.add_argument("--no-static-check", action="store_true",
-                   help="do not refuse answers for what their code reads like (answer_rules); the points still "
-                        "come from the trusted checks alone")
+    g.add_argument(
+        "--workers",
+        type=float,
+        default=available_cores(),
+        metavar="N",
+        help="submissions graded at once, each on its own kernel (default: the cores available, %(default)s)",
+    )
+    g.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default=None,
+        help="where the submissions are graded: local processes (default), or Ray, one task per "
+        "submission (pip install -e '.[cluster]'); without --address Ray starts locally with --workers CPUs",
+    )
+    g.add_argument(
+        "--address",
+        default=None,
+        help="join this Ray cluster (e.g. auto, or HEAD_IP:6379; implies --backend ray); its nodes need "
+        "the same install (a submission travels with its job: no shared folder)",
+    )
+    g.add_argument(
+        "--no-sandbox",
+        action="store_true",
+        help="where no sandbox can be made (no bubblewrap, no user namespaces): run the submissions' "
+        "code with your rights to files, network and processes; the table says so",
+    )
+    g.add_argument(
+        "--no-static-check",
+        action="store_true",
+        help="do not refuse answers for what their code reads like (answer_rules); the points still "
+        "come from the trusted checks alone",
+    )
     g.set_defaults(func=_run(_cmd_grade))
     return p

@@ -16,6 +16,7 @@ folder that keeps the built pybullet wheel; on Colab ``vdtutorial-wheels`` in Go
 
 Not taught in a chapter: how the chapters reach Colab (README: "Google Colab").
 """
+
 from __future__ import annotations
 
 import re
@@ -29,7 +30,7 @@ CELL_ID = "colab-setup"
 #: The line of :data:`CELL` that holds what pip installs, filled by :func:`cell_source`.
 SOURCE_LINE = 'SOURCE = ""  # what pip installs: the project\'s "git+https://..." address, or a wheel you uploaded'
 
-CELL = f'''\
+CELL = f"""\
 #@title On Google Colab: install vdtutorial and its data (2 min; building pybullet: 5 min, once). Elsewhere: nothing
 {SOURCE_LINE}
 import glob, os, subprocess, sys, time
@@ -58,7 +59,7 @@ if "google.colab" in sys.modules and not os.path.isfile(f"{{BOOK}}/vdtutorial-bo
     print(f"ready in {{time.time() - start:.0f}} s")
 if "google.colab" in sys.modules:
     os.chdir(BOOK)  # the chapters read data/ and write runs/ there
-'''
+"""
 
 
 def public_address(root: Path) -> str | None:
@@ -78,8 +79,10 @@ def cell_source(address: str | None) -> str:
 def colab_link(address: str, notebook: str) -> str:
     """The "Open in Colab" badge of a chapter of the GitHub repository at ``address`` (its default branch)."""
     path = re.sub(r"^https://github\.com/", "", address.rstrip("/"))
-    return (f"[![Open in Colab](https://colab.research.google.com/assets/colab-badge.svg)]"
-            f"(https://colab.research.google.com/github/{path}/blob/main/notebooks/{notebook})")
+    return (
+        f"[![Open in Colab](https://colab.research.google.com/assets/colab-badge.svg)]"
+        f"(https://colab.research.google.com/github/{path}/blob/main/notebooks/{notebook})"
+    )
 
 
 def with_colab_cell(notebook, name: str, address: str | None):

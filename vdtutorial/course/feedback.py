@@ -15,6 +15,7 @@ from their verdicts alone.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
 """
+
 from __future__ import annotations
 
 import re
@@ -40,8 +41,18 @@ def as_text(note: str) -> str:
 #: How numpy.testing's comparisons begin their message, before the test's ``err_msg`` (``Not equal to tolerance
 #: rtol=...``, ``Arrays are not equal``, ...), and how the lines that follow the ``err_msg`` (the numbers) begin.
 _NUMPY_HEADER = ("Not equal to tolerance", "Arrays are not")
-_NUMPY_DETAILS = ("Mismatched elements", "Mismatch at index", "Max absolute difference", "Max relative difference",
-                  "x:", "y:", "ACTUAL:", "DESIRED:", "(shapes", "(mismatch")
+_NUMPY_DETAILS = (
+    "Mismatched elements",
+    "Mismatch at index",
+    "Max absolute difference",
+    "Max relative difference",
+    "x:",
+    "y:",
+    "ACTUAL:",
+    "DESIRED:",
+    "(shapes",
+    "(mismatch",
+)
 
 
 def error_message(evalue: str) -> str:
@@ -78,7 +89,8 @@ def notebook_errors(autograded: Path | None) -> dict[str, list[str]]:
                 message = error_message(str(output.get("evalue", "")))[:MESSAGE_CHARS]
                 where = "the visible tests" if grade_id.endswith("_tests") else "your answer cell"
                 found.setdefault(grade_id.removesuffix("_tests"), []).append(
-                    f"{where} raised {output.get('ename', 'an error')}" + (f": {message}" if message else ""))
+                    f"{where} raised {output.get('ename', 'an error')}" + (f": {message}" if message else "")
+                )
     return found
 
 
@@ -86,17 +98,26 @@ def report(student: str, chapter: str, scores: list, errors: dict[str, list[str]
     """The Markdown page of one student's chapter; ``scores`` are its :class:`~vdtutorial.course.classroom.Score`
     rows."""
     total, possible = sum(s.score for s in scores), sum(s.max_score for s in scores)
-    lines = [f"# {chapter}: feedback for {student}", "", f"Points: {total:g} of {possible:g}.", "",
-             "| exercise | points |", "|---|---|"]
+    lines = [
+        f"# {chapter}: feedback for {student}",
+        "",
+        f"Points: {total:g} of {possible:g}.",
+        "",
+        "| exercise | points |",
+        "|---|---|",
+    ]
     lines += [f"| {s.exercise.removesuffix('_tests')} | {s.score:g} of {s.max_score:g} |" for s in scores]
     for s in scores:
         exercise = s.exercise.removesuffix("_tests")
         notes = list(errors.get(exercise, []))
         if s.refused:
             notes.append(f"the grader refused this answer: {s.refused}")
-        elif s.score < s.max_score:   # an error shown above already says why the hidden check got no answer
-            notes += [f"hidden check failed: {failure}" for failure in s.failed
-                      if not (failure == NO_ANSWER and errors.get(exercise))]
+        elif s.score < s.max_score:  # an error shown above already says why the hidden check got no answer
+            notes += [
+                f"hidden check failed: {failure}"
+                for failure in s.failed
+                if not (failure == NO_ANSWER and errors.get(exercise))
+            ]
         if notes:
             lines += ["", f"## {exercise}", ""] + [f"- {as_text(note)}" for note in notes]
     return "\n".join(lines) + "\n"

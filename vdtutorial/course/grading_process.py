@@ -13,6 +13,7 @@ The job and its result travel as files in a folder that only the grading process
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
 """
+
 from __future__ import annotations
 
 import os
@@ -45,8 +46,14 @@ def _kill(process: subprocess.Popen) -> None:
     process.wait()
 
 
-def run_each(jobs: list, workers: int, budget_seconds: float, did_not_finish, finished=None,
-             worker: str = "vdtutorial.course.grading_worker") -> list:
+def run_each(
+    jobs: list,
+    workers: int,
+    budget_seconds: float,
+    did_not_finish,
+    finished=None,
+    worker: str = "vdtutorial.course.grading_worker",
+) -> list:
     """The module ``worker`` run (``python -m``) on every job, each in its own process and session, ``workers`` at
     a time; returns the results in the order of the jobs, ``did_not_finish(why)`` for a job whose process ended
     without one. ``finished(index, result)`` is called as each one ends. The worker is named, not imported, so this
@@ -58,7 +65,7 @@ def run_each(jobs: list, workers: int, budget_seconds: float, did_not_finish, fi
         try:
             callbacks = (worker, did_not_finish, finished)
             _supervise(jobs, workers, budget_seconds, callbacks, folder, waiting, running, results)
-        finally:   # interrupted (Ctrl-C): no grading process outlives the grader
+        finally:  # interrupted (Ctrl-C): no grading process outlives the grader
             for process, _ in running.values():
                 _kill(process)
     return results
@@ -72,9 +79,11 @@ def _supervise(jobs, workers, budget_seconds, callbacks, folder, waiting, runnin
         while waiting and len(running) < workers:
             k = waiting.pop(0)
             (folder / f"{k}.job").write_bytes(pickle.dumps(jobs[k]))
-            process = subprocess.Popen([sys.executable, "-m", worker,
-                                        str(folder / f"{k}.job"), str(folder / f"{k}.result")],
-                                       start_new_session=True, stdin=subprocess.DEVNULL)
+            process = subprocess.Popen(
+                [sys.executable, "-m", worker, str(folder / f"{k}.job"), str(folder / f"{k}.result")],
+                start_new_session=True,
+                stdin=subprocess.DEVNULL,
+            )
             running[k] = (process, time.monotonic())
         time.sleep(POLL_SECONDS)
         for k, (process, start) in list(running.items()):

@@ -21,6 +21,7 @@ a link to another chapter or an appendix (``05_pretraining.ipynb``) points at it
 
 Not taught in a chapter: it renders the chapters themselves (README, "As a book that reads offline").
 """
+
 from __future__ import annotations
 
 import html
@@ -42,8 +43,10 @@ TEMPLATE_DIR = Path(__file__).resolve().parent.parent / "web" / "templates"
 WIDGET_STATE = "application/vnd.jupyter.widget-state+json"
 WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
 #: What a widget with controls says in the book, above the saved picture.
-NEEDS_KERNEL = ("This control needs a running Python kernel: its callback redraws the output in Python. The page "
-                "shows the output as it was saved; open the chapter in Jupyter to move the control.")
+NEEDS_KERNEL = (
+    "This control needs a running Python kernel: its callback redraws the output in Python. The page "
+    "shows the output as it was saved; open the chapter in Jupyter to move the control."
+)
 #: The folder of the book's shared scripts and fonts (MathJax, the widget manager).
 STATIC = "_static"
 
@@ -51,6 +54,7 @@ STATIC = "_static"
 @dataclass(frozen=True)
 class Chapter:
     """One chapter of the book: its notebook, its number ("04"), its title and its page's file name."""
+
     source: Path
     number: str
     title: str
@@ -81,10 +85,15 @@ def find_chapters(numbers=None, source: Path | None = None) -> list[Chapter]:
     order, the appendices (``A1_*.ipynb``, ...) after them, only those whose number is in ``numbers`` (e.g.
     ``["00", "04", "A1"]``) when given."""
     source = Path(source) if source is not None else shipped_dir()
-    paths = sorted((source / "notebooks").glob("[0-9][0-9]*_*.ipynb")) + sorted((source / "notebooks").glob("A[0-9]_*.ipynb"))
+    paths = sorted((source / "notebooks").glob("[0-9][0-9]*_*.ipynb")) + sorted(
+        (source / "notebooks").glob("A[0-9]_*.ipynb")
+    )
     wanted = {f"{int(n):02d}" if str(n).isdigit() else str(n) for n in numbers} if numbers else None
-    chapters = [Chapter(path, path.name.split("_", 1)[0], _title(nbformat.read(path, as_version=4)))
-                for path in paths if wanted is None or path.name.split("_", 1)[0] in wanted]
+    chapters = [
+        Chapter(path, path.name.split("_", 1)[0], _title(nbformat.read(path, as_version=4)))
+        for path in paths
+        if wanted is None or path.name.split("_", 1)[0] in wanted
+    ]
     missing = sorted((wanted or set()) - {c.number for c in chapters})
     if missing:
         raise ValueError(f"no chapter numbered {', '.join(missing)} in {source / 'notebooks'}")
@@ -94,7 +103,9 @@ def find_chapters(numbers=None, source: Path | None = None) -> list[Chapter]:
 def learning_goals(teaching: Path) -> dict[str, str]:
     """Chapter number -> "after it, a student can ..." from the table under ``## Learning goals`` in
     TEACHING.md (its rows start ``| 04 sparse VD | ...``, an appendix's ``| A1 ... | ...``)."""
-    section = re.search(r"^## Learning goals\n(.*?)(?=^## |\Z)", teaching.read_text(encoding="utf-8"), flags=re.M | re.S)
+    section = re.search(
+        r"^## Learning goals\n(.*?)(?=^## |\Z)", teaching.read_text(encoding="utf-8"), flags=re.M | re.S
+    )
     if section is None:
         raise ValueError(f"{teaching} has no '## Learning goals' section")
     rows = re.findall(r"^\|\s*(\d\d[a-z]?|A\d)\b[^|]*\|\s*(.+?)\s*\|\s*$", section.group(1), flags=re.M)
@@ -109,15 +120,20 @@ def execute(chapter: Chapter, quick: bool, timeout: int):
     notebook = nbformat.read(chapter.source, as_version=4)
     env = {**os.environ, QUICK_ENV: "1" if quick else "0"}
     env.pop("MPLBACKEND", None)  # the kernel's inline backend shows the figures (Agg would drop them)
-    NotebookClient(notebook, timeout=timeout, kernel_name="python3", store_widget_state=True,
-                   resources={"metadata": {"path": str(chapter.source.parent)}}).execute(env=env)
+    NotebookClient(
+        notebook,
+        timeout=timeout,
+        kernel_name="python3",
+        store_widget_state=True,
+        resources={"metadata": {"path": str(chapter.source.parent)}},
+    ).execute(env=env)
     return notebook
 
 
 def _references(value) -> list[str]:
     """The widget model ids a saved state names ("IPY_MODEL_<id>"), in lists and dicts too (children, links)."""
     if isinstance(value, str):
-        return [value[len("IPY_MODEL_"):]] if value.startswith("IPY_MODEL_") else []
+        return [value[len("IPY_MODEL_") :]] if value.startswith("IPY_MODEL_") else []
     if isinstance(value, (list, tuple)):
         return [ref for item in value for ref in _references(item)]
     if isinstance(value, dict):
@@ -147,11 +163,18 @@ def mark_kernel_controls(notebook) -> int:
     control tied to another widget in the browser (``widgets.jslink``) still does something; every other
     control's effect is a Python callback, which a page cannot run."""
     state = notebook.metadata.get("widgets", {}).get(WIDGET_STATE, {}).get("state", {})
-    linked = {ref for model in state.values() if model["model_name"] in ("LinkModel", "DirectionalLinkModel")
-              for ref in _references(model["state"])}
+    linked = {
+        ref
+        for model in state.values()
+        if model["model_name"] in ("LinkModel", "DirectionalLinkModel")
+        for ref in _references(model["state"])
+    }
     control_models = _control_model_names()
-    controls = {model_id for model_id, model in state.items()
-                if (model["model_name"] in control_models or "disabled" in model["state"]) and model_id not in linked}
+    controls = {
+        model_id
+        for model_id, model in state.items()
+        if (model["model_name"] in control_models or "disabled" in model["state"]) and model_id not in linked
+    }
     for model_id in controls:
         state[model_id]["state"]["disabled"] = True
 
@@ -167,9 +190,15 @@ def mark_kernel_controls(notebook) -> int:
         for output in cell.get("outputs", []):
             view = output.get("data", {}).get(WIDGET_VIEW)
             if view and holds_control(view["model_id"]):
-                outputs.append(nbformat.v4.new_output("display_data", {
-                    "text/html": f'<p class="vdbook-needs-kernel">{html.escape(NEEDS_KERNEL)}</p>',
-                    "text/plain": NEEDS_KERNEL}))
+                outputs.append(
+                    nbformat.v4.new_output(
+                        "display_data",
+                        {
+                            "text/html": f'<p class="vdbook-needs-kernel">{html.escape(NEEDS_KERNEL)}</p>',
+                            "text/plain": NEEDS_KERNEL,
+                        },
+                    )
+                )
                 marked += 1
             outputs.append(output)
         if "outputs" in cell:
@@ -211,6 +240,7 @@ CHAPTER_LINK = re.compile(r"\]\(([\w-]+)\.ipynb(#[^)\s]*)?\)")
 def chapter_links(notebook, pages: set[str]) -> None:
     """Point the chapter's links to other chapters and appendices (``05_pretraining.ipynb``) at their pages in the
     book (``05_pretraining.html``); a link to a notebook the book does not hold stays as it is."""
+
     def relink(match):
         page = f"{match.group(1)}.html"
         return f"]({page}{match.group(2) or ''})" if page in pages else match.group(0)
@@ -228,10 +258,14 @@ def _exporter(urls: dict[str, str]):
 
 def _index_page(chapters: list[Chapter], goals: dict[str, str], quick: bool, mathjax_url: str) -> str:
     """The book's first page: what it is, and the chapters (their titles may hold TeX) with their goals."""
-    rows = "\n".join(f'<tr><td><a href="{html.escape(c.page)}">{html.escape(c.title)}</a></td>'
-                     f'<td>{html.escape(goals.get(c.number, ""))}</td></tr>' for c in chapters)
-    mode = ("quick mode (small budgets: the same code as the paper's runs, in seconds)" if quick
-            else "the paper's budgets")
+    rows = "\n".join(
+        f'<tr><td><a href="{html.escape(c.page)}">{html.escape(c.title)}</a></td>'
+        f"<td>{html.escape(goals.get(c.number, ''))}</td></tr>"
+        for c in chapters
+    )
+    mode = (
+        "quick mode (small budgets: the same code as the paper's runs, in seconds)" if quick else "the paper's budgets"
+    )
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
 <title>vdtutorial: the book</title>
@@ -257,8 +291,9 @@ outputs; to change and run the code, open the notebooks in Jupyter
 """
 
 
-def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, source: Path | None = None,
-               log=print) -> BuiltBook:
+def build_book(
+    out, numbers=None, quick: bool = True, timeout: int = 3600, source: Path | None = None, log=print
+) -> BuiltBook:
     """Execute the chapters (all, or those in ``numbers``) and write the book into ``out``: ``index.html``,
     one page per chapter and ``_static`` (MathJax, the widget manager). ``log`` gets one line per chapter."""
     out = Path(out)
@@ -279,12 +314,17 @@ def build_book(out, numbers=None, quick: bool = True, timeout: int = 3600, sourc
         marked = mark_kernel_controls(notebook)
         repository_links(notebook, source, out)
         chapter_links(notebook, {c.page for c in chapters})
-        book = {"previous": chapters[k - 1] if k > 0 else None, "next": chapters[k + 1] if k + 1 < len(chapters) else None,
-                "mathjax_settings": MATHJAX_SETTINGS}
+        book = {
+            "previous": chapters[k - 1] if k > 0 else None,
+            "next": chapters[k + 1] if k + 1 < len(chapters) else None,
+            "mathjax_settings": MATHJAX_SETTINGS,
+        }
         body, _ = exporter.from_notebook_node(notebook, resources={"book": book})
         (out / chapter.page).write_text(body, encoding="utf-8")
-        log(f"{chapter.page}: ran in {seconds[chapter.number]:.0f} s"
-            + (f", {marked} widget(s) marked as needing a kernel" if marked else ""))
+        log(
+            f"{chapter.page}: ran in {seconds[chapter.number]:.0f} s"
+            + (f", {marked} widget(s) marked as needing a kernel" if marked else "")
+        )
     index = out / "index.html"
     index.write_text(_index_page(chapters, goals, quick, urls["mathjax_url"]), encoding="utf-8")
     return BuiltBook(index, chapters, seconds)

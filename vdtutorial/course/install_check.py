@@ -12,6 +12,7 @@ Python lists, which costs time on every image (docs/install.md gives the measure
 
 Taught in chapter 00.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -25,8 +26,10 @@ from pathlib import Path
 PYBULLET_RELEASE = "3.2.7"
 #: The commands that build pybullet with numpy support: numpy must be in the environment before the build,
 #: and pip's cache must not hand back a wheel an earlier isolated build left there.
-NUMPY_BUILD = ("pip install numpy setuptools wheel && pip install --force-reinstall --no-cache-dir "
-               f"--no-build-isolation pybullet=={PYBULLET_RELEASE}")
+NUMPY_BUILD = (
+    "pip install numpy setuptools wheel && pip install --force-reinstall --no-cache-dir "
+    f"--no-build-isolation pybullet=={PYBULLET_RELEASE}"
+)
 #: What images without numpy support cost a learner (docs/install.md: the rgbd env at 128 px, one process,
 #: with and without numpy inside pybullet, on the project's 2-core machine).
 NO_NUMPY_COST = "the image environments step about 1.6x slower (docs/install.md)."
@@ -60,8 +63,11 @@ def pybullet_route(distribution=None) -> str:
     dist = distribution or md.distribution("pybullet")
     if (dist.read_text("INSTALLER") or "").strip() == "conda" or _conda_record("pybullet"):
         return "conda"
-    tags = [line.split(":", 1)[1].strip() for line in (dist.read_text("WHEEL") or "").splitlines()
-            if line.startswith("Tag:")]
+    tags = [
+        line.split(":", 1)[1].strip()
+        for line in (dist.read_text("WHEEL") or "").splitlines()
+        if line.startswith("Tag:")
+    ]
     # an index's wheel carries a portable platform tag; a wheel pip builds here names the bare platform
     portable = ("manylinux", "musllinux", "macosx", "win")
     return "wheel" if any(tag.split("-")[-1].startswith(portable) for tag in tags) else "source"
@@ -91,8 +97,10 @@ def missing_pybullet() -> str:
     if route == "Linux x86_64" and sys.version_info[:2] <= (3, 11):
         return f"`pip install pybullet=={PYBULLET_RELEASE}` (a prebuilt wheel)"
     if route == "Linux x86_64":
-        return (f"build it once (about 3-7 minutes on 2 cores; it needs g++ and the Python headers, e.g. "
-                f"`sudo apt install g++ python3-dev`): `{NUMPY_BUILD}`")
+        return (
+            f"build it once (about 3-7 minutes on 2 cores; it needs g++ and the Python headers, e.g. "
+            f"`sudo apt install g++ python3-dev`): `{NUMPY_BUILD}`"
+        )
     return f"PyPI has no pybullet wheel for {route}: use conda-forge's build, `{CONDA_ROUTE}`"
 
 
@@ -103,8 +111,11 @@ def pybullet_checks() -> list[tuple[str, str, str]]:
     except ImportError:
         return [("FIX", "pybullet", f"not installed: {missing_pybullet()}")]
     route = pybullet_route()
-    described = {"wheel": "a prebuilt wheel", "source": "built from source on this machine",
-                 "conda": "a conda package"}[route]
+    described = {
+        "wheel": "a prebuilt wheel",
+        "source": "built from source on this machine",
+        "conda": "a conda package",
+    }[route]
     rows = [("ok", "pybullet", f"{md.version('pybullet')}, {described}")]
     if pybullet.isNumpyEnabled():
         rows.append(("ok", "pybullet numpy", "built with numpy support (fast camera images)"))
@@ -130,13 +141,22 @@ def package_checks(names=("numpy", "torch", "gymnasium", "meshcat", "matplotlib"
             version = md.version(name)
             importlib.import_module(name)
         except md.PackageNotFoundError:
-            source = ("`conda env update -f environment.yml` (in the clone) brings it in" if in_conda else
-                      "`pip install vdtutorial` (or `pip install -e .` in a clone) pulls it in")
+            source = (
+                "`conda env update -f environment.yml` (in the clone) brings it in"
+                if in_conda
+                else "`pip install vdtutorial` (or `pip install -e .` in a clone) pulls it in"
+            )
             rows.append(("FIX", name, f"not installed: {source}"))
             continue
         except Exception as exc:  # installed but broken
-            rows.append(("FIX", name, f"installed ({version}) but `import {name}` fails: {exc!r}. Reinstall it: "
-                         f"`pip install --force-reinstall {name}`"))
+            rows.append(
+                (
+                    "FIX",
+                    name,
+                    f"installed ({version}) but `import {name}` fails: {exc!r}. Reinstall it: "
+                    f"`pip install --force-reinstall {name}`",
+                )
+            )
             continue
         rows.append(("ok", name, version))
     return rows
@@ -156,13 +176,25 @@ def front_end_checks() -> list[tuple[str, str, str]]:
     try:
         rows.append(("ok", "jupyterlab_widgets", md.version("jupyterlab_widgets")))
     except md.PackageNotFoundError:
-        rows.append(("note", "jupyterlab_widgets", "not found: sliders may show as plain text in JupyterLab. "
-                     "Fix with `pip install jupyterlab_widgets` (then restart JupyterLab)"))
+        rows.append(
+            (
+                "note",
+                "jupyterlab_widgets",
+                "not found: sliders may show as plain text in JupyterLab. "
+                "Fix with `pip install jupyterlab_widgets` (then restart JupyterLab)",
+            )
+        )
     try:
         import torch
 
-        rows.append(("ok", "torch threads", f"{torch.get_num_threads()} CPU threads; CUDA available: "
-                     f"{torch.cuda.is_available()} (not needed, everything here runs on the CPU)"))
+        rows.append(
+            (
+                "ok",
+                "torch threads",
+                f"{torch.get_num_threads()} CPU threads; CUDA available: "
+                f"{torch.cuda.is_available()} (not needed, everything here runs on the CPU)",
+            )
+        )
     except ImportError:
         pass  # reported by package_checks
     return rows

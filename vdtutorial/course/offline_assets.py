@@ -14,6 +14,7 @@ controls with plain HTML and needs nothing from the web.)
 
 Not taught in a chapter: part of the rendered book (vdtutorial/course/html_book.py).
 """
+
 from __future__ import annotations
 
 import shutil
@@ -54,7 +55,8 @@ def copy_assets(static: Path) -> dict[str, str]:
     """Copy MathJax and the widget manager into ``static``; return the URLs a page uses for them, relative to
     the folder that holds ``static`` (where the pages are)."""
     for source, name in ((mathjax_dir(), "mathjax"), (HTML_MANAGER_DIR, "html-manager")):
-        shutil.copytree(source, static / name, dirs_exist_ok=True,
-                        ignore=shutil.ignore_patterns("__pycache__", "*.py"))
-    return {"mathjax_url": f"{static.name}/mathjax/MathJax.js?config={MATHJAX_CONFIG}",
-            "widget_renderer_url": f"{static.name}/html-manager/embed.js"}
+        shutil.copytree(source, static / name, dirs_exist_ok=True, ignore=shutil.ignore_patterns("__pycache__", "*.py"))
+    return {
+        "mathjax_url": f"{static.name}/mathjax/MathJax.js?config={MATHJAX_CONFIG}",
+        "widget_renderer_url": f"{static.name}/html-manager/embed.js",
+    }

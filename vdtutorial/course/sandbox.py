@@ -29,6 +29,7 @@ sandbox is made.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,21 +47,41 @@ NOBODY = 65534
 #: The system's programs and libraries, read-only in the sandbox (those that exist: links stay links).
 SYSTEM = ("/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32")
 #: Files and folders of ``/etc`` that the dynamic linker, fonts, time zones, TLS and user look-ups read.
-ETC = ("/etc/ld.so.cache", "/etc/ld.so.conf", "/etc/ld.so.conf.d", "/etc/alternatives", "/etc/fonts",
-       "/etc/localtime", "/etc/ssl", "/etc/mime.types", "/etc/nsswitch.conf", "/etc/passwd", "/etc/group")
+ETC = (
+    "/etc/ld.so.cache",
+    "/etc/ld.so.conf",
+    "/etc/ld.so.conf.d",
+    "/etc/alternatives",
+    "/etc/fonts",
+    "/etc/localtime",
+    "/etc/ssl",
+    "/etc/mime.types",
+    "/etc/nsswitch.conf",
+    "/etc/passwd",
+    "/etc/group",
+)
 #: The environment variables the command keeps (any other, a token or a password among them, is not passed on).
-KEPT_ENV = ("PATH", "LANG", "LANGUAGE", "TZ", "TERM", "PYTHONPATH", "MPLBACKEND", "OMP_NUM_THREADS",
-            "MKL_NUM_THREADS")
+KEPT_ENV = ("PATH", "LANG", "LANGUAGE", "TZ", "TERM", "PYTHONPATH", "MPLBACKEND", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 KEPT_ENV_PREFIXES = ("LC_", "VDTUTORIAL_", "JUPYTER_")
 #: The size of the sandbox's ``/tmp`` (a file system in memory, which the memory cap does not count).
 TMP_BYTES = 256 << 20
 #: What ``classroom grade`` says where no sandbox can be made.
-SAFE_ROUTES = ("grade on Linux with bubblewrap installed (apt-get install bubblewrap) and user namespaces allowed, "
-               "or in a Linux container or VM that has them")
+SAFE_ROUTES = (
+    "grade on Linux with bubblewrap installed (apt-get install bubblewrap) and user namespaces allowed, "
+    "or in a Linux container or VM that has them"
+)
 
 
-def command(cmd: list[str], memory_bytes: int, cpu_seconds: int, home_under: Path, read_only: list = (),
-            writable: list[Path] = (), given: list[str] = (), sandboxed: bool = True) -> list[str]:
+def command(
+    cmd: list[str],
+    memory_bytes: int,
+    cpu_seconds: int,
+    home_under: Path,
+    read_only: list = (),
+    writable: list[Path] = (),
+    given: list[str] = (),
+    sandboxed: bool = True,
+) -> list[str]:
     """``cmd`` prefixed with the launcher, which applies the limits and then replaces itself with ``cmd`` in the
     sandbox (with ``sandboxed=False``, the limits alone). ``cmd`` runs in a new empty folder made under
     ``home_under``, its ``HOME``. ``read_only``: paths, or ``(source, destination)`` pairs, to
@@ -68,8 +89,17 @@ def command(cmd: list[str], memory_bytes: int, cpu_seconds: int, home_under: Pat
     which names them by path: each is copied into its home, readable by the sandbox's uid alone, and ``cmd``
     names the copy instead (a kernel's connection file, which Jupyter writes readable by its owner alone, wherever
     it likes; Jupyter's ``{connection_file}`` may stand for it)."""
-    head = [sys.executable, "-I", str(LAUNCHER), "--memory", str(memory_bytes), "--cpu", str(cpu_seconds),
-            "--home-under", str(home_under)]
+    head = [
+        sys.executable,
+        "-I",
+        str(LAUNCHER),
+        "--memory",
+        str(memory_bytes),
+        "--cpu",
+        str(cpu_seconds),
+        "--home-under",
+        str(home_under),
+    ]
     for item in read_only:
         source, dest = (item, item) if isinstance(item, (str, Path)) else item
         head += ["--ro", str(source), str(dest)]
@@ -124,12 +154,30 @@ def available() -> str | None:
 def _bwrap(cmd: list[str], home: Path, read_only: list[tuple[str, str]], writable: list[str]) -> list[str]:
     """The bubblewrap command line that runs ``cmd`` as described in the module's docstring."""
     root = os.getuid() == 0
-    argv = ["bwrap", "--die-with-parent", "--new-session", "--unshare-pid", "--unshare-net", "--unshare-ipc",
-            "--unshare-uts", "--unshare-cgroup-try", "--hostname", "sandbox"]
-    if root:   # namespaces made as root, then the uid dropped inside: never root, not even in a user namespace
+    argv = [
+        "bwrap",
+        "--die-with-parent",
+        "--new-session",
+        "--unshare-pid",
+        "--unshare-net",
+        "--unshare-ipc",
+        "--unshare-uts",
+        "--unshare-cgroup-try",
+        "--hostname",
+        "sandbox",
+    ]
+    if root:  # namespaces made as root, then the uid dropped inside: never root, not even in a user namespace
         argv += ["--cap-add", "CAP_SETUID", "--cap-add", "CAP_SETGID"]
-        cmd = ["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups", "--inh-caps=-all",
-               "--bounding-set=-all", "--no-new-privs", "--"] + cmd
+        cmd = [
+            "setpriv",
+            f"--reuid={NOBODY}",
+            f"--regid={NOBODY}",
+            "--clear-groups",
+            "--inh-caps=-all",
+            "--bounding-set=-all",
+            "--no-new-privs",
+            "--",
+        ] + cmd
     else:
         argv += ["--unshare-user", "--uid", str(NOBODY), "--gid", str(NOBODY)]
     argv += ["--proc", "/proc", "--dev", "/dev"]
@@ -143,7 +191,7 @@ def _bwrap(cmd: list[str], home: Path, read_only: list[tuple[str, str]], writabl
     mounts += [("--bind", folder, folder) for folder in writable + [str(home)]]
     argv += ["--perms", "1777", "--size", str(TMP_BYTES), "--tmpfs", "/tmp"]
     made = {"/", "/proc", "/dev", "/tmp", *SYSTEM}
-    for _, _, dest in mounts:   # the folders above a mount point: created readable by all (bwrap makes them 0700)
+    for _, _, dest in mounts:  # the folders above a mount point: created readable by all (bwrap makes them 0700)
         for parent in reversed(Path(dest).parents):
             if str(parent) not in made:
                 made.add(str(parent))
@@ -154,7 +202,7 @@ def _bwrap(cmd: list[str], home: Path, read_only: list[tuple[str, str]], writabl
     for name, value in os.environ.items():
         if name in KEPT_ENV or name.startswith(KEPT_ENV_PREFIXES):
             argv += ["--setenv", name, value]
-    if "JPY_PARENT_PID" in os.environ:   # a kernel's parent, which it watches: in its PID namespace, bwrap (pid 1)
+    if "JPY_PARENT_PID" in os.environ:  # a kernel's parent, which it watches: in its PID namespace, bwrap (pid 1)
         argv += ["--setenv", "JPY_PARENT_PID", "1"]
     return argv + ["--chdir", str(home), "--"] + cmd
 
@@ -164,11 +212,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--memory", type=int, required=True, help="memory cap in bytes (see memory_limit)")
     parser.add_argument("--cpu", type=int, required=True, help="CPU-time cap in seconds")
     parser.add_argument("--home-under", required=True, help="run in a new folder made here, which is also HOME")
-    parser.add_argument("--ro", nargs=2, action="append", default=[], metavar=("SOURCE", "DEST"),
-                        help="show SOURCE read-only at DEST")
+    parser.add_argument(
+        "--ro", nargs=2, action="append", default=[], metavar=("SOURCE", "DEST"), help="show SOURCE read-only at DEST"
+    )
     parser.add_argument("--rw", action="append", default=[], help="a folder the command may write")
-    parser.add_argument("--give", action="append", default=[], help="a file handed to the command: copied into "
-                                                                     "its home, and named by the copy's path")
+    parser.add_argument(
+        "--give",
+        action="append",
+        default=[],
+        help="a file handed to the command: copied into its home, and named by the copy's path",
+    )
     parser.add_argument("--no-sandbox", action="store_true", help="the limits alone")
     parser.add_argument("cmd", nargs=argparse.REMAINDER, help="-- then the command")
     args = parser.parse_args(argv)

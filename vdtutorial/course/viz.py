@@ -18,6 +18,7 @@ it is the caller's ``set_state`` that moves it.
 
 Taught in chapter 01.
 """
+
 from __future__ import annotations
 
 import base64
@@ -299,8 +300,11 @@ class Recorder:
                 if packed is not None:
                     commands += len(packed).to_bytes(4, "big") + packed
         look_at = None if self.look_at is None else _three_frame(self.look_at)
-        script = (_VIEWER_INLINE.format(viewer=_viewer_packed(), shared=_SHARED_VIEWER) if viewer
-                  else _VIEWER_SHARED.format(shared=_SHARED_VIEWER))
+        script = (
+            _VIEWER_INLINE.format(viewer=_viewer_packed(), shared=_SHARED_VIEWER)
+            if viewer
+            else _VIEWER_SHARED.format(shared=_SHARED_VIEWER)
+        )
         return _PAGE.format(viewer=script, commands=_packed(commands), look_at=json.dumps(look_at))
 
     def iframe(self, style: str = "width: 100%; height: 100%; border: none;") -> str:
@@ -360,13 +364,13 @@ def _link_frames(client_id: int, body: int) -> dict[int, np.ndarray]:
     """
     position, orientation = p.getBasePositionAndOrientation(body, physicsClientId=client_id)
     inertial_position, inertial_orientation = p.getDynamicsInfo(body, -1, physicsClientId=client_id)[3:5]
-    frames = {-1: _pose_matrix(position, orientation) @ np.linalg.inv(
-        _pose_matrix(inertial_position, inertial_orientation))}
+    frames = {
+        -1: _pose_matrix(position, orientation) @ np.linalg.inv(_pose_matrix(inertial_position, inertial_orientation))
+    }
     n_links = p.getNumJoints(body, physicsClientId=client_id)
     if n_links:
         # computeForwardKinematics: frames follow resetJointState without a stepSimulation.
-        states = p.getLinkStates(body, list(range(n_links)), computeForwardKinematics=True,
-                                 physicsClientId=client_id)
+        states = p.getLinkStates(body, list(range(n_links)), computeForwardKinematics=True, physicsClientId=client_id)
         for link, state in enumerate(states):
             frames[link] = _pose_matrix(state[4], state[5])
     return frames
@@ -413,8 +417,7 @@ def _set_shape(node, geom_type: int, dims, mesh_file: str, material) -> None:
     elif geom_type == p.GEOM_MESH:
         loader = _MESH_LOADERS.get(Path(mesh_file).suffix.lower())
         if loader is None or not Path(mesh_file).is_file():
-            warnings.warn(f"skipping a mesh visual meshcat cannot load: {mesh_file or '(no file)'!r}",
-                          stacklevel=3)
+            warnings.warn(f"skipping a mesh visual meshcat cannot load: {mesh_file or '(no file)'!r}", stacklevel=3)
             return
         node["mesh"].set_object(loader(mesh_file), material)
         node["mesh"].set_transform(np.diag([*dims[:3], 1.0]))  # pybullet reports the mesh scale
@@ -546,15 +549,26 @@ def subject_corners(client_id: int, bodies: Mapping[str, int]) -> np.ndarray:
     return np.array(subject or stage)
 
 
-def frame_view(vis, client_id: int, bodies: Mapping[str, int], margin: float = 1.1,
-               direction: Sequence[float] = VIEW_DIRECTION, aspect: float = VIEW_ASPECT) -> np.ndarray:
+def frame_view(
+    vis,
+    client_id: int,
+    bodies: Mapping[str, int],
+    margin: float = 1.1,
+    direction: Sequence[float] = VIEW_DIRECTION,
+    aspect: float = VIEW_ASPECT,
+) -> np.ndarray:
     """Aim meshcat's default camera at the bodies and move it so that the arm and the cup fill the view;
     returns the camera position (world frame). See :func:`frame_points`."""
     return frame_points(vis, subject_corners(client_id, bodies), margin, direction, aspect)
 
 
-def frame_points(vis, points: np.ndarray, margin: float = 1.1, direction: Sequence[float] = VIEW_DIRECTION,
-                 aspect: float = VIEW_ASPECT) -> np.ndarray:
+def frame_points(
+    vis,
+    points: np.ndarray,
+    margin: float = 1.1,
+    direction: Sequence[float] = VIEW_DIRECTION,
+    aspect: float = VIEW_ASPECT,
+) -> np.ndarray:
     """Aim meshcat's default camera so that ``points`` (n x 3, world frame) fill the view; returns the camera
     position (world frame).
 
@@ -786,6 +800,15 @@ def frames_animation(rgb_frames: Sequence, fps: float = 10, scale: int = 1):
         raise ValueError(f"frames_animation needs fps > 0 and a whole scale >= 1, not fps={fps}, scale={scale}")
     height, width = frames[0].shape[:2]
     urls = [_png_data_url(frame) for frame in frames]
-    return HTML(_PLAYER.format(id=f"vdtutorial-frames-{uuid.uuid4().hex}", first=urls[0], frames=json.dumps(urls),
-                               count=len(urls), last=len(urls) - 1, width=width * int(scale),
-                               height=height * int(scale), interval=round(1000 / fps)))
+    return HTML(
+        _PLAYER.format(
+            id=f"vdtutorial-frames-{uuid.uuid4().hex}",
+            first=urls[0],
+            frames=json.dumps(urls),
+            count=len(urls),
+            last=len(urls) - 1,
+            width=width * int(scale),
+            height=height * int(scale),
+            interval=round(1000 / fps),
+        )
+    )

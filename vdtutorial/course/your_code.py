@@ -12,6 +12,7 @@ answer means. Saving the earlier notebook is the learner's part: a cell edited b
 
 Taught in chapter 10.
 """
+
 from __future__ import annotations
 
 import contextlib

@@ -6,6 +6,7 @@ Both take ``obs_mode`` ("rgbd" or "state"), ``image_size`` and ``render_mode`` k
 
 Taught in chapter 01.
 """
+
 import gymnasium
 
 from vdtutorial.envs.base import HORIZON  # noqa: F401  (the horizon H, for the experiments and chapters)

@@ -5,6 +5,7 @@ A task subclass only defines its goal (:meth:`JacoEnv._goal_status`) and its rew
 
 Taught in chapter 01.
 """
+
 from __future__ import annotations
 
 import math
@@ -54,17 +55,20 @@ class JacoEnv(gym.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.obs_mode = obs_mode
         self.render_mode = render_mode
-        self.scene = JacoScene(image_size or self.default_image_size, cup_collidable=self.cup_collidable,
-                                cup_radius=self.cup_radius)
+        self.scene = JacoScene(
+            image_size or self.default_image_size, cup_collidable=self.cup_collidable, cup_radius=self.cup_radius
+        )
         s, lo, hi = self.scene.image_size, self.scene.lower, self.scene.upper
         self.action_space = gym.spaces.Box(-MAX_DELTA, MAX_DELTA, shape=(N_JOINTS,), dtype=np.float32)
         joints = gym.spaces.Box(lo.astype(np.float32), hi.astype(np.float32), dtype=np.float32)
         if obs_mode == "rgbd":
-            self.observation_space = gym.spaces.Dict({
-                "rgb": gym.spaces.Box(0, 255, shape=(3, s, s), dtype=np.uint8),
-                "depth": gym.spaces.Box(0.0, CAMERA_FAR, shape=(s * s,), dtype=np.float32),
-                "joints": joints,
-            })
+            self.observation_space = gym.spaces.Dict(
+                {
+                    "rgb": gym.spaces.Box(0, 255, shape=(3, s, s), dtype=np.uint8),
+                    "depth": gym.spaces.Box(0.0, CAMERA_FAR, shape=(s * s,), dtype=np.float32),
+                    "joints": joints,
+                }
+            )
         else:
             # the cup stands on the table (z = 0); its z bounds get a small margin to keep the box non-degenerate
             low = np.concatenate([lo, CUP_REGION_LOW, [-0.01]]).astype(np.float32)
@@ -148,8 +152,11 @@ class JacoEnv(gym.Env):
         if self.obs_mode == "state":
             return np.concatenate([joints, self.scene.cup_position.astype(np.float32)])
         rgb, depth = self.scene.render_rgbd()
-        return {"rgb": np.ascontiguousarray(rgb.transpose(2, 0, 1)),
-                "depth": np.minimum(depth, CAMERA_FAR).reshape(-1), "joints": joints}
+        return {
+            "rgb": np.ascontiguousarray(rgb.transpose(2, 0, 1)),
+            "depth": np.minimum(depth, CAMERA_FAR).reshape(-1),
+            "joints": joints,
+        }
 
     def observation_at(self, joints, cup_xy):
         """The observation the env would give in a state (joints, cup): re-renders deterministically."""

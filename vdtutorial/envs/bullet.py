@@ -7,6 +7,7 @@ only: later warnings and errors are untouched. Importing pybullet anywhere later
 
 Taught in chapter 01.
 """
+
 from __future__ import annotations
 
 import functools
@@ -26,6 +27,7 @@ def _import_quietly():
         saved = os.dup(2)
     except OSError:  # no standard error at all: nothing to protect
         import pybullet
+
         return pybullet
     devnull = os.open(os.devnull, os.O_WRONLY)
     try:
@@ -47,5 +49,8 @@ def warn_if_images_are_slow() -> None:
     Python sequences, which cost time on every image (a source build made in pip's isolated environment).
     Chapter 00's install check (:mod:`vdtutorial.course.install_check`) prints the command that rebuilds it."""
     if not pybullet.isNumpyEnabled():
-        warnings.warn("pybullet was built without numpy support: camera images come back slower (docs/install.md). "
-                      "Chapter 00's install check prints the command that rebuilds it.", stacklevel=3)
+        warnings.warn(
+            "pybullet was built without numpy support: camera images come back slower (docs/install.md). "
+            "Chapter 00's install check prints the command that rebuilds it.",
+            stacklevel=3,
+        )

@@ -12,6 +12,7 @@ to spare (``tests/test_envs.py`` measures the clearances; docs/results.md, "Meas
 
 Taught in chapters 01 and 08.
 """
+
 from __future__ import annotations
 
 import math

@@ -1,4 +1,5 @@
 """The reaching task (Section V-A): put the gripper over a cup that cannot be hit. Taught in chapter 01."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -9,6 +9,7 @@ Units are metres and radians. The world origin is the arm's base on the table to
 
 Taught in chapter 01.
 """
+
 from __future__ import annotations
 
 import functools
@@ -67,8 +68,10 @@ def camera_buffers(rgba, zbuf) -> tuple[np.ndarray, np.ndarray]:
     widened to Python floats, so narrowing them back to float32 is exact. The z-buffer's array is read-only
     (:meth:`JacoScene.render_rgbd` only reads it).
     """
-    return (np.frombuffer(bytearray(rgba), dtype=np.uint8),
-            np.frombuffer(_c_floats(len(zbuf)).pack(*zbuf), dtype=np.float32))
+    return (
+        np.frombuffer(bytearray(rgba), dtype=np.uint8),
+        np.frombuffer(_c_floats(len(zbuf)).pack(*zbuf), dtype=np.float32),
+    )
 
 
 class JacoScene:
@@ -90,15 +93,27 @@ class JacoScene:
         self.client = p.connect(p.DIRECT)
         c = self.client
         table_col = p.createCollisionShape(p.GEOM_BOX, halfExtents=TABLE_HALF_EXTENTS, physicsClientId=c)
-        table_vis = p.createVisualShape(p.GEOM_BOX, halfExtents=TABLE_HALF_EXTENTS, rgbaColor=(0.72, 0.58, 0.42, 1), physicsClientId=c)
+        table_vis = p.createVisualShape(
+            p.GEOM_BOX, halfExtents=TABLE_HALF_EXTENTS, rgbaColor=(0.72, 0.58, 0.42, 1), physicsClientId=c
+        )
         self.table = p.createMultiBody(0, table_col, table_vis, basePosition=TABLE_CENTRE, physicsClientId=c)
         # The arm faces +x: Kinova's base frame has the home pose reaching towards -y, so turn it by 90 deg.
-        self.arm = p.loadURDF(arm_urdf_path(), basePosition=(0, 0, 0),
-                              baseOrientation=p.getQuaternionFromEuler((0, 0, math.pi / 2)), useFixedBase=True,
-                              flags=p.URDF_USE_SELF_COLLISION, physicsClientId=c)
-        cup_col = (p.createCollisionShape(p.GEOM_CYLINDER, radius=cup_radius, height=CUP_HEIGHT, physicsClientId=c)
-                   if cup_collidable else -1)
-        cup_vis = p.createVisualShape(p.GEOM_CYLINDER, radius=cup_radius, length=CUP_HEIGHT, rgbaColor=(0.85, 0.2, 0.15, 1), physicsClientId=c)
+        self.arm = p.loadURDF(
+            arm_urdf_path(),
+            basePosition=(0, 0, 0),
+            baseOrientation=p.getQuaternionFromEuler((0, 0, math.pi / 2)),
+            useFixedBase=True,
+            flags=p.URDF_USE_SELF_COLLISION,
+            physicsClientId=c,
+        )
+        cup_col = (
+            p.createCollisionShape(p.GEOM_CYLINDER, radius=cup_radius, height=CUP_HEIGHT, physicsClientId=c)
+            if cup_collidable
+            else -1
+        )
+        cup_vis = p.createVisualShape(
+            p.GEOM_CYLINDER, radius=cup_radius, length=CUP_HEIGHT, rgbaColor=(0.85, 0.2, 0.15, 1), physicsClientId=c
+        )
         self.cup = p.createMultiBody(0, cup_col, cup_vis, basePosition=(0.45, 0, CUP_HEIGHT / 2), physicsClientId=c)
         self.bodies = {"table": self.table, "arm": self.arm, "cup": self.cup}
         self._restrict_collisions()
@@ -172,8 +187,16 @@ class JacoScene:
         depth with the projection's near/far planes."""
         warn_if_images_are_slow()
         s = self.image_size
-        _, _, rgba, zbuf, _ = p.getCameraImage(s, s, self._view, self._proj, shadow=0, renderer=p.ER_TINY_RENDERER,
-                                               flags=p.ER_NO_SEGMENTATION_MASK, physicsClientId=self.client)
+        _, _, rgba, zbuf, _ = p.getCameraImage(
+            s,
+            s,
+            self._view,
+            self._proj,
+            shadow=0,
+            renderer=p.ER_TINY_RENDERER,
+            flags=p.ER_NO_SEGMENTATION_MASK,
+            physicsClientId=self.client,
+        )
         if not isinstance(rgba, np.ndarray):  # pybullet without numpy support: flat tuples
             rgba, zbuf = camera_buffers(rgba, zbuf)
         rgba = np.asarray(rgba, dtype=np.uint8).reshape(s, s, 4)

@@ -21,8 +21,16 @@ What a run, a point of a curve, a seed and a band are, and where the files go: `
 Taught in chapters 05, 07 and 08.
 """
 
-from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, mean_band, moving_average,
-                                           smooth_window, steps_to_reach, vd_reaches_l2_final)
+from vdtutorial.experiments.curves import (
+    CONFIDENCE,
+    Curve,
+    curves_from_rows,
+    mean_band,
+    moving_average,
+    smooth_window,
+    steps_to_reach,
+    vd_reaches_l2_final,
+)
 from vdtutorial.experiments.effects import CLAIMS, claim_effects, claim_table
 from vdtutorial.experiments.record_claims import write_claims
 from vdtutorial.experiments.figures import fig4, fig5, fig6, fig7
@@ -30,13 +38,39 @@ from vdtutorial.experiments.jobs import RunSpec
 from vdtutorial.experiments.measures import MEASURES, measures_of
 from vdtutorial.experiments.plots import METRIC_LABELS, figure_title, plot_curves, plot_measures
 from vdtutorial.experiments.reproduce import reproduce_quick
-from vdtutorial.experiments.results import (ExperimentResult, derive, experiment_command, format_summary, load_result,
-                                           merge_seeds, rederive, run_experiment)
+from vdtutorial.experiments.results import (
+    ExperimentResult,
+    derive,
+    experiment_command,
+    format_summary,
+    load_result,
+    merge_seeds,
+    rederive,
+    run_experiment,
+)
 from vdtutorial.experiments.pipeline import finetune_policy, load_demos, pretrained_policy, ready_for_rl
-from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METRIC, NUM_ENVS, RL_METHODS, SUBSAMPLED_FISHER_CONFIG,
-                                         default_expert_episodes, default_seeds, default_total_steps,
-                                         default_trpo_config, expert_reference, finetune, finetune_steps)
+from vdtutorial.experiments.runs import (
+    CHECKPOINT_EVERY,
+    METRIC,
+    NUM_ENVS,
+    RL_METHODS,
+    SUBSAMPLED_FISHER_CONFIG,
+    default_expert_episodes,
+    default_seeds,
+    default_total_steps,
+    default_trpo_config,
+    expert_reference,
+    finetune,
+    finetune_steps,
+)
 from vdtutorial.methods import METHOD_LABELS, METHODS
-from vdtutorial.experiments.sparsity_table import (KL_WEIGHTINGS, TABLE1, format_table1, seeds_with_trend,
-                                                   sparsity_trends, table1, table_means)
+from vdtutorial.experiments.sparsity_table import (
+    KL_WEIGHTINGS,
+    TABLE1,
+    format_table1,
+    seeds_with_trend,
+    sparsity_trends,
+    table1,
+    table_means,
+)
 from vdtutorial.runner import ResumeError, read_rows, results_file, run_grid, run_jobs, stored_rows, write_csv

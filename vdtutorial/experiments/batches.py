@@ -15,6 +15,7 @@ experiment; that is an assumption, and this module is where it is checked:
 
 Taught in appendix A5.
 """
+
 from __future__ import annotations
 
 from vdtutorial.experiments.effects import (
@@ -40,14 +41,21 @@ def batches_of(record: dict) -> list[dict]:
     command whose kernels were not recorded is a batch of its own). Each with its ``seeds``, ``kernels``,
     ``commands`` and ``state_dirs`` (one batch, the record itself, when nothing was merged into it)."""
     parts = [entry for entry in record.get("merged") or [] if "seeds" in entry] or [
-        {"seeds": record["seeds"], **{key: record.get(key) for key in ("kernels", "command", "state_dir")}}]
+        {"seeds": record["seeds"], **{key: record.get(key) for key in ("kernels", "command", "state_dir")}}
+    ]
     batches: list[dict] = []
     for part in parts:
         key = _kernels_key(part.get("kernels"))
         same = next((b for b in batches if key is not None and _kernels_key(b["kernels"]) == key), None)
         if same is None:
-            batches.append({"seeds": list(part["seeds"]), "kernels": part.get("kernels"), "commands": [part["command"]],
-                            "state_dirs": [part.get("state_dir")]})
+            batches.append(
+                {
+                    "seeds": list(part["seeds"]),
+                    "kernels": part.get("kernels"),
+                    "commands": [part["command"]],
+                    "state_dirs": [part.get("state_dir")],
+                }
+            )
         else:
             same["seeds"] = sorted(same["seeds"] + list(part["seeds"]))
             same["commands"].append(part["command"])
@@ -87,12 +95,25 @@ def mark_batches(effects: list[dict], record: dict, rows: list[dict] | None = No
             if effect["metric"] not in groups:
                 groups[effect["metric"]] = per_run(rows, effect["metric"])
             seeds = [s for k in shared for s in batches_of(record)[k]["seeds"]]
-            values = [run_summaries(of_seeds(groups[effect["metric"]][effect[key]],
-                                             [s for s in groups[effect["metric"]][effect[key]]["seeds"] if s in seeds]),
-                                    effect["measure"], int(record["window"])) for key in ("a", "b")]
+            values = [
+                run_summaries(
+                    of_seeds(
+                        groups[effect["metric"]][effect[key]],
+                        [s for s in groups[effect["metric"]][effect[key]]["seeds"] if s in seeds],
+                    ),
+                    effect["measure"],
+                    int(record["window"]),
+                )
+                for key in ("a", "b")
+            ]
             estimate, low, high = welch_interval(*values)
-            extra["within_shared_batches"] = {"estimate": estimate, "low": low, "high": high,
-                                              "p_value": welch_p_value(*values), "seeds": [len(v) for v in values]}
+            extra["within_shared_batches"] = {
+                "estimate": estimate,
+                "low": low,
+                "high": high,
+                "p_value": welch_p_value(*values),
+                "seeds": [len(v) for v in values],
+            }
         marked.append({**effect, **extra})
     return marked
 
@@ -128,21 +149,35 @@ def batch_differences(record: dict, rows: list[dict], measures: tuple[str, ...] 
                 values = run_summaries(group, measure, int(record["window"]))
                 first, other = values[by_batch[present[0]]], values[by_batch[later]]
                 estimate, low, high = welch_interval(other, first)
-                out.append({"label": label, "measure": measure, "batches": [present[0] + 1, later + 1],
-                            "seeds": [len(first), len(other)], "mean_first": float(first.mean()),
-                            "mean_later": float(other.mean()), "estimate": estimate, "low": low, "high": high,
-                            "p_value": welch_p_value(other, first)})
+                out.append(
+                    {
+                        "label": label,
+                        "measure": measure,
+                        "batches": [present[0] + 1, later + 1],
+                        "seeds": [len(first), len(other)],
+                        "mean_first": float(first.mean()),
+                        "mean_later": float(other.mean()),
+                        "estimate": estimate,
+                        "low": low,
+                        "high": high,
+                        "p_value": welch_p_value(other, first),
+                    }
+                )
     return out
 
 
 def batch_difference_table(differences: list[dict]) -> str:
     """:func:`batch_differences` as Markdown, one row per curve, measure and later batch."""
-    lines = ["| curve | measure | batches | seeds | first batch | later batch | later - first (95% interval) | p |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| curve | measure | batches | seeds | first batch | later batch | later - first (95% interval) | p |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for d in differences:
-        lines.append(f"| {d['label']} | {d['measure']} | {d['batches'][0]} / {d['batches'][1]} | "
-                     f"{d['seeds'][0]} / {d['seeds'][1]} | {d['mean_first']:.3g} | {d['mean_later']:.3g} | "
-                     f"{d['estimate']:+.3g} ({d['low']:+.3g} to {d['high']:+.3g}) | {d['p_value']:.2g} |")
+        lines.append(
+            f"| {d['label']} | {d['measure']} | {d['batches'][0]} / {d['batches'][1]} | "
+            f"{d['seeds'][0]} / {d['seeds'][1]} | {d['mean_first']:.3g} | {d['mean_later']:.3g} | "
+            f"{d['estimate']:+.3g} ({d['low']:+.3g} to {d['high']:+.3g}) | {d['p_value']:.2g} |"
+        )
     return "\n".join(lines)
 
 
@@ -152,24 +187,37 @@ def batches_report(records: dict[str, tuple[dict, list[dict]]]) -> str:
     the claims that cross batches with their comparison within the shared batches."""
     count, smallest, rejected = smallest_batch_p(records)
     verdict = "rejects" if rejected else "does not reject"
-    blocks = [(f"Over the {count} distinct between-batch differences below, the smallest two-sided p is "
-               f"{smallest:.2g}; Holm's procedure over all of them {verdict} it at 5%.")]
+    blocks = [
+        (
+            f"Over the {count} distinct between-batch differences below, the smallest two-sided p is "
+            f"{smallest:.2g}; Holm's procedure over all of them {verdict} it at 5%."
+        )
+    ]
     for heading, (record, rows) in records.items():
         if len(batches_of(record)) < 2:
             continue
         differences = batch_difference_table(batch_differences(record, rows))
         block = [f"**{heading}**", "", batch_settings(record), "", differences]
-        crossing = [e for e in record["summary"]["claims"]
-                    if e.get("across_batches") and e["metric"] == record["metric"]]
+        crossing = [
+            e for e in record["summary"]["claims"] if e.get("across_batches") and e["metric"] == record["metric"]
+        ]
         for e in crossing:
             within = e.get("within_shared_batches")
-            block += ["", f"Across batches: {e['text']} ({e['measure']}), seeds from batches "
-                          f"{', '.join(str(k + 1) for k in e['batches'][0])} against "
-                          f"{', '.join(str(k + 1) for k in e['batches'][1])}: {e['estimate']:+.3g} "
-                          f"({e['low']:+.3g} to {e['high']:+.3g}), Holm {e['holm_verdict']}"
-                          + (f"; within the shared batches {within['estimate']:+.3g} ({within['low']:+.3g} to "
-                             f"{within['high']:+.3g}), p = {within['p_value']:.2g}, seeds {within['seeds'][0]} / "
-                             f"{within['seeds'][1]}" if within else "") + "."]
+            block += [
+                "",
+                f"Across batches: {e['text']} ({e['measure']}), seeds from batches "
+                f"{', '.join(str(k + 1) for k in e['batches'][0])} against "
+                f"{', '.join(str(k + 1) for k in e['batches'][1])}: {e['estimate']:+.3g} "
+                f"({e['low']:+.3g} to {e['high']:+.3g}), Holm {e['holm_verdict']}"
+                + (
+                    f"; within the shared batches {within['estimate']:+.3g} ({within['low']:+.3g} to "
+                    f"{within['high']:+.3g}), p = {within['p_value']:.2g}, seeds {within['seeds'][0]} / "
+                    f"{within['seeds'][1]}"
+                    if within
+                    else ""
+                )
+                + ".",
+            ]
         blocks.append("\n".join(block))
     return "\n\n".join(blocks)
 

@@ -19,6 +19,7 @@ queries, seconds in the expert and clonings are counted (:func:`dagger_cost` say
 
 Taught in chapter 09.
 """
+
 from __future__ import annotations
 
 import json
@@ -64,9 +65,12 @@ DART_STARTS = (0.05, TOO_LARGE)
 #: The ``stage`` column of the experiment's rows: the score before RL, or an iteration of the RL stage.
 PRE_RL, RL = "pre-RL", "RL"
 #: The readings of a comparison's verdict (a against b, in the measure's better direction).
-READINGS = {"confirmed": "a better than b", "contradicted": "a worse than b",
-            "not confirmed": "not distinguishable at this many seeds",
-            "negligible": f"a and b differ by less than {MATERIALITY:.0%} of b's level"}
+READINGS = {
+    "confirmed": "a better than b",
+    "contradicted": "a worse than b",
+    "not confirmed": "not distinguishable at this many seeds",
+    "negligible": f"a and b differ by less than {MATERIALITY:.0%} of b's level",
+}
 
 
 def samples() -> int:
@@ -114,9 +118,15 @@ class Variant:
 
 def variants() -> list[Variant]:
     """Every data set of the experiment, VD's and L2's."""
-    return [v for reg in ("vd", "l2") for v in (
-        *(Variant("hand-set", reg, s) for s in (*HAND_SET, TOO_LARGE)),
-        *(Variant("dart", reg, s) for s in DART_STARTS), Variant("dagger", reg))]
+    return [
+        v
+        for reg in ("vd", "l2")
+        for v in (
+            *(Variant("hand-set", reg, s) for s in (*HAND_SET, TOO_LARGE)),
+            *(Variant("dart", reg, s) for s in DART_STARTS),
+            Variant("dagger", reg),
+        )
+    ]
 
 
 def data_set_path(variant: Variant, out: Path) -> Path:
@@ -142,25 +152,39 @@ def data_set(variant: Variant, out: Path, progress: bool = False) -> tuple[Demos
             result = dart(TASK, variant.reg, n, rounds(), variant.sigma, seed=0, progress=progress)
         else:
             result = dagger(TASK, variant.reg, n, rounds(), seed=0, progress=progress)
-        record = {"rounds": result.rounds, "expert_queries": result.expert_queries,
-                  "expert_seconds": result.expert_seconds, "clonings": len(result.rounds),
-                  "wall_time_s": time.perf_counter() - start}
+        record = {
+            "rounds": result.rounds,
+            "expert_queries": result.expert_queries,
+            "expert_seconds": result.expert_seconds,
+            "clonings": len(result.rounds),
+            "wall_time_s": time.perf_counter() - start,
+        }
         result.demos.save(path)
         record_path.write_text(json.dumps(record, indent=1))
-    return Demos.load(path, task=TASK, samples=n), {"source": recorded_path(path), **json.loads(record_path.read_text())}
+    return Demos.load(path, task=TASK, samples=n), {
+        "source": recorded_path(path),
+        **json.loads(record_path.read_text()),
+    }
 
 
 def cloned_policy(variant: Variant, demos: Demos, seed: int, out: Path):
     """The policy cloned on the variant's data with ``seed`` (settings of :func:`cloning_config`), looked up or
     made by :func:`pretrained_policy` in ``out/checkpoints`` (a hand-set set's shipped checkpoints of seeds 0-2
     are reused; a DART or DAgger set's are named after its file). The RL stage starts from this checkpoint."""
-    return pretrained_policy(variant.reg, demos, "state", seed, cloning_config(variant.reg), out,
-                             source=data_set_path(variant, out))
+    return pretrained_policy(
+        variant.reg, demos, "state", seed, cloning_config(variant.reg), out, source=data_set_path(variant, out)
+    )
 
 
 def _tags(variant: Variant, seed: int, stage: str) -> dict:
-    return {"label": variant.label, "kind": variant.kind, "method": variant.reg, "sigma": variant.sigma,
-            "seed": seed, "stage": stage}
+    return {
+        "label": variant.label,
+        "kind": variant.kind,
+        "method": variant.reg,
+        "sigma": variant.sigma,
+        "seed": seed,
+        "stage": stage,
+    }
 
 
 @dataclass(frozen=True)
@@ -181,9 +205,16 @@ class PreRLJob(SavedInStateDir):
 
     @property
     def settings(self) -> dict:
-        return {"experiment": "beyond", "variant": asdict(self.variant), "seed": self.seed, "samples": samples(),
-                "rounds": rounds(), "episodes": pre_rl_episodes(), "num_envs": NUM_ENVS,
-                "pretrain_config": asdict(cloning_config(self.variant.reg))}
+        return {
+            "experiment": "beyond",
+            "variant": asdict(self.variant),
+            "seed": self.seed,
+            "samples": samples(),
+            "rounds": rounds(),
+            "episodes": pre_rl_episodes(),
+            "num_envs": NUM_ENVS,
+            "pretrain_config": asdict(cloning_config(self.variant.reg)),
+        }
 
     @property
     def rows_expected(self) -> int:
@@ -244,8 +275,17 @@ class RLJob(SavedInStateDir):
     def settings(self) -> dict:
         """What :func:`~vdtutorial.experiments.runs.finetune_steps` saves with the run (its run_settings)."""
         path = data_set_path(self.variant, self.out)
-        return run_settings(self.variant.reg, TASK, Demos.load(path, task=TASK).meta, "state", self.seed, NUM_ENVS,
-                            self.pretrain_config, default_trpo_config(), path)
+        return run_settings(
+            self.variant.reg,
+            TASK,
+            Demos.load(path, task=TASK).meta,
+            "state",
+            self.seed,
+            NUM_ENVS,
+            self.pretrain_config,
+            default_trpo_config(),
+            path,
+        )
 
     @property
     def rows_expected(self) -> int:
@@ -262,10 +302,18 @@ class RLJob(SavedInStateDir):
         return f"{len(rows)} TRPO iterations, last {rows[-1]['successes']:.3g} successes per 200 steps"
 
     def compute(self):
-        _, rows = yield from finetune_steps(self.variant.reg, TASK, data_set_path(self.variant, self.out), "state",
-                                            self.seed, self.steps, pretrain_config=self.pretrain_config,
-                                            checkpoints_root=self.out,
-                                            state_path=self.state_path, checkpoint_every=self.checkpoint_every)
+        _, rows = yield from finetune_steps(
+            self.variant.reg,
+            TASK,
+            data_set_path(self.variant, self.out),
+            "state",
+            self.seed,
+            self.steps,
+            pretrain_config=self.pretrain_config,
+            checkpoints_root=self.out,
+            state_path=self.state_path,
+            checkpoint_every=self.checkpoint_every,
+        )
         return rows
 
 
@@ -282,11 +330,15 @@ def _questions(reg: str, level) -> list[tuple[str, str, str]]:
     pairs = []
     for start in DART_STARTS:
         learned = Variant("dart", reg, start).label
-        pairs += [("learned noise beats the poor Sigma it started from", learned, hand[start]),
-                  ("learned noise against the best hand-set Sigma", learned, hand[best])]
+        pairs += [
+            ("learned noise beats the poor Sigma it started from", learned, hand[start]),
+            ("learned noise against the best hand-set Sigma", learned, hand[best]),
+        ]
     dagger_label = Variant("dagger", reg).label
-    return pairs + [("DAgger against the best hand-set Sigma", dagger_label, hand[best]),
-                    ("DAgger against the paper's Sigma=0.5", dagger_label, hand[0.5])]
+    return pairs + [
+        ("DAgger against the best hand-set Sigma", dagger_label, hand[best]),
+        ("DAgger against the paper's Sigma=0.5", dagger_label, hand[0.5]),
+    ]
 
 
 def comparisons(rows: list[dict]) -> list[dict]:
@@ -301,21 +353,40 @@ def comparisons(rows: list[dict]) -> list[dict]:
     out = []
     for question, a, b in pairs:
         estimate, low, high = welch_interval(by_label[a], by_label[b], confidence)
-        out.append({"question": question, "a": a, "b": b, "measure": "pre-RL successes per 200 steps (mean action)",
-                    "estimate": estimate, "low": low, "high": high, "confidence": confidence,
-                    "reading": {"confirmed": "a above b", "contradicted": "a below b",
-                                "not confirmed": "not distinguishable at this many seeds"}[verdict(low, high, 1)]})
+        out.append(
+            {
+                "question": question,
+                "a": a,
+                "b": b,
+                "measure": "pre-RL successes per 200 steps (mean action)",
+                "estimate": estimate,
+                "low": low,
+                "high": high,
+                "confidence": confidence,
+                "reading": {
+                    "confirmed": "a above b",
+                    "contradicted": "a below b",
+                    "not confirmed": "not distinguishable at this many seeds",
+                }[verdict(low, high, 1)],
+            }
+        )
     return out
 
 
 def rl_claims(rows: list[dict], window: int) -> tuple[Claim, ...]:
     """The questions of :func:`comparisons` asked of the RL curves, each at the final level and over the whole
     run (area under the curve); the best hand-set Sigma is the one with the highest final level of successes."""
-    final = {label: float(run_summaries(group, "final", window).mean())
-             for label, group in per_run(rows, "successes").items()}
+    final = {
+        label: float(run_summaries(group, "final", window).mean())
+        for label, group in per_run(rows, "successes").items()
+    }
     kinds = {"final": "final level", "auc": "area under the curve"}
-    return tuple(Claim("beyond", f"{question}: {a} vs {b} ({kinds[kind]})", kind, a, b)
-                 for reg in ("vd", "l2") for question, a, b in _questions(reg, final.__getitem__) for kind in kinds)
+    return tuple(
+        Claim("beyond", f"{question}: {a} vs {b} ({kinds[kind]})", kind, a, b)
+        for reg in ("vd", "l2")
+        for question, a, b in _questions(reg, final.__getitem__)
+        for kind in kinds
+    )
 
 
 def rl_stage(rows: list[dict], seeds, steps: int, configs: dict[str, PretrainConfig]) -> tuple[Figure, dict]:
@@ -325,14 +396,22 @@ def rl_stage(rows: list[dict], seeds, steps: int, configs: dict[str, PretrainCon
     verdict). ``configs``: the RL runs' pre-training settings per regulariser, for the record."""
     window = smooth_window()
     figure, summary = _rl_derive(rows, len(seeds), steps, window)
-    return figure, {"steps": steps, "window": window, "metric": "successes", "measures": list(measures_of("successes")),
-                    "trpo_config": asdict(default_trpo_config()),
-                    "pretrain_config": {reg: asdict(config) for reg, config in configs.items()}, **summary}
+    return figure, {
+        "steps": steps,
+        "window": window,
+        "metric": "successes",
+        "measures": list(measures_of("successes")),
+        "trpo_config": asdict(default_trpo_config()),
+        "pretrain_config": {reg: asdict(config) for reg, config in configs.items()},
+        **summary,
+    }
 
 
 def _rl_derive(rows: list[dict], seeds: int, steps: int, window: int) -> tuple[Figure, dict]:
     """What the RL rows say (:func:`rl_stage`): the figure, the final points and the claims, each read in words."""
-    title = figure_title("Beyond the paper: TRPO from hand-set Sigma, DART and DAgger (reaching)", "state", steps, seeds)
+    title = figure_title(
+        "Beyond the paper: TRPO from hand-set Sigma, DART and DAgger (reaching)", "state", steps, seeds
+    )
     _, figure, summary = derive("beyond", rows, "successes", window, title, rl_claims(rows, window))
     for effect in summary["claims"]:
         effect["reading"] = READINGS[effect["holm_verdict"]]
@@ -363,17 +442,28 @@ def dagger_cost(cost: dict, pre: list[dict], rl: list[dict], steps: int) -> list
     for reg in ("vd", "l2"):
         label = Variant("dagger", reg).label
         before = next(c for c in pre if c["a"] == label and c["question"] == "DAgger against the best hand-set Sigma")
-        after = {c["measure"]: c for c in rl if c["a"] == label and c["metric"] == "successes"
-                 and c["text"].startswith("DAgger against the best hand-set Sigma")}
+        after = {
+            c["measure"]: c
+            for c in rl
+            if c["a"] == label
+            and c["metric"] == "successes"
+            and c["text"].startswith("DAgger against the best hand-set Sigma")
+        }
         made = cost[label]
-        sentence = (f"{label}: {made['expert_queries']} expert queries ({made['expert_seconds']:.0f} s in the expert) "
-                    f"and {made['clonings']} clonings, against one cloning of {before['b']}'s once-generated "
-                    f"{cost[before['b']]['expert_queries']} labels; before RL {before['estimate']:+.2f} successes per "
-                    f"200 steps ({before['reading']})")
+        sentence = (
+            f"{label}: {made['expert_queries']} expert queries ({made['expert_seconds']:.0f} s in the expert) "
+            f"and {made['clonings']} clonings, against one cloning of {before['b']}'s once-generated "
+            f"{cost[before['b']]['expert_queries']} labels; before RL {before['estimate']:+.2f} successes per "
+            f"200 steps ({before['reading']})"
+        )
         if after:
-            sentence += "; after {:g} RL steps{}".format(steps, "".join(
-                f", {kind} {after[kind]['estimate']:+.2f} against {after[kind]['b']} ({after[kind]['reading']})"
-                for kind in ("final", "auc")))
+            sentence += "; after {:g} RL steps{}".format(
+                steps,
+                "".join(
+                    f", {kind} {after[kind]['estimate']:+.2f} against {after[kind]['b']} ({after[kind]['reading']})"
+                    for kind in ("final", "auc")
+                ),
+            )
         out.append({"dagger": label, **made, "before_rl": before, "after_rl": after, "statement": sentence})
     return out
 
@@ -387,8 +477,14 @@ def plot(rows: list[dict], made: dict[str, dict]) -> Figure:
     for i, label in enumerate(labels):
         band = _interval([r["successes"] for r in rows if r["label"] == label])
         colour = method(next(r["method"] for r in rows if r["label"] == label)).colour
-        left.errorbar(band["mean"], i, xerr=[[band["mean"] - band["low"]], [band["high"] - band["mean"]]],
-                      fmt="o", color=colour, capsize=3)
+        left.errorbar(
+            band["mean"],
+            i,
+            xerr=[[band["mean"] - band["low"]], [band["high"] - band["mean"]]],
+            fmt="o",
+            color=colour,
+            capsize=3,
+        )
     left.set_yticks(range(len(labels)), labels, fontsize=8)
     left.invert_yaxis()
     left.set_xlabel("pre-RL successes per 200 steps (mean action; 95% t-interval over seeds)", fontsize=9)
@@ -407,9 +503,19 @@ def plot(rows: list[dict], made: dict[str, dict]) -> Figure:
     return fig
 
 
-def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, progress: bool | None = None,
-           backend: str = "local", address: str | None = None, restart: bool = False, state_dir=None,
-           checkpoint_every: int = CHECKPOINT_EVERY, start_sigma: str | None = None) -> dict:
+def beyond(
+    seeds=None,
+    steps: int | None = None,
+    out=None,
+    workers: int = 1,
+    progress: bool | None = None,
+    backend: str = "local",
+    address: str | None = None,
+    restart: bool = False,
+    state_dir=None,
+    checkpoint_every: int = CHECKPOINT_EVERY,
+    start_sigma: str | None = None,
+) -> dict:
     """The experiment (module docstring, "Two stages per data set and seed"); returns its JSON record. The data sets are made here, one after
     the other; the runs are a grid (:func:`~vdtutorial.runner.grid.run_grid`: ``workers``, ``backend``,
     ``address``, ``restart``, ``progress``): per variant and seed a :class:`PreRLJob` and an :class:`RLJob` of
@@ -432,9 +538,9 @@ def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, pro
     for variant in variants():  # data sets first, one at a time: later runs only read them
         _, made[variant.label] = data_set(variant, out, bool(progress))
     state_dir = Path(state_dir).resolve() if state_dir is not None else (out / "runs").resolve()
-    jobs = ([PreRLJob(v, s, out.resolve(), state_dir) for v in variants() for s in seeds]
-            + [RLJob(v, s, steps, out.resolve(), state_dir, checkpoint_every, start_sigma) for v in variants()
-               for s in seeds])
+    jobs = [PreRLJob(v, s, out.resolve(), state_dir) for v in variants() for s in seeds] + [
+        RLJob(v, s, steps, out.resolve(), state_dir, checkpoint_every, start_sigma) for v in variants() for s in seeds
+    ]
     results = run_grid("beyond", jobs, workers, backend, address, restart, progress)
     rows = [row for result in results for row in result["rows"]]
     write_csv(results_file(out, "beyond"), rows)
@@ -443,24 +549,48 @@ def beyond(seeds=None, steps: int | None = None, out=None, workers: int = 1, pro
     configs = {job.variant.reg: job.pretrain_config for job in jobs if isinstance(job, RLJob)}
     rl_figure, rl = rl_stage([row for row in rows if row["stage"] == RL], seeds, steps, configs)
     save_png(rl_figure, out / "beyond_rl.png", 110)
-    per_label = {label: {q: _interval([r[q] for r in pre if r["label"] == label])
-                         for q in ("successes", "trajectories", "success_rate")}
-                 for label in dict.fromkeys(r["label"] for r in pre)}
-    cost = {label: {"expert_queries": samples(), "clonings": data["clonings"],
-                    "expert_seconds": data.get("expert_seconds")} for label, data in made.items()}
+    per_label = {
+        label: {
+            q: _interval([r[q] for r in pre if r["label"] == label])
+            for q in ("successes", "trajectories", "success_rate")
+        }
+        for label in dict.fromkeys(r["label"] for r in pre)
+    }
+    cost = {
+        label: {"expert_queries": samples(), "clonings": data["clonings"], "expert_seconds": data.get("expert_seconds")}
+        for label, data in made.items()
+    }
     pre_comparisons = comparisons(pre)
-    record = {"experiment": "beyond", "command": experiment_command("beyond", seeds=seeds, steps=steps, workers=workers,
-                                                                    out=out if out != default_out("beyond") else None),
-              "quick": is_quick(), "task": TASK, "obs_mode": "state", "seeds": list(seeds), "samples": samples(),
-              "rounds": rounds(), "dagger_beta": BETA, "pre_rl_episodes": pre_rl_episodes(), "num_envs": NUM_ENVS,
-              "pretrain_config": {reg: asdict(cloning_config(reg)) for reg in ("vd", "l2")},
-              "wall_time_s": time.perf_counter() - start,  # this invocation's; a resumed run's cost is in the next two
-              "run_seconds": sum(result["seconds"] for result in results),  # every job's, over all invocations
-              "data_set_seconds": sum(data.get("wall_time_s", 0.0) for data in made.values()),  # DART's, DAgger's
-              "data_sets": made, "cost": cost, "pre_rl": per_label,
-              "comparisons": pre_comparisons, "rl": rl, "dagger_cost": dagger_cost(cost, pre_comparisons, rl["claims"], steps),
-              "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__,
-                           "python": sys.version.split()[0]}}
+    record = {
+        "experiment": "beyond",
+        "command": experiment_command(
+            "beyond", seeds=seeds, steps=steps, workers=workers, out=out if out != default_out("beyond") else None
+        ),
+        "quick": is_quick(),
+        "task": TASK,
+        "obs_mode": "state",
+        "seeds": list(seeds),
+        "samples": samples(),
+        "rounds": rounds(),
+        "dagger_beta": BETA,
+        "pre_rl_episodes": pre_rl_episodes(),
+        "num_envs": NUM_ENVS,
+        "pretrain_config": {reg: asdict(cloning_config(reg)) for reg in ("vd", "l2")},
+        "wall_time_s": time.perf_counter() - start,  # this invocation's; a resumed run's cost is in the next two
+        "run_seconds": sum(result["seconds"] for result in results),  # every job's, over all invocations
+        "data_set_seconds": sum(data.get("wall_time_s", 0.0) for data in made.values()),  # DART's, DAgger's
+        "data_sets": made,
+        "cost": cost,
+        "pre_rl": per_label,
+        "comparisons": pre_comparisons,
+        "rl": rl,
+        "dagger_cost": dagger_cost(cost, pre_comparisons, rl["claims"], steps),
+        "versions": {
+            "vdtutorial": vdtutorial.__version__,
+            "torch": torch.__version__,
+            "python": sys.version.split()[0],
+        },
+    }
     (out / "beyond.json").write_text(json.dumps(record, indent=1, default=str))
     return record
 
@@ -480,29 +610,49 @@ def markdown_tables(record: dict) -> str:
     metric (final level and area under the curve, Holm), each with its verdict."""
     rl, measures = record["rl"], record["rl"]["measures"]
     names = {"successes": "successes", "success_rate": "success rate", "steps_per_trajectory": "steps per trajectory"}
-    lines = ["| data set | expert labels | clonings | s in the expert | before RL: successes | "
-             + " | ".join(f"after RL, {names.get(m, m)}" for m in measures) + " |",
-             "|---|---|---|---|---|" + "---|" * len(measures)]
+    lines = [
+        "| data set | expert labels | clonings | s in the expert | before RL: successes | "
+        + " | ".join(f"after RL, {names.get(m, m)}" for m in measures)
+        + " |",
+        "|---|---|---|---|---|" + "---|" * len(measures),
+    ]
     for label, before in record["pre_rl"].items():
         cost = record["cost"][label]
         seconds = "-" if cost["expert_seconds"] is None else f"{cost['expert_seconds']:.0f}"
-        finals = [_band(rl["final_by_measure"][m][label], 3 if m == "success_rate" else 2, MEASURES[m].feasible)
-                  for m in measures]
-        lines.append(f"| {label} | {cost['expert_queries']} | {cost['clonings']} | {seconds} | "
-                     f"{_band(before['successes'], feasible=MEASURES['successes'].feasible)} | " + " | ".join(finals) + " |")
+        finals = [
+            _band(rl["final_by_measure"][m][label], 3 if m == "success_rate" else 2, MEASURES[m].feasible)
+            for m in measures
+        ]
+        lines.append(
+            f"| {label} | {cost['expert_queries']} | {cost['clonings']} | {seconds} | "
+            f"{_band(before['successes'], feasible=MEASURES['successes'].feasible)} | " + " | ".join(finals) + " |"
+        )
     # the RL stage picks the best hand-set Sigma by its final level, the pre-RL stage by its pre-RL mean: b may differ
     after = {}
     for c in rl["claims"]:
         if c["metric"] == rl["metric"]:
             after[c["text"].split(":")[0], c["a"], c["measure"]] = c
-    lines += ["", "| question | a | before RL: b | a - b | reading | after RL: b | final level: a - b | Holm | "
-              "area: a - b | Holm |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "| question | a | before RL: b | a - b | reading | after RL: b | final level: a - b | Holm | "
+        "area: a - b | Holm |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for c in record["comparisons"]:
         final, auc = after[c["question"], c["a"], "final"], after[c["question"], c["a"], "auc"]
-        cells = [c["question"], c["a"], c["b"], f"{c['estimate']:+.2f} ({c['low']:+.2f} to {c['high']:+.2f})",
-                 c["reading"], final["b"]]
+        cells = [
+            c["question"],
+            c["a"],
+            c["b"],
+            f"{c['estimate']:+.2f} ({c['low']:+.2f} to {c['high']:+.2f})",
+            c["reading"],
+            final["b"],
+        ]
         for effect in (final, auc):
-            cells += [f"{effect['estimate']:+.3g} ({effect['low']:+.3g} to {effect['high']:+.3g})", effect["holm_verdict"]]
+            cells += [
+                f"{effect['estimate']:+.3g} ({effect['low']:+.3g} to {effect['high']:+.3g})",
+                effect["holm_verdict"],
+            ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -510,17 +660,29 @@ def markdown_tables(record: dict) -> str:
 def format_summary(record: dict) -> str:
     """The pre-RL scores and comparisons of a :func:`beyond` record, the RL stage's final levels and its claims on
     the paper's metric (every measure: the record's ``rl.claims``), and what DAgger's work bought, a line each."""
-    lines = [f"{label:>28}: {band['successes']['mean']:.2f} successes per 200 steps before RL "
-             f"(95% interval {band['successes']['low']:.2f} to {band['successes']['high']:.2f}, {band['successes']['n']} seeds); "
-             f"{record['cost'][label]['clonings']} cloning(s), {record['cost'][label]['expert_queries']} expert labels"
-             for label, band in record["pre_rl"].items()]
-    lines += [f"{c['question']} ({c['a']} - {c['b']}): {c['estimate']:+.2f} ({c['confidence']:.1%} interval "
-              f"{c['low']:+.2f} to {c['high']:+.2f}): {c['reading']}" for c in record["comparisons"]]
+    lines = [
+        f"{label:>28}: {band['successes']['mean']:.2f} successes per 200 steps before RL "
+        f"(95% interval {band['successes']['low']:.2f} to {band['successes']['high']:.2f}, {band['successes']['n']} seeds); "
+        f"{record['cost'][label]['clonings']} cloning(s), {record['cost'][label]['expert_queries']} expert labels"
+        for label, band in record["pre_rl"].items()
+    ]
+    lines += [
+        f"{c['question']} ({c['a']} - {c['b']}): {c['estimate']:+.2f} ({c['confidence']:.1%} interval "
+        f"{c['low']:+.2f} to {c['high']:+.2f}): {c['reading']}"
+        for c in record["comparisons"]
+    ]
     rl = record.get("rl")
     if rl is None:  # a record written before the RL stage existed
         return "\n".join(lines + ["no RL stage in this record"])
-    lines += [f"{label:>28}: {final['mean']:.2f} successes per 200 steps after {rl['steps']:g} RL steps (final level, "
-              f"95% band {final['low']:.2f} to {final['high']:.2f}, {final['seeds']} seeds)" for label, final in rl["final"].items()]
-    lines += [f"after RL, {c['text']}: {c['estimate']:+.3g} ({c['confidence']:.0%} interval {c['low']:+.3g} to "
-              f"{c['high']:+.3g}, p {c['p_value']:.2g}): {c['reading']} (Holm)" for c in rl["claims"] if c["metric"] == rl["metric"]]
+    lines += [
+        f"{label:>28}: {final['mean']:.2f} successes per 200 steps after {rl['steps']:g} RL steps (final level, "
+        f"95% band {final['low']:.2f} to {final['high']:.2f}, {final['seeds']} seeds)"
+        for label, final in rl["final"].items()
+    ]
+    lines += [
+        f"after RL, {c['text']}: {c['estimate']:+.3g} ({c['confidence']:.0%} interval {c['low']:+.3g} to "
+        f"{c['high']:+.3g}, p {c['p_value']:.2g}): {c['reading']} (Holm)"
+        for c in rl["claims"]
+        if c["metric"] == rl["metric"]
+    ]
     return "\n".join(lines + [entry["statement"] for entry in record["dagger_cost"]])

@@ -6,6 +6,7 @@ the policy that was asked for.
 
 Taught in chapter 05.
 """
+
 from __future__ import annotations
 
 import os
@@ -46,8 +47,9 @@ def rgbd_settings() -> dict:
 def default_config(reg: str = "vd", obs_mode: str = "state") -> PretrainConfig:
     """The pre-training settings used for shipped checkpoints and experiments, per observation mode, with RL
     starting from ``RL_START_SIGMA``."""
-    return PretrainConfig(reg=reg, obs_mode=obs_mode, initial_sigma=RL_START_SIGMA,
-                          **(rgbd_settings() if obs_mode == "rgbd" else {}))
+    return PretrainConfig(
+        reg=reg, obs_mode=obs_mode, initial_sigma=RL_START_SIGMA, **(rgbd_settings() if obs_mode == "rgbd" else {})
+    )
 
 
 def with_held_out_stop(config: PretrainConfig, cap: int, patience: int) -> PretrainConfig:
@@ -74,9 +76,17 @@ def current_field_names(config: dict) -> dict:
     return {RENAMED_FIELDS.get(key, key): value for key, value in config.items()}
 
 
-def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, root: Path | None = None,
-                    initial_sigma: str = PAPER_SIGMA_OPTION, kl_divisor: int | None = None,
-                    data_name: str | None = None, patience: int | None = None) -> Path:
+def checkpoint_path(
+    demos_meta: dict,
+    reg: str,
+    obs_mode: str,
+    seed: int = 0,
+    root: Path | None = None,
+    initial_sigma: str = PAPER_SIGMA_OPTION,
+    kl_divisor: int | None = None,
+    data_name: str | None = None,
+    patience: int | None = None,
+) -> Path:
     """Conventional checkpoint name under ``data/checkpoints``; a non-default ``initial_sigma``, ``kl_divisor``
     or ``patience`` is added to the name (``..._seed0_initsigma-demos.pt``, ``..._seed0_kl7200.pt``,
     ``..._seed0_stop10.pt``), so that it never replaces the default checkpoint; so is a data set drawn with another
@@ -91,8 +101,9 @@ def checkpoint_path(demos_meta: dict, reg: str, obs_mode: str, seed: int = 0, ro
     return Path(root or data_dir()) / "checkpoints" / f"{data}_{reg}_{obs_mode}_seed{seed}{kl}{stop}{sigma}.pt"
 
 
-def reusable_checkpoint(candidates: list[Path], expected: dict, seed: int, root: Path,
-                        label: str) -> GaussianPolicy | None:
+def reusable_checkpoint(
+    candidates: list[Path], expected: dict, seed: int, root: Path, label: str
+) -> GaussianPolicy | None:
     """The first of ``candidates`` that exists and holds the policy ``expected`` (:func:`load_checkpoint`'s entries)
     pre-trained with ``seed``; None if none does. A file that is another pre-training is named in one plain line:
     the last candidate, under ``root``, will be replaced; an earlier one (the shipped checkpoint beside a run at a
@@ -108,11 +119,17 @@ def reusable_checkpoint(candidates: list[Path], expected: dict, seed: int, root:
         except CheckpointError as exc:
             reason = exc.difference or str(exc)
         if candidate == candidates[-1]:
-            print(f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): pre-training again to "
-                  "replace it", flush=True)
+            print(
+                f"checkpoint {recorded_path(candidate)} is another pre-training ({reason}): pre-training again to "
+                "replace it",
+                flush=True,
+            )
         else:
-            print(f"pre-training {label}, seed {seed}, into {recorded_path(root)} (the shipped "
-                  f"{recorded_path(candidate)} has other settings: {reason})", flush=True)
+            print(
+                f"pre-training {label}, seed {seed}, into {recorded_path(root)} (the shipped "
+                f"{recorded_path(candidate)} has other settings: {reason})",
+                flush=True,
+            )
     return None
 
 
@@ -128,18 +145,21 @@ def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> 
 
 
 #: The conventional file name of :func:`checkpoint_path`, read back to fill in a make-it hint.
-_NAME = re.compile(DATA_SET_PATTERN
-                   + r"(?:_demos(?P<draw>\d+))?_(?P<reg>\w+?)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt")
+_NAME = re.compile(
+    DATA_SET_PATTERN + r"(?:_demos(?P<draw>\d+))?_(?P<reg>\w+?)_(?P<obs>state|rgbd)_seed(?P<seed>\d+)\.pt"
+)
 
 
 def _make_hint(path: Path) -> str:
     """The command that makes the checkpoint ``path``, with the real values when the name is conventional."""
     match = _NAME.fullmatch(path.name)
     if not match:
-        return ("Make it with: python -m vdtutorial pretrain --reg METHOD --demos FILE --seed SEED --obs {state,rgbd} "
-                f"--out {path}")
+        return (
+            "Make it with: python -m vdtutorial pretrain --reg METHOD --demos FILE --seed SEED --obs {state,rgbd} "
+            f"--out {path}"
+        )
     demos = demo_path(match["task"], int(match["samples"]), float(match["noise"]), int(match["draw"] or 0))
-    return (f"Make it with: {pretrain_command(match['reg'], demos, int(match['seed']), match['obs'])} --out {path}")
+    return f"Make it with: {pretrain_command(match['reg'], demos, int(match['seed']), match['obs'])} --out {path}"
 
 
 class CheckpointError(ValueError):

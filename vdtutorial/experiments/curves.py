@@ -1,4 +1,5 @@
 """Curves over seeds: trailing smoothing, Student-t bands, and the "steps to reach a level" summary. Taught in chapter 07."""
+
 from __future__ import annotations
 
 import math
@@ -103,11 +104,14 @@ def curves_from_rows(rows: list[dict], metric: str, window: int | None = None) -
     return curves
 
 
-
 def final_point(curve: Curve) -> dict:
     """Last point of a smoothed curve (the expert's level for the expert)."""
-    return {"mean": float(curve.mean[-1]), "low": float(curve.low[-1]), "high": float(curve.high[-1]),
-            "seeds": curve.seeds}
+    return {
+        "mean": float(curve.mean[-1]),
+        "low": float(curve.low[-1]),
+        "high": float(curve.high[-1]),
+        "seeds": curve.seeds,
+    }
 
 
 #: The paper's headline (Section V-A): "The sparse VD model overtakes the L2 model's final performance at around
@@ -115,8 +119,10 @@ def final_point(curve: Curve) -> dict:
 #: The two halves disagree: 1.25e5 of 3e5 is 42%, not under 25%. Both readings are evaluated, as fractions of
 #: the budget (so that a shorter run is read the same way).
 PAPER_REACH_STEPS, PAPER_BUDGET_STEPS, PAPER_QUARTER = 1.25e5, 3e5, 0.25
-PAPER_READINGS = {"around 1.25e5 of 3e5 steps": PAPER_REACH_STEPS / PAPER_BUDGET_STEPS,
-                  "less than one quarter": PAPER_QUARTER}
+PAPER_READINGS = {
+    "around 1.25e5 of 3e5 steps": PAPER_REACH_STEPS / PAPER_BUDGET_STEPS,
+    "less than one quarter": PAPER_QUARTER,
+}
 
 
 def paper_readings_text(fraction: float | None) -> str:
@@ -139,6 +145,8 @@ def vd_reaches_l2_final(curves: dict[str, Curve]) -> dict:
     if steps is None:
         text = f"VD's smoothed mean never reaches L2's final level ({level:.2f}); {paper_readings_text(None)}"
     else:
-        text = (f"VD's smoothed mean first reaches L2's final level ({level:.2f}) at {steps:.3g} env steps, "
-                f"{fraction:.0%} of the budget; {paper_readings_text(fraction)}")
+        text = (
+            f"VD's smoothed mean first reaches L2's final level ({level:.2f}) at {steps:.3g} env steps, "
+            f"{fraction:.0%} of the budget; {paper_readings_text(fraction)}"
+        )
     return {"l2_final_level": level, "steps": steps, "fraction_of_budget": fraction, "text": text}

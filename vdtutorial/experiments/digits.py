@@ -6,6 +6,7 @@ almost the same accuracy with most weights pruned.
 Taught in chapter 04 and appendix A3: chapter 04 trains :func:`digits_mlp` and reads its sparsity, appendix A3
 runs :func:`digits_validation`.
 """
+
 from __future__ import annotations
 
 import math
@@ -42,8 +43,16 @@ def digits_mlp(variational: bool, hidden: tuple[int, ...] = (300, 100)) -> nn.Se
     return nn.Sequential(*layers)
 
 
-def _train_classifier(model: nn.Module, x: torch.Tensor, y: torch.Tensor, epochs: int, batch_size: int,
-                      lr: float, warmup: float, generator: torch.Generator) -> None:
+def _train_classifier(
+    model: nn.Module,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    epochs: int,
+    batch_size: int,
+    lr: float,
+    warmup: float,
+    generator: torch.Generator,
+) -> None:
     """Adam on the per-example negative ELBO: cross-entropy + beta * KL / N (eqs. 1-3), beta rising
     linearly from 0 to 1 over the first ``warmup`` fraction of the steps. For a plain model KL = 0."""
     n = len(x)
@@ -67,8 +76,9 @@ def _accuracy(model: nn.Module, x: torch.Tensor, y: torch.Tensor) -> float:
     return (model(x).argmax(1) == y).float().mean().item()
 
 
-def digits_validation(seed: int = 0, epochs: int | None = None, batch_size: int = 100, lr: float = 1e-3,
-                      warmup: float = 0.3) -> DigitsResult:
+def digits_validation(
+    seed: int = 0, epochs: int | None = None, batch_size: int = 100, lr: float = 1e-3, warmup: float = 0.3
+) -> DigitsResult:
     """Train the same MLP with plain and with sparse-VD layers on ``sklearn.datasets.load_digits``.
 
     Data: 1797 images of 8 x 8 pixels (intensities 0..16, scaled to [0, 1]), a stratified 80/20 split
@@ -101,16 +111,23 @@ def _digits_run(seed: int, epochs: int, batch_size: int, lr: float, warmup: floa
 
     start = time.perf_counter()
     data = load_digits()
-    x_train, x_test, y_train, y_test = train_test_split(data.data / 16.0, data.target, test_size=0.2,
-                                                        stratify=data.target, random_state=seed)
+    x_train, x_test, y_train, y_test = train_test_split(
+        data.data / 16.0, data.target, test_size=0.2, stratify=data.target, random_state=seed
+    )
     x_train, x_test = (torch.as_tensor(a, dtype=torch.float32) for a in (x_train, x_test))
     y_train, y_test = (torch.as_tensor(a, dtype=torch.long) for a in (y_train, y_test))
     models = {}
     for variational in (False, True):
         torch.manual_seed(seed)
         models[variational] = digits_mlp(variational)
-        _train_classifier(models[variational], x_train, y_train, epochs, batch_size, lr, warmup,
-                          torch.Generator().manual_seed(seed))
+        _train_classifier(
+            models[variational], x_train, y_train, epochs, batch_size, lr, warmup, torch.Generator().manual_seed(seed)
+        )
     report = sparsity_report(models[True])
-    return DigitsResult(_accuracy(models[False], x_test, y_test), _accuracy(models[True], x_test, y_test),
-                        report.weight_fraction, report, time.perf_counter() - start)
+    return DigitsResult(
+        _accuracy(models[False], x_test, y_test),
+        _accuracy(models[True], x_test, y_test),
+        report.weight_fraction,
+        report,
+        time.perf_counter() - start,
+    )

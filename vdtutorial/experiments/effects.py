@@ -24,6 +24,7 @@ could detect (:func:`claim_effects`).
 
 Taught in chapter 07 and appendix A5.
 """
+
 from __future__ import annotations
 
 import math
@@ -32,8 +33,14 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import integrate, optimize, stats
 
-from vdtutorial.experiments.curves import (CONFIDENCE, PAPER_BUDGET_STEPS, PAPER_QUARTER, PAPER_REACH_STEPS,
-                                           moving_average, smooth_window)
+from vdtutorial.experiments.curves import (
+    CONFIDENCE,
+    PAPER_BUDGET_STEPS,
+    PAPER_QUARTER,
+    PAPER_REACH_STEPS,
+    moving_average,
+    smooth_window,
+)
 from vdtutorial.experiments.looks import stages, two_look_test
 from vdtutorial.experiments.measures import MEASURES, measures_of, value
 from vdtutorial.methods import pretraining_methods
@@ -79,8 +86,10 @@ class Claim:
 #: The paper's headline as one claim: VD reaches L2's final level by 1.25e5 of 3e5 steps (42% of the budget). Its
 #: "less than one quarter" is a stricter limit on the same quantity, so a second row would only restate the first:
 #: it is reported beside it (``quarter_verdict``), not tested as a claim of its own.
-REACH_CLAIM = ("VD reaches L2's final level within 42% of the budget (paper: 1.25e5 of 3e5 steps; "
-               "'less than one quarter' noted beside it)")
+REACH_CLAIM = (
+    "VD reaches L2's final level within 42% of the budget (paper: 1.25e5 of 3e5 steps; "
+    "'less than one quarter' noted beside it)"
+)
 #: The paper's claims about its figures (Section V-A/B), per experiment.
 CLAIMS: dict[str, tuple[Claim, ...]] = {
     "fig4": (
@@ -92,19 +101,57 @@ CLAIMS: dict[str, tuple[Claim, ...]] = {
         Claim("fig4", REACH_CLAIM, "steps_to_reach", "VD", "L2", fraction=PAPER_REACH_STEPS / PAPER_BUDGET_STEPS),
     ),
     "fig5": tuple(
-        claim for n in (2000, 4000, 8000) for claim in (
-            Claim("fig5", f"VD ends above L2 with {n} demonstrations", "final", f"VD, {n} demos", f"L2, {n} demos",
-                  same_runs="Fig. 4" if n == 8000 else None),
-            Claim("fig5", f"VD learns faster than L2 with {n} demonstrations (AUC)", "auc", f"VD, {n} demos",
-                  f"L2, {n} demos", same_runs="Fig. 4" if n == 8000 else None))
-    ) + (Claim("fig5", "VD with 2000 demonstrations ends at least as high as L2 with 8000", "final",
-               "VD, 2000 demos", "L2, 8000 demos"),),
+        claim
+        for n in (2000, 4000, 8000)
+        for claim in (
+            Claim(
+                "fig5",
+                f"VD ends above L2 with {n} demonstrations",
+                "final",
+                f"VD, {n} demos",
+                f"L2, {n} demos",
+                same_runs="Fig. 4" if n == 8000 else None,
+            ),
+            Claim(
+                "fig5",
+                f"VD learns faster than L2 with {n} demonstrations (AUC)",
+                "auc",
+                f"VD, {n} demos",
+                f"L2, {n} demos",
+                same_runs="Fig. 4" if n == 8000 else None,
+            ),
+        )
+    )
+    + (
+        Claim(
+            "fig5",
+            "VD with 2000 demonstrations ends at least as high as L2 with 8000",
+            "final",
+            "VD, 2000 demos",
+            "L2, 8000 demos",
+        ),
+    ),
     "fig6": tuple(
-        claim for s in ("0.05", "0.25", "0.5") for claim in (
-            Claim("fig6", f"VD ends above L2 at Sigma = {s}", "final", f"VD, Sigma={s}", f"L2, Sigma={s}",
-                  same_runs="Fig. 4" if s == "0.5" else None),
-            Claim("fig6", f"VD learns faster than L2 at Sigma = {s} (AUC)", "auc", f"VD, Sigma={s}", f"L2, Sigma={s}",
-                  same_runs="Fig. 4" if s == "0.5" else None))
+        claim
+        for s in ("0.05", "0.25", "0.5")
+        for claim in (
+            Claim(
+                "fig6",
+                f"VD ends above L2 at Sigma = {s}",
+                "final",
+                f"VD, Sigma={s}",
+                f"L2, Sigma={s}",
+                same_runs="Fig. 4" if s == "0.5" else None,
+            ),
+            Claim(
+                "fig6",
+                f"VD learns faster than L2 at Sigma = {s} (AUC)",
+                "auc",
+                f"VD, Sigma={s}",
+                f"L2, Sigma={s}",
+                same_runs="Fig. 4" if s == "0.5" else None,
+            ),
+        )
     ),
     "fig7": (
         Claim("fig7", "VD ends above L2 (grasping)", "final", "VD", "L2"),
@@ -121,18 +168,23 @@ def per_run(rows: list[dict], metric: str) -> dict[str, dict]:
     curves, and for the expert (one row per measured episode) ``{"values": (episodes,)}``."""
     groups: dict[str, dict] = {}
     for row in rows:
-        groups.setdefault(row["label"], {"method": row["method"], "runs": {}})["runs"].setdefault(row["seed"], []).append(row)
+        groups.setdefault(row["label"], {"method": row["method"], "runs": {}})["runs"].setdefault(
+            row["seed"], []
+        ).append(row)
     out = {}
     for label, group in groups.items():
         if group["method"] == "expert":
-            out[label] = {"values": np.array([value(r, metric) for run in group["runs"].values() for r in run],
-                                             dtype=float)}
+            out[label] = {
+                "values": np.array([value(r, metric) for run in group["runs"].values() for r in run], dtype=float)
+            }
             continue
         runs = [sorted(run, key=lambda r: r["iteration"]) for run in group["runs"].values()]
         length = min(len(run) for run in runs)
-        out[label] = {"steps": np.array([r["env_steps"] for r in runs[0][:length]], dtype=float),
-                      "values": np.array([[value(r, metric) for r in run[:length]] for run in runs], dtype=float),
-                      "seeds": list(group["runs"])}
+        out[label] = {
+            "steps": np.array([r["env_steps"] for r in runs[0][:length]], dtype=float),
+            "values": np.array([[value(r, metric) for r in run[:length]] for run in runs], dtype=float),
+            "seeds": list(group["runs"]),
+        }
     return out
 
 
@@ -164,7 +216,7 @@ def _welch(a, b) -> tuple[float, float, float]:
     va, vb = a.var(ddof=1) / len(a), b.var(ddof=1) / len(b)
     if va + vb == 0:
         return diff, 0.0, math.nan
-    return diff, math.sqrt(va + vb), (va + vb) ** 2 / (va ** 2 / (len(a) - 1) + vb ** 2 / (len(b) - 1))
+    return diff, math.sqrt(va + vb), (va + vb) ** 2 / (va**2 / (len(a) - 1) + vb**2 / (len(b) - 1))
 
 
 def welch_interval(a, b, confidence: float = CONFIDENCE) -> tuple[float, float, float]:
@@ -194,8 +246,9 @@ def _first_reach(steps: np.ndarray, curve: np.ndarray, level: float, better: int
     return float(steps[hits[0]]) if len(hits) else math.inf
 
 
-def _bootstrap_steps_to_reach(a: dict, b: dict, window: int, better: int, samples: int,
-                              seed: int) -> tuple[float, np.ndarray]:
+def _bootstrap_steps_to_reach(
+    a: dict, b: dict, window: int, better: int, samples: int, seed: int
+) -> tuple[float, np.ndarray]:
     """The steps-to-reach point estimate and its ``samples`` bootstrap resamples over seeds."""
     smooth_a, smooth_b = moving_average(a["values"], window), moving_average(b["values"], window)
 
@@ -214,9 +267,15 @@ def _percentile_interval(boot: np.ndarray, confidence: float) -> tuple[float, fl
     return float(low), float(high)
 
 
-def steps_to_reach_interval(a: dict, b: dict, window: int, confidence: float = CONFIDENCE,
-                            samples: int = BOOTSTRAP_SAMPLES, seed: int = BOOTSTRAP_SEED,
-                            better: int = 1) -> tuple[float, float, float]:
+def steps_to_reach_interval(
+    a: dict,
+    b: dict,
+    window: int,
+    confidence: float = CONFIDENCE,
+    samples: int = BOOTSTRAP_SAMPLES,
+    seed: int = BOOTSTRAP_SEED,
+    better: int = 1,
+) -> tuple[float, float, float]:
     """First step at which ``a``'s seed-mean smoothed curve reaches ``b``'s final level (its seed-mean
     smoothed end point; "reaches": at or above it, or at or below it for a measure where lower is
     ``better``), with a percentile bootstrap interval over seeds (``inf``: not reached)."""
@@ -290,9 +349,15 @@ def verdict(low: float, high: float, direction: int, threshold: float = 0.0, mat
     return "confirmed" if high < threshold else "contradicted" if low > threshold else "not confirmed"
 
 
-def claim_effects(name: str, rows: list[dict], metric: str, window: int | None = None,
-                  confidence: float = CONFIDENCE, claims: tuple[Claim, ...] | None = None,
-                  looks: list[dict] | None = None) -> list[dict]:
+def claim_effects(
+    name: str,
+    rows: list[dict],
+    metric: str,
+    window: int | None = None,
+    confidence: float = CONFIDENCE,
+    claims: tuple[Claim, ...] | None = None,
+    looks: list[dict] | None = None,
+) -> list[dict]:
     """Every claim of experiment ``name`` (``CLAIMS[name]``, or ``claims``: an experiment whose questions depend
     on its results, like the beyond experiment's "best hand-set Sigma") whose curves are in ``rows``, on every
     measure of an experiment with paper metric ``metric`` (:func:`~vdtutorial.experiments.measures.measures_of`):
@@ -324,22 +389,28 @@ def claim_effects(name: str, rows: list[dict], metric: str, window: int | None =
     results = []
     for measure in measures_of(metric):
         groups = per_run(rows, measure)
-        results += [{**_claim_effect(claim, groups, measure, window, confidence, looks),
-                     "family": "primary" if measure == metric else "secondary"}
-                    for claim in (CLAIMS.get(name, ()) if claims is None else claims)
-                    if claim.a in groups and claim.b in groups]
+        results += [
+            {
+                **_claim_effect(claim, groups, measure, window, confidence, looks),
+                "family": "primary" if measure == metric else "secondary",
+            }
+            for claim in (CLAIMS.get(name, ()) if claims is None else claims)
+            if claim.a in groups and claim.b in groups
+        ]
     for family in ("primary", "secondary"):
         table = [e for e in results if e["family"] == family]
         for effect, rejected in zip(table, holm_rejections([e["p_value"] for e in table], 1 - confidence)):
             effect["holm_verdict"] = effect["verdict"] if rejected else "not confirmed"
-            if effect["measure"] != "steps_to_reach":   # at Holm's strictest level: alpha over the family's size
-                effect["detectable"] = detectable_difference(effect["standard_error"], effect["dof"],
-                                                             (1 - confidence) / len(table))
+            if effect["measure"] != "steps_to_reach":  # at Holm's strictest level: alpha over the family's size
+                effect["detectable"] = detectable_difference(
+                    effect["standard_error"], effect["dof"], (1 - confidence) / len(table)
+                )
     return results
 
 
-def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confidence: float,
-                  looks: list[dict] | None = None) -> dict:
+def _claim_effect(
+    claim: Claim, groups: dict, measure: str, window: int, confidence: float, looks: list[dict] | None = None
+) -> dict:
     """One claim on one measure (see :func:`claim_effects`); on curves extended after a look, with the sequential
     rule of :mod:`~vdtutorial.experiments.looks` (or on the first look's seeds where it has no second stage)."""
     a, b = groups[claim.a], groups[claim.b]
@@ -348,18 +419,26 @@ def _claim_effect(claim: Claim, groups: dict, measure: str, window: int, confide
     if kind == "two" and claim.measure == "steps_to_reach":
         kind, seeds, why = "first", seeds[:1], "no stage-wise p-value for steps to reach"
     if kind == "first":
-        effect = _claim_effect(claim, {claim.a: of_seeds(a, seeds[0][0]), claim.b: of_seeds(b, seeds[0][1])},
-                               measure, window, confidence)
+        effect = _claim_effect(
+            claim, {claim.a: of_seeds(a, seeds[0][0]), claim.b: of_seeds(b, seeds[0][1])}, measure, window, confidence
+        )
         return {**effect, "looks": f"first look's seeds: {why}"}
     effect = _plain_claim_effect(claim, a, b, measure, window, confidence)
     if kind == "all":
         return effect
-    staged = [[run_summaries(of_seeds(group, stage[k]), claim.measure, window) for stage in seeds]
-              for k, group in ((0, a), (1, b))]
+    staged = [
+        [run_summaries(of_seeds(group, stage[k]), claim.measure, window) for stage in seeds]
+        for k, group in ((0, a), (1, b))
+    ]
     test = two_look_test(staged[0], staged[1], claim.direction * MEASURES[measure].better)
     passed = test["p_value"] < 1 - confidence
-    return {**effect, "p_value_all_seeds_at_once": effect["p_value"], "p_value": test["p_value"],
-            "verdict": effect["verdict"] if passed else "not confirmed", "looks": test}
+    return {
+        **effect,
+        "p_value_all_seeds_at_once": effect["p_value"],
+        "p_value": test["p_value"],
+        "verdict": effect["verdict"] if passed else "not confirmed",
+        "looks": test,
+    }
 
 
 def _plain_claim_effect(claim: Claim, a: dict, b: dict, measure: str, window: int, confidence: float) -> dict:
@@ -372,10 +451,12 @@ def _plain_claim_effect(claim: Claim, a: dict, b: dict, measure: str, window: in
         limit = claim.fraction * budget_steps
         result_verdict, p_value, extra = _reach_test(a, b, window, better, boot, (low, high), limit)
         extra.update(budget_steps=budget_steps, limit_steps=limit, n_a=len(a["values"]), n_b=len(b["values"]))
-        if claim.fraction > PAPER_QUARTER:   # the paper's stricter reading, beside the claim
+        if claim.fraction > PAPER_QUARTER:  # the paper's stricter reading, beside the claim
             quarter = PAPER_QUARTER * budget_steps
-            extra.update(quarter_limit_steps=quarter,
-                         quarter_verdict=_reach_test(a, b, window, better, boot, (low, high), quarter)[0])
+            extra.update(
+                quarter_limit_steps=quarter,
+                quarter_verdict=_reach_test(a, b, window, better, boot, (low, high), quarter)[0],
+            )
         unit = "env steps"
     else:
         sa, sb = run_summaries(a, claim.measure, window), run_summaries(b, claim.measure, window)
@@ -385,15 +466,34 @@ def _plain_claim_effect(claim: Claim, a: dict, b: dict, measure: str, window: in
         p_value = welch_p_value(sa, sb)
         unit = f"{measure} per iteration ({'last %d iterations' % window if claim.measure == 'final' else 'mean over the run'})"
         _, standard_error, dof = _welch(sa, sb)
-        extra = {"mean_a": float(sa.mean()), "mean_b": float(sb.mean()), "n_a": len(sa), "n_b": len(sb),
-                 "n_b_counts": "episodes" if b["values"].ndim == 1 else "seeds", "standard_error": standard_error,
-                 "dof": dof, "material": material, "no_material_effect": bool(-material < low and high < material)}
-    return {**asdict(claim), "metric": measure, "estimate": estimate, "low": low, "high": high,
-            "confidence": confidence, "unit": unit, "p_value": p_value, "verdict": result_verdict, **extra}
+        extra = {
+            "mean_a": float(sa.mean()),
+            "mean_b": float(sb.mean()),
+            "n_a": len(sa),
+            "n_b": len(sb),
+            "n_b_counts": "episodes" if b["values"].ndim == 1 else "seeds",
+            "standard_error": standard_error,
+            "dof": dof,
+            "material": material,
+            "no_material_effect": bool(-material < low and high < material),
+        }
+    return {
+        **asdict(claim),
+        "metric": measure,
+        "estimate": estimate,
+        "low": low,
+        "high": high,
+        "confidence": confidence,
+        "unit": unit,
+        "p_value": p_value,
+        "verdict": result_verdict,
+        **extra,
+    }
 
 
-def _reach_test(a: dict, b: dict, window: int, better: int, boot: np.ndarray, interval: tuple[float, float],
-                limit: float) -> tuple[str, float, dict]:
+def _reach_test(
+    a: dict, b: dict, window: int, better: int, boot: np.ndarray, interval: tuple[float, float], limit: float
+) -> tuple[str, float, dict]:
     """Verdict, p-value and test of "``a`` reaches ``b``'s final level by ``limit`` env steps": the bootstrap's
     (resamples ``boot``, percentile ``interval``), or with fewer than :data:`MIN_BOOTSTRAP_SEEDS` seeds per method
     the sign test over ``a``'s seeds, its verdict capped at "not confirmed"."""
@@ -401,7 +501,7 @@ def _reach_test(a: dict, b: dict, window: int, better: int, boot: np.ndarray, in
         within = seeds_within(a, b, window, limit, better)
         p_value = float(stats.binomtest(within, len(a["values"])).pvalue)
         return "not confirmed", p_value, {"test": "sign", "seeds_within": within}
-    low, high = interval   # "within the limit" means fewer steps than the limit: read as a < limit
+    low, high = interval  # "within the limit" means fewer steps than the limit: read as a < limit
     return verdict(low - limit, high - limit, -1), bootstrap_p_value(boot, limit), {"test": "bootstrap"}
 
 
@@ -415,7 +515,7 @@ def _seeds(e: dict) -> str:
     measured episodes named as such ("5 / 125 episodes")."""
     if e.get("n_b_counts") == "episodes":
         return f"{e['n_a']} / {e['n_b']} episodes"
-    if isinstance(e.get("looks"), dict):   # two looks: the seeds of each, "10 + 13"
+    if isinstance(e.get("looks"), dict):  # two looks: the seeds of each, "10 + 13"
         per_look = [f"{a}" if a == b else f"{a} / {b}" for a, b in e["looks"]["stage_seeds"]]
         return " + ".join(per_look)
     return str(e["n_a"]) if e["n_a"] == e["n_b"] else f"{e['n_a']} / {e['n_b']}"
@@ -426,9 +526,12 @@ def _claim_text(e: dict) -> str:
     a look were used (:mod:`~vdtutorial.experiments.looks`), and whether its curves come from different batches of
     seeds (:mod:`~vdtutorial.experiments.batches`)."""
     looks = e.get("looks")
-    return (e["text"] + (f" (same runs as {e['same_runs']})" if e.get("same_runs") else "")
-            + (" (2 looks: sequential rule)" if isinstance(looks, dict) else f" ({looks})" if looks else "")
-            + (" (across batches of seeds)" if e.get("across_batches") else ""))
+    return (
+        e["text"]
+        + (f" (same runs as {e['same_runs']})" if e.get("same_runs") else "")
+        + (" (2 looks: sequential rule)" if isinstance(looks, dict) else f" ({looks})" if looks else "")
+        + (" (across batches of seeds)" if e.get("across_batches") else "")
+    )
 
 
 def claim_table(effects: list[dict]) -> str:
@@ -437,28 +540,40 @@ def claim_table(effects: list[dict]) -> str:
     difference those seeds can detect (see the module's docstring)."""
     blocks = []
     for measure in dict.fromkeys(e.get("metric", "successes") for e in effects):
-        lines = [f"*{MEASURES[measure].label}*: {MEASURES[measure].question}", "",
-                 "| claim | measure | effect (95% interval) | p | verdict | Holm | seeds | detectable |",
-                 "|---|---|---|---|---|---|---|---|"]
+        lines = [
+            f"*{MEASURES[measure].label}*: {MEASURES[measure].question}",
+            "",
+            "| claim | measure | effect (95% interval) | p | verdict | Holm | seeds | detectable |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         for e in (e for e in effects if e.get("metric", "successes") == measure):
             if e["measure"] == "steps_to_reach" and e.get("test") == "sign":
                 unit = "" if math.isinf(e["estimate"]) else " steps"
-                effect = (f"{_steps(e['estimate'])}{unit}; {e['seeds_within']} of {e['n_a']} seeds within the limit "
-                          f"{_steps(e['limit_steps'])} (sign test: too few seeds for a verdict)")
+                effect = (
+                    f"{_steps(e['estimate'])}{unit}; {e['seeds_within']} of {e['n_a']} seeds within the limit "
+                    f"{_steps(e['limit_steps'])} (sign test: too few seeds for a verdict)"
+                )
             elif e["measure"] == "steps_to_reach":
                 unit = "" if math.isinf(e["estimate"]) else " steps"
-                effect = (f"{_steps(e['estimate'])}{unit} ({_steps(e['low'])} to {_steps(e['high'])}); "
-                          f"limit {_steps(e['limit_steps'])}")
+                effect = (
+                    f"{_steps(e['estimate'])}{unit} ({_steps(e['low'])} to {_steps(e['high'])}); "
+                    f"limit {_steps(e['limit_steps'])}"
+                )
             if "quarter_verdict" in e:
                 effect += f"; at a quarter ({_steps(e['quarter_limit_steps'])}): {e['quarter_verdict']}"
             else:
                 effect = f"{e['estimate']:+.3g} ({e['low']:+.3g} to {e['high']:+.3g})"
-            needed = "-" if e["measure"] == "steps_to_reach" else f"{e['detectable']:.3g}" + (
-                "; no material effect" if e["no_material_effect"] else "")
+            needed = (
+                "-"
+                if e["measure"] == "steps_to_reach"
+                else f"{e['detectable']:.3g}" + ("; no material effect" if e["no_material_effect"] else "")
+            )
             bootstrap_floor = e["p_value"] == 0 and e["measure"] == "steps_to_reach"
             p_value = f"< {1 / BOOTSTRAP_SAMPLES:.0g}" if bootstrap_floor else f"{e['p_value']:.2g}"
-            lines.append(f"| {_claim_text(e)} | {e['measure']} | {effect} | {p_value} | **{e['verdict']}** | "
-                         f"{e['holm_verdict']} | {_seeds(e)} | {needed} |")
+            lines.append(
+                f"| {_claim_text(e)} | {e['measure']} | {effect} | {p_value} | **{e['verdict']}** | "
+                f"{e['holm_verdict']} | {_seeds(e)} | {needed} |"
+            )
         blocks.append("\n".join(lines))
     return "\n\n".join(blocks)
 
@@ -468,15 +583,20 @@ def claims_overview(records: dict[str, dict], measures: tuple[str, ...] = ("fina
     the verdict and the Holm verdict on the paper's metric (the primary measure), the Holm verdicts on the two
     secondary measures (one family), and the seeds; a row on another figure's runs says so (the README's claims
     table is generated by this)."""
-    lines = ["| figure | claim | paper's metric (primary): verdict / Holm | success rate: Holm (secondary) | "
-             "steps per trajectory: Holm (secondary) | seeds |", "|---|---|---|---|---|---|"]
+    lines = [
+        "| figure | claim | paper's metric (primary): verdict / Holm | success rate: Holm (secondary) | "
+        "steps per trajectory: Holm (secondary) | seeds |",
+        "|---|---|---|---|---|---|",
+    ]
     for heading, record in records.items():
         effects = [e for e in record["summary"]["claims"] if e["measure"] in measures]
         by_metric = {(e["text"], e["metric"]): e for e in effects}
         for e in (e for e in effects if e["metric"] == record["metric"]):
             others = [by_metric[(e["text"], m)]["holm_verdict"] for m in measures_of(record["metric"])[1:]]
-            lines.append(f"| {heading} | {_claim_text(e)} | {e['verdict']} / **{e['holm_verdict']}** | "
-                         f"{' | '.join(others)} | {_seeds(e)} |")
+            lines.append(
+                f"| {heading} | {_claim_text(e)} | {e['verdict']} / **{e['holm_verdict']}** | "
+                f"{' | '.join(others)} | {_seeds(e)} |"
+            )
     return "\n".join(lines)
 
 
@@ -495,11 +615,15 @@ def draws_table(records: list[dict], measures: tuple[str, ...] = ("final", "auc"
     95% interval and its Holm verdict (within that record's own family). An effect that holds on one draw only
     rests on that draw of the data, not on the method."""
     heads = [f"demonstrations seed {demo_seed_of(r)}: effect (95% interval), Holm" for r in records]
-    by_text = [{e["text"]: e for e in r["summary"]["claims"] if e["metric"] == r["metric"] and e["measure"] in measures}
-               for r in records]
+    by_text = [
+        {e["text"]: e for e in r["summary"]["claims"] if e["metric"] == r["metric"] and e["measure"] in measures}
+        for r in records
+    ]
     lines = ["| claim | " + " | ".join(heads) + " | seeds |", "|---|" + "---|" * len(records) + "---|"]
     for text in (t for t in by_text[0] if all(t in other for other in by_text[1:])):
-        cells = [f"{e['estimate']:+.3g} ({e['low']:+.3g} to {e['high']:+.3g}), **{e['holm_verdict']}**"
-                 for e in (table[text] for table in by_text)]
+        cells = [
+            f"{e['estimate']:+.3g} ({e['low']:+.3g} to {e['high']:+.3g}), **{e['holm_verdict']}**"
+            for e in (table[text] for table in by_text)
+        ]
         lines.append(f"| {text} | " + " | ".join(cells) + f" | {' / '.join(_seeds(t[text]) for t in by_text)} |")
     return "\n".join(lines)

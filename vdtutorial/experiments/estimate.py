@@ -13,6 +13,7 @@ other down (shared memory bandwidth) use the rate measured with all cores busy.
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import heapq
@@ -52,12 +53,19 @@ def needs_pretraining(spec: RunSpec) -> bool:
     if not method(spec.method).pretrains:
         return False
     meta = {"task": spec.task, "samples": spec.samples, "noise": spec.noise, "seed": spec.demo_seed}
-    return not checkpoint_path(meta, spec.method, spec.obs_mode, spec.seed).exists() or not demo_path(
-        spec.task, spec.samples, spec.noise, spec.demo_seed).exists()
+    return (
+        not checkpoint_path(meta, spec.method, spec.obs_mode, spec.seed).exists()
+        or not demo_path(spec.task, spec.samples, spec.noise, spec.demo_seed).exists()
+    )
 
 
-def run_seconds(spec: RunSpec, steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_s: float = 0.0,
-                total_steps: int = 300_000) -> float:
+def run_seconds(
+    spec: RunSpec,
+    steps_per_s: float,
+    pretrain_s: dict[str, float],
+    sigma_fit_s: float = 0.0,
+    total_steps: int = 300_000,
+) -> float:
     """Estimated duration of one run on one core (module docstring, "A run lasts"). A run whose start sigma is fitted
     to another method's network (``RL_START_SIGMA == "spread"``: L2 follows VD's, as the method's ``spread_from``
     says) needs that method's checkpoint of its data set and seed too, and is costed as making it: it may start
@@ -67,24 +75,37 @@ def run_seconds(spec: RunSpec, steps_per_s: float, pretrain_s: dict[str, float],
     if entry.pretrains:
         seconds += sigma_fit_s + (pretrain_s[spec.method] if needs_pretraining(spec) else 0.0)
         follows = entry.spread_from
-        if RL_START_SIGMA == "spread" and follows not in (None, spec.method) and needs_pretraining(
-                replace(spec, method=follows)):
+        if (
+            RL_START_SIGMA == "spread"
+            and follows not in (None, spec.method)
+            and needs_pretraining(replace(spec, method=follows))
+        ):
             seconds += pretrain_s[follows]
     return seconds
 
 
-def wall_time_table(steps_per_s: float, pretrain_s: dict[str, float], sigma_fit_s: float = 0.0,
-                    cores=(2, 8, 16, 32, 64), seeds=(0, 1, 2), total_steps: int = 300_000,
-                    obs_mode: str = "rgbd") -> str:
+def wall_time_table(
+    steps_per_s: float,
+    pretrain_s: dict[str, float],
+    sigma_fit_s: float = 0.0,
+    cores=(2, 8, 16, 32, 64),
+    seeds=(0, 1, 2),
+    total_steps: int = 300_000,
+    obs_mode: str = "rgbd",
+) -> str:
     """A Markdown table of estimated wall time (hours) by number of cores for the image Fig. 4 alone and
     for the whole image section (Figs. 4-7, one shared state folder). ``pretrain_s``: seconds of one
     pre-training per method that pre-trains."""
     groups = {"Fig. 4": ["fig4"], "Figs. 4-7": list(FIGURES)}
     runs = {group: distinct_runs(names, seeds, total_steps, obs_mode) for group, names in groups.items()}
-    seconds = {group: [run_seconds(spec, steps_per_s, pretrain_s, sigma_fit_s, total_steps) for spec in specs]
-               for group, specs in runs.items()}
-    header = " | ".join(f"{group}: {len(specs)} runs ({sum(map(needs_pretraining, specs))} pre-train first)"
-                        for group, specs in runs.items())
+    seconds = {
+        group: [run_seconds(spec, steps_per_s, pretrain_s, sigma_fit_s, total_steps) for spec in specs]
+        for group, specs in runs.items()
+    }
+    header = " | ".join(
+        f"{group}: {len(specs)} runs ({sum(map(needs_pretraining, specs))} pre-train first)"
+        for group, specs in runs.items()
+    )
     lines = [f"| cores | {header} |", "|---|" + "---|" * len(groups)]
     for n in cores:
         hours = " | ".join(f"{makespan(seconds[group], n) / 3600:.1f} h" for group in groups)

@@ -7,6 +7,7 @@ ends, and count the trajectories that ended in success. A controller here is any
 
 Taught in chapter 02.
 """
+
 from __future__ import annotations
 
 import gymnasium as gym
@@ -66,8 +67,9 @@ def successes_per_episode(env: gym.Env, controller, steps: int = EPISODE_STEPS, 
     return out
 
 
-def mean_action_successes(policy, task: str, seed: int, episodes: int, num_envs: int, obs_mode: str = "state",
-                          image_size: int = 128) -> dict:
+def mean_action_successes(
+    policy, task: str, seed: int, episodes: int, num_envs: int, obs_mode: str = "state", image_size: int = 128
+) -> dict:
     """A pre-trained policy's score before RL, counted as TRPO counts an iteration: per 200-step episode,
     ``num_envs`` fresh runs of ``200 / num_envs`` steps with the policy's mean action (reset seeds derived
     from (seed, k) for episode k), on the observations the policy reads (``obs_mode``, ``image_size``).

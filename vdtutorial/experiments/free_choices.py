@@ -17,6 +17,7 @@ A changed row pre-trains into its own checkpoint folder (a checkpoint's name hol
 
 Taught in appendix A4.
 """
+
 from __future__ import annotations
 
 import json
@@ -70,16 +71,42 @@ class FreeChoice:
 CHOICES = (
     FreeChoice("l2_small", "L2 coefficient", "l2", {"l2": 1e-4 / 9}, "1.1e-5 (= likelihood sigma 0.1)", "1e-4"),
     FreeChoice("l2_large", "L2 coefficient", "l2", {"l2": 1e-4 / 0.09}, "1.1e-3 (= likelihood sigma 1.0)", "1e-4"),
-    FreeChoice("kl_weak", "KL weight", "vd", {"kl_divisor": 9 * TRAIN_SPLIT}, "N = 64800, 1/9 (= likelihood sigma 0.1)",
-               "N = training split"),
-    FreeChoice("kl_strong", "KL weight", "vd", {"kl_divisor": round(0.09 * TRAIN_SPLIT)},
-               "N = 648, x11.1 (= likelihood sigma 1.0)", "N = training split"),
-    FreeChoice("no_warmup", "KL warm-up", "vd", {"beta_warmup": 0.0}, "none (beta = 1 from the start)", "30% of the epochs"),
+    FreeChoice(
+        "kl_weak",
+        "KL weight",
+        "vd",
+        {"kl_divisor": 9 * TRAIN_SPLIT},
+        "N = 64800, 1/9 (= likelihood sigma 0.1)",
+        "N = training split",
+    ),
+    FreeChoice(
+        "kl_strong",
+        "KL weight",
+        "vd",
+        {"kl_divisor": round(0.09 * TRAIN_SPLIT)},
+        "N = 648, x11.1 (= likelihood sigma 1.0)",
+        "N = training split",
+    ),
+    FreeChoice(
+        "no_warmup", "KL warm-up", "vd", {"beta_warmup": 0.0}, "none (beta = 1 from the start)", "30% of the epochs"
+    ),
     FreeChoice("long_warmup", "KL warm-up", "vd", {"beta_warmup": 1.0}, "over all epochs", "30% of the epochs"),
-    FreeChoice("l2_sigma_paper", "L2's RL start sigma", "l2", {"initial_sigma": "0.3"}, "the paper's fixed 0.3",
-               "fitted to VD's spread"),
-    FreeChoice("l2_sigma_demos", "L2's RL start sigma", "l2", {"initial_sigma": "demos"}, "fitted to the demonstrations",
-               "fitted to VD's spread"),
+    FreeChoice(
+        "l2_sigma_paper",
+        "L2's RL start sigma",
+        "l2",
+        {"initial_sigma": "0.3"},
+        "the paper's fixed 0.3",
+        "fitted to VD's spread",
+    ),
+    FreeChoice(
+        "l2_sigma_demos",
+        "L2's RL start sigma",
+        "l2",
+        {"initial_sigma": "demos"},
+        "fitted to the demonstrations",
+        "fitted to VD's spread",
+    ),
 )
 CHOICE_NAMES = tuple(choice.name for choice in CHOICES)
 
@@ -100,22 +127,56 @@ class _RowJob(Job):
         return f"{self.row}/{self.spec.name}"
 
 
-def _job(method: str, label: str, seed: int, steps: int, config: PretrainConfig, row: str, out: Path,
-         state_dir: Path, checkpoint_every: int | None) -> Job:
+def _job(
+    method: str,
+    label: str,
+    seed: int,
+    steps: int,
+    config: PretrainConfig,
+    row: str,
+    out: Path,
+    state_dir: Path,
+    checkpoint_every: int | None,
+) -> Job:
     spec = RunSpec(method, TASK, SAMPLES, NOISE, seed, "state", steps, label)
     folder = state_dir / row
-    return _RowJob(spec, folder / f"{spec.name}.pt", folder / f"{spec.name}.csv", data_dir().resolve(),
-                   (out / "checkpoints" / row).resolve(), config, default_trpo_config(),
-                   CHECKPOINT_EVERY if checkpoint_every is None else checkpoint_every, row=row)
+    return _RowJob(
+        spec,
+        folder / f"{spec.name}.pt",
+        folder / f"{spec.name}.csv",
+        data_dir().resolve(),
+        (out / "checkpoints" / row).resolve(),
+        config,
+        default_trpo_config(),
+        CHECKPOINT_EVERY if checkpoint_every is None else checkpoint_every,
+        row=row,
+    )
 
 
 def jobs(names, seeds, steps: int, out: Path, state_dir: Path, checkpoint_every: int | None = None) -> list[Job]:
     """The default row's VD and L2 runs, and each named row's runs of the method it changes."""
-    made = [_job(method, METHOD_LABELS[method], seed, steps, default_config(method), DEFAULT, out, state_dir,
-                 checkpoint_every) for method in ("vd", "l2") for seed in seeds]
+    made = [
+        _job(
+            method,
+            METHOD_LABELS[method],
+            seed,
+            steps,
+            default_config(method),
+            DEFAULT,
+            out,
+            state_dir,
+            checkpoint_every,
+        )
+        for method in ("vd", "l2")
+        for seed in seeds
+    ]
     for choice in (c for c in CHOICES if c.name in names):
-        made += [_job(choice.method, choice.label, seed, steps, choice.config(), choice.name, out, state_dir,
-                      checkpoint_every) for seed in seeds]
+        made += [
+            _job(
+                choice.method, choice.label, seed, steps, choice.config(), choice.name, out, state_dir, checkpoint_every
+            )
+            for seed in seeds
+        ]
     return made
 
 
@@ -127,8 +188,11 @@ def claims(names) -> tuple[Claim, ...]:
         vd, l2 = (choice.label if choice.method == compared else METHOD_LABELS[compared] for compared in ("vd", "l2"))
         pairs.append((choice.name, vd, l2))
     kinds = {"final": "final level", "auc": "area under the curve"}
-    return tuple(Claim("free_choices", f"[{row}] {vd} vs {l2} ({kinds[kind]})", kind, vd, l2)
-                 for row, vd, l2 in pairs for kind in kinds)
+    return tuple(
+        Claim("free_choices", f"[{row}] {vd} vs {l2} ({kinds[kind]})", kind, vd, l2)
+        for row, vd, l2 in pairs
+        for kind in kinds
+    )
 
 
 def table(effects: list[dict], names, out_command) -> list[dict]:
@@ -143,19 +207,40 @@ def table(effects: list[dict], names, out_command) -> list[dict]:
         for kind in ("final", "auc"):
             effect = next(e for text, e in by_text.items() if text.startswith(f"[{row}] ") and e["measure"] == kind)
             default_verdict.setdefault(kind, effect["holm_verdict"])
-            rows.append({"row": row, "choice": choice.choice if choice else "none (the figures' settings)",
-                         "method": choice.method if choice else None, "value": choice.value if choice else "",
-                         "default": choice.default if choice else "", "kind": kind, "estimate": effect["estimate"],
-                         "low": effect["low"], "high": effect["high"], "verdict": effect["verdict"],
-                         "holm_verdict": effect["holm_verdict"], "detectable": effect["detectable"],
-                         "same_as_default": effect["holm_verdict"] == default_verdict[kind],
-                         "command": out_command(row)})
+            rows.append(
+                {
+                    "row": row,
+                    "choice": choice.choice if choice else "none (the figures' settings)",
+                    "method": choice.method if choice else None,
+                    "value": choice.value if choice else "",
+                    "default": choice.default if choice else "",
+                    "kind": kind,
+                    "estimate": effect["estimate"],
+                    "low": effect["low"],
+                    "high": effect["high"],
+                    "verdict": effect["verdict"],
+                    "holm_verdict": effect["holm_verdict"],
+                    "detectable": effect["detectable"],
+                    "same_as_default": effect["holm_verdict"] == default_verdict[kind],
+                    "command": out_command(row),
+                }
+            )
     return rows
 
 
-def free_choices(names=CHOICE_NAMES, seeds=None, steps: int | None = None, out=None, workers: int = 2,
-                 progress: bool | None = None, backend: str = "local", address: str | None = None,
-                 restart: bool = False, state_dir=None, checkpoint_every: int | None = None) -> dict:
+def free_choices(
+    names=CHOICE_NAMES,
+    seeds=None,
+    steps: int | None = None,
+    out=None,
+    workers: int = 2,
+    progress: bool | None = None,
+    backend: str = "local",
+    address: str | None = None,
+    restart: bool = False,
+    state_dir=None,
+    checkpoint_every: int | None = None,
+) -> dict:
     """Run the default row and the rows ``names`` (:data:`CHOICES`) as one resumable grid and write
     ``free_choices.csv.gz``, ``free_choices.png`` (the curves, one panel per measure) and ``free_choices.json``
     (the :func:`table` and every claim on every measure) into ``out`` (default ``runs/free_choices``; the shipped
@@ -180,24 +265,47 @@ def free_choices(names=CHOICE_NAMES, seeds=None, steps: int | None = None, out=N
         chosen = () if row == DEFAULT else (row,)
         return experiment_command("free_choices", choices=chosen or None, seeds=seeds, steps=steps, out=shown_out)
 
-    record = {"experiment": "free_choices", "command": experiment_command(
-                  "free_choices", choices=None if tuple(names) == CHOICE_NAMES else tuple(names), seeds=seeds,
-                  steps=steps, workers=workers, out=shown_out),
-              "quick": is_quick(), "task": TASK, "samples": SAMPLES, "noise": NOISE, "obs_mode": "state",
-              "seeds": list(seeds), "steps": steps, "window": window, "num_envs": NUM_ENVS,
-              "choices": [asdict(c) for c in CHOICES if c.name in names],
-              "pretrain_config": {m: asdict(default_config(m)) for m in ("vd", "l2")},
-              "trpo_config": asdict(default_trpo_config()), "wall_time_s": time.perf_counter() - start,
-              "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__,
-                           "python": sys.version.split()[0]}}
+    record = {
+        "experiment": "free_choices",
+        "command": experiment_command(
+            "free_choices",
+            choices=None if tuple(names) == CHOICE_NAMES else tuple(names),
+            seeds=seeds,
+            steps=steps,
+            workers=workers,
+            out=shown_out,
+        ),
+        "quick": is_quick(),
+        "task": TASK,
+        "samples": SAMPLES,
+        "noise": NOISE,
+        "obs_mode": "state",
+        "seeds": list(seeds),
+        "steps": steps,
+        "window": window,
+        "num_envs": NUM_ENVS,
+        "choices": [asdict(c) for c in CHOICES if c.name in names],
+        "pretrain_config": {m: asdict(default_config(m)) for m in ("vd", "l2")},
+        "trpo_config": asdict(default_trpo_config()),
+        "wall_time_s": time.perf_counter() - start,
+        "versions": {
+            "vdtutorial": vdtutorial.__version__,
+            "torch": torch.__version__,
+            "python": sys.version.split()[0],
+        },
+    }
     return _write_derived(out, record, rows, names, command)
 
 
 def _write_derived(out: Path, record: dict, rows: list[dict], names, command) -> dict:
     """Add what the rows say to ``record`` (the claims on every measure and the :func:`table`, each row's command
     ``command(row)``), draw ``free_choices.png`` and write ``free_choices.json`` into ``out``."""
-    title = figure_title("Our free choices: VD and L2 with one pre-training value changed (reaching)", "state",
-                         record["steps"], len(record["seeds"]))
+    title = figure_title(
+        "Our free choices: VD and L2 with one pre-training value changed (reaching)",
+        "state",
+        record["steps"],
+        len(record["seeds"]),
+    )
     _, figure, summary = derive("free_choices", rows, METRIC[TASK], record["window"], title, claims(names))
     save_png(figure, out / "free_choices.png", 110)
     record.update(table=table(summary["claims"], names, command), **summary)
@@ -223,24 +331,35 @@ def format_table(record: dict) -> str:
         f"{r['choice']:>22} {r['value']:<42} {r['kind']:>5}: VD - L2 {r['estimate']:+8.2f} "
         f"({r['low']:+.2f} to {r['high']:+.2f}), Holm: {r['holm_verdict']}"
         + ("" if r["row"] == DEFAULT else ("; same as the default" if r["same_as_default"] else "; CHANGED"))
-        for r in record["table"])
+        for r in record["table"]
+    )
 
 
 def markdown_table(record: dict) -> str:
     """The record's table for the results page: a line per row, VD - L2 on the paper's metric at the final level
     and over the run (95% interval over seeds, Holm verdict), whether both verdicts are the default row's, and the
     command that makes the row."""
-    lines = ["| row | what changes | value | final: VD - L2 | Holm | area: VD - L2 | Holm | "
-             "verdicts as the default's | command |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| row | what changes | value | final: VD - L2 | Holm | area: VD - L2 | Holm | "
+        "verdicts as the default's | command |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     entries = {(r["row"], r["kind"]): r for r in record["table"]}
     for row in dict.fromkeys(r["row"] for r in record["table"]):
         final, auc = entries[row, "final"], entries[row, "auc"]
         method = f"{METHOD_LABELS[final['method']]}: " if final["method"] else ""
         value = f"{final['value']}; default {final['default']}" if final["value"] else "-"
         same = "-" if row == DEFAULT else "yes" if final["same_as_default"] and auc["same_as_default"] else "**no**"
-        cells = [row, method + final["choice"], value,
-                 f"{final['estimate']:+.2f} ({final['low']:+.2f} to {final['high']:+.2f})", final["holm_verdict"],
-                 f"{auc['estimate']:+.2f} ({auc['low']:+.2f} to {auc['high']:+.2f})", auc["holm_verdict"], same,
-                 f"`{final['command']}`"]
+        cells = [
+            row,
+            method + final["choice"],
+            value,
+            f"{final['estimate']:+.2f} ({final['low']:+.2f} to {final['high']:+.2f})",
+            final["holm_verdict"],
+            f"{auc['estimate']:+.2f} ({auc['low']:+.2f} to {auc['high']:+.2f})",
+            auc["holm_verdict"],
+            same,
+            f"`{final['command']}`",
+        ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -14,6 +14,7 @@ Why it matters
 
 Taught in chapter 07 and appendix A4.
 """
+
 from __future__ import annotations
 
 import copy
@@ -26,8 +27,17 @@ from torch import nn
 
 from vdtutorial.demos import Demos
 from vdtutorial.policy import GaussianPolicy, obs_to_tensor
-from vdtutorial.pretrain import (PAPER_SIGMA_OPTION, SIGMA_FITS, PretrainConfig, demo_observations, observation_rows,
-                                 pretrain, set_fixed_sigma, sigma_option, split_by_episode)
+from vdtutorial.pretrain import (
+    PAPER_SIGMA_OPTION,
+    SIGMA_FITS,
+    PretrainConfig,
+    demo_observations,
+    observation_rows,
+    pretrain,
+    set_fixed_sigma,
+    sigma_option,
+    split_by_episode,
+)
 from vdtutorial.vd import svdo_layers
 
 KINDS = ("fixed", "demos", "spread")
@@ -114,7 +124,9 @@ class InitialSigma:
         try:
             return cls("fixed", float(text))
         except ValueError:
-            raise ValueError(f"initial sigma must be a number (a fixed sigma), 'demos' or 'spread', got {text!r}") from None
+            raise ValueError(
+                f"initial sigma must be a number (a fixed sigma), 'demos' or 'spread', got {text!r}"
+            ) from None
 
     @property
     def spelling(self) -> str:
@@ -180,8 +192,14 @@ def _fit_sigma(policy, obs, loss_of_sigma, spec: InitialSigma, batch: int | None
     return losses
 
 
-def fit_sigma_to_demos(policy, obs, actions: torch.Tensor, spec: InitialSigma = InitialSigma("demos"),
-                       batch: int | None = None, seed: int = 0) -> list[float]:
+def fit_sigma_to_demos(
+    policy,
+    obs,
+    actions: torch.Tensor,
+    spec: InitialSigma = InitialSigma("demos"),
+    batch: int | None = None,
+    seed: int = 0,
+) -> list[float]:
     """Option (b): maximum likelihood of the demonstrations ``(obs, actions)`` over sigma's parameters,
     mu frozen. Returns the negative log-likelihood per step."""
     mu = mean_action(policy, obs, batch)
@@ -196,8 +214,10 @@ def vd_spread(mu_net: nn.Module, obs, samples: int = 64, seed: int = 0, chunk: i
     is that of the network RL starts from. Raises for a network without VD layers."""
     layers = svdo_layers(mu_net)
     if not layers:
-        raise ValueError("the predictive spread needs a sparse-VD network (option 'spread' takes it from the VD "
-                         "model: pass spread_net for an L2 policy)")
+        raise ValueError(
+            "the predictive spread needs a sparse-VD network (option 'spread' takes it from the VD "
+            "model: pass spread_net for an L2 policy)"
+        )
     net = copy.deepcopy(mu_net)
     for layer in svdo_layers(net):
         keep = layer.keep_mask()
@@ -212,16 +232,28 @@ def vd_spread(mu_net: nn.Module, obs, samples: int = 64, seed: int = 0, chunk: i
     return draws.std(dim=0)
 
 
-def fit_sigma_to_spread(policy, obs, spread: torch.Tensor, spec: InitialSigma = InitialSigma("spread"),
-                        batch: int | None = None, seed: int = 0) -> list[float]:
+def fit_sigma_to_spread(
+    policy,
+    obs,
+    spread: torch.Tensor,
+    spec: InitialSigma = InitialSigma("spread"),
+    batch: int | None = None,
+    seed: int = 0,
+) -> list[float]:
     """Option (c): least squares of log sigma_psi(s) against log ``spread`` (floored at the policy's
     ``min_std`` plus 1e-4, which sigma cannot go below). Returns the loss per step."""
     target = torch.log(spread.clamp_min(policy.min_std + 1e-4))
     return _fit_sigma(policy, obs, lambda sigma, idx: ((torch.log(sigma) - target[idx]) ** 2).mean(), spec, batch, seed)
 
 
-def apply_initial_sigma(policy, spec: InitialSigma, obs=None, actions: torch.Tensor | None = None,
-                        spread_net: nn.Module | None = None, seed: int = 0) -> dict:
+def apply_initial_sigma(
+    policy,
+    spec: InitialSigma,
+    obs=None,
+    actions: torch.Tensor | None = None,
+    spread_net: nn.Module | None = None,
+    seed: int = 0,
+) -> dict:
     """Set ``policy``'s sigma by option ``spec`` and return a short record of what was done.
 
     obs, actions: the demonstrations to fit on (options b and c; ignored by a). Image observations (a
@@ -245,13 +277,21 @@ def apply_initial_sigma(policy, spec: InitialSigma, obs=None, actions: torch.Ten
         sigma = _in_chunks(lambda o: _sigma_of(policy, o), obs, batch)
         nll = gaussian_nll(mean_action(policy, obs, batch), sigma, actions).item()
         policy.train(was_training)
-    return {"kind": spec.kind, "states": _count(obs), "batch": batch, "loss_first": losses[0],
-            "loss_last": losses[-1], "demos_nll": nll, "sigma_mean": sigma.mean().item(),
-            "sigma_median": sigma.median().item()}
+    return {
+        "kind": spec.kind,
+        "states": _count(obs),
+        "batch": batch,
+        "loss_first": losses[0],
+        "loss_last": losses[-1],
+        "demos_nll": nll,
+        "sigma_mean": sigma.mean().item(),
+        "sigma_median": sigma.median().item(),
+    }
 
 
-def set_initial_sigma(policy: GaussianPolicy, demos: Demos, config: PretrainConfig, seed: int,
-                      observations=None, spread_net=None) -> dict:
+def set_initial_sigma(
+    policy: GaussianPolicy, demos: Demos, config: PretrainConfig, seed: int, observations=None, spread_net=None
+) -> dict:
     """Set the sigma that RL starts from by ``config.initial_sigma`` (:class:`InitialSigma`), fitting on the training split of pre-training with ``seed`` (options b and c). Also applies to a
     policy read back from a checkpoint made with another option: mu is the same whatever the option.
     Returns what was done (kind, and for a fit its losses and the resulting sigma)."""
@@ -259,8 +299,10 @@ def set_initial_sigma(policy: GaussianPolicy, demos: Demos, config: PretrainConf
     if spec.kind == "fixed":
         return apply_initial_sigma(policy, spec)
     if spec.kind == "spread" and spread_net is None and not policy.config["variational"]:
-        raise ValueError("initial_sigma='spread' follows the VD network's spread: an L2 policy needs the VD "
-                         "network pre-trained on the same demonstrations (spread_net)")
+        raise ValueError(
+            "initial_sigma='spread' follows the VD network's spread: an L2 policy needs the VD "
+            "network pre-trained on the same demonstrations (spread_net)"
+        )
     fit_idx, _ = split_by_episode(demos, config.val_fraction, seed)
     if config.obs_mode == "rgbd" and len(fit_idx) > IMAGE_FIT_STATES:  # cost: a seeded subset (initial_sigma)
         fit_idx = np.sort(np.random.default_rng(seed).choice(fit_idx, IMAGE_FIT_STATES, replace=False))
@@ -272,9 +314,15 @@ def set_initial_sigma(policy: GaussianPolicy, demos: Demos, config: PretrainConf
     return apply_initial_sigma(policy, spec, obs, actions, spread_net, seed)
 
 
-def pretrain_with_sigma(demos: Demos, config: PretrainConfig | None = None, seed: int = 0, progress: bool = True,
-                        observations=None, spread_net: nn.Module | None = None,
-                        device: torch.device | str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
+def pretrain_with_sigma(
+    demos: Demos,
+    config: PretrainConfig | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    observations=None,
+    spread_net: nn.Module | None = None,
+    device: torch.device | str = "cpu",
+) -> tuple[GaussianPolicy, list[dict]]:
     """:func:`vdtutorial.pretrain.pretrain` with any ``config.initial_sigma``: mu cloned with the paper's fixed
     sigma, then :func:`set_initial_sigma` fits the option's sigma on the same inputs, and the policy's
     ``pretrain_info`` records the option. ``spread_net``: the VD mean network whose spread an L2 policy follows

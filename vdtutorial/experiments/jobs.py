@@ -4,6 +4,7 @@ or the IK expert's reference -- with the files the runner (:mod:`vdtutorial.runn
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import math
@@ -14,9 +15,17 @@ from pathlib import Path
 from vdtutorial.demos import demo_path
 from vdtutorial.experiments.checkpoints import default_config
 from vdtutorial.experiments.evaluation import EPISODE_STEPS
-from vdtutorial.experiments.runs import (CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_expert_episodes,
-                                         default_total_steps, expert_reference, expert_settings, finetune_steps,
-                                         run_settings)
+from vdtutorial.experiments.runs import (
+    CHECKPOINT_EVERY,
+    METRIC,
+    NUM_ENVS,
+    default_expert_episodes,
+    default_total_steps,
+    expert_reference,
+    expert_settings,
+    finetune_steps,
+    run_settings,
+)
 from vdtutorial.methods import method as method_entry
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner.resume import save_finished_rows
@@ -52,8 +61,11 @@ class RunSpec:
         entry = method_entry(self.method)
         if not entry.finetuned:
             return f"{self.method}_{self.task}_seed{self.seed}"
-        data = "" if not entry.pretrains else f"_n{self.samples}_sigma{self.noise:g}" + (
-            f"_demos{self.demo_seed}" if self.demo_seed else "")
+        data = (
+            ""
+            if not entry.pretrains
+            else f"_n{self.samples}_sigma{self.noise:g}" + (f"_demos{self.demo_seed}" if self.demo_seed else "")
+        )
         return f"{self.method}_{self.task}{data}_{self.obs_mode}_seed{self.seed}"
 
 
@@ -110,8 +122,15 @@ class Job:
     def tags(self) -> dict:
         """The columns that label each of the run's rows in an experiment's combined CSV."""
         spec = self.spec
-        return {"label": spec.label, "method": spec.method, "task": spec.task, "samples": spec.samples,
-                "noise": spec.noise, "obs_mode": spec.obs_mode, "seed": spec.seed}
+        return {
+            "label": spec.label,
+            "method": spec.method,
+            "task": spec.task,
+            "samples": spec.samples,
+            "noise": spec.noise,
+            "obs_mode": spec.obs_mode,
+            "seed": spec.seed,
+        }
 
     def summary(self, rows: list[dict]) -> str:
         """A finished run in a few words: its last row's score."""
@@ -130,10 +149,23 @@ class Job:
             save_finished_rows(self.state_path, self.settings, rows, time.perf_counter() - start)
             yield {"env_steps": self.env_steps}
             return rows
-        demos = demo_path(spec.task, spec.samples, spec.noise, spec.demo_seed, root=self.demos_root) if (
-            entry.pretrains) else None
-        _, rows = yield from finetune_steps(spec.method, spec.task, demos, spec.obs_mode, spec.seed, spec.total_steps,
-                                            pretrain_config=self.pretrain_config, trpo_config=self.trpo_config,
-                                            checkpoints_root=self.checkpoints_root, state_path=self.state_path,
-                                            checkpoint_every=self.checkpoint_every, device=self.device)
+        demos = (
+            demo_path(spec.task, spec.samples, spec.noise, spec.demo_seed, root=self.demos_root)
+            if (entry.pretrains)
+            else None
+        )
+        _, rows = yield from finetune_steps(
+            spec.method,
+            spec.task,
+            demos,
+            spec.obs_mode,
+            spec.seed,
+            spec.total_steps,
+            pretrain_config=self.pretrain_config,
+            trpo_config=self.trpo_config,
+            checkpoints_root=self.checkpoints_root,
+            state_path=self.state_path,
+            checkpoint_every=self.checkpoint_every,
+            device=self.device,
+        )
         return rows

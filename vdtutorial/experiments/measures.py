@@ -17,6 +17,7 @@ plus that cut-off share (the rows do not hold the lengths of the successful traj
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -40,14 +41,34 @@ class Measure:
 #: Every measure a curve can show. Successes are counts, at least 0 and at most one per env step of the 200-step
 #: iteration; a trajectory lasts 1 to HORIZON steps; returns are not clipped (their bounds depend on the task).
 MEASURES = {
-    "successes": Measure("successes", "successful trajectories per 200-step episode", 1, (0.0, float(EPISODE_STEPS)),
-                         "how many successful trajectories fit in 200 steps (the paper's metric)"),
-    "mean_return": Measure("mean_return", "cumulative reward per trajectory", 1, (float("-inf"), float("inf")),
-                           "the reward a trajectory collects (the paper's grasping metric)"),
-    "success_rate": Measure("success_rate", "success rate (successes / trajectories)", 1, (0.0, 1.0),
-                            "whether a trajectory gets there at all"),
-    "steps_per_trajectory": Measure("steps_per_trajectory", "env steps per trajectory (200 / trajectories)", -1,
-                                    (1.0, float(HORIZON)), "how fast a trajectory ends (fewer steps is better)"),
+    "successes": Measure(
+        "successes",
+        "successful trajectories per 200-step episode",
+        1,
+        (0.0, float(EPISODE_STEPS)),
+        "how many successful trajectories fit in 200 steps (the paper's metric)",
+    ),
+    "mean_return": Measure(
+        "mean_return",
+        "cumulative reward per trajectory",
+        1,
+        (float("-inf"), float("inf")),
+        "the reward a trajectory collects (the paper's grasping metric)",
+    ),
+    "success_rate": Measure(
+        "success_rate",
+        "success rate (successes / trajectories)",
+        1,
+        (0.0, 1.0),
+        "whether a trajectory gets there at all",
+    ),
+    "steps_per_trajectory": Measure(
+        "steps_per_trajectory",
+        "env steps per trajectory (200 / trajectories)",
+        -1,
+        (1.0, float(HORIZON)),
+        "how fast a trajectory ends (fewer steps is better)",
+    ),
 }
 #: The measures each experiment is judged on: its paper metric first, then the two the count is made of.
 DERIVED = ("success_rate", "steps_per_trajectory")

@@ -5,6 +5,7 @@ Both are looked up on every call (like :mod:`vdtutorial.settings`), so a changed
 
 Not taught in a chapter: file-system plumbing of the commands and the shipped records.
 """
+
 from __future__ import annotations
 
 import os

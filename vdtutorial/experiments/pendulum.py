@@ -5,6 +5,7 @@ entry (``python -m vdtutorial bench trpo``).
 Taught in chapter 06b and appendix A2: chapter 06b trains on Pendulum-v1 with :data:`PENDULUM_CONFIG`, appendix
 A2 describes the benchmark.
 """
+
 from __future__ import annotations
 
 import time
@@ -31,8 +32,14 @@ def pendulum_policy(env) -> GaussianPolicy:
     orthogonal initialisation). The observation is fed unnormalised: its angular velocity's bound, +-8 rad/s, is
     a clip far wider than a swing's velocities, and dividing by it slowed learning (1e5 steps, seeds 11-13, linear
     baseline: final return -683 normalised, -269 not)."""
-    return make_policy(env.single_observation_space, env.single_action_space.shape[0], kind="mlp",
-                       init_std=PENDULUM_INIT_STD, normalise=False, scene_hidden=(64, 64))
+    return make_policy(
+        env.single_observation_space,
+        env.single_action_space.shape[0],
+        kind="mlp",
+        init_std=PENDULUM_INIT_STD,
+        normalise=False,
+        scene_hidden=(64, 64),
+    )
 
 
 #: The policy's starting sigma on Pendulum-v1 (actions in [-2, 2]): sb3's default start, exp(0).
@@ -60,20 +67,40 @@ ZOO_PENDULUM_NUM_ENVS = 2
 #: 64-64 value network trained at lr 1e-3 in minibatches of 128). gSDE (``use_sde``: exploration noise
 #: that is a function of the state, resampled every 4 steps) has no counterpart here: our policy keeps
 #: independent Gaussian noise per step.
-ZOO_PENDULUM_CONFIG = TRPOConfig(steps_per_iter=ZOO_PENDULUM_NUM_ENVS * 1024, gamma=0.9, gae_lambda=0.95, max_kl=0.01,
-                                 cg_iters=15, cg_damping=0.1, backtrack_iters=10, backtrack_coeff=0.8, baseline="mlp",
-                                 critic_lr=1e-3, critic_epochs=15, critic_batch_size=128, bootstrap_time_limits=True)
+ZOO_PENDULUM_CONFIG = TRPOConfig(
+    steps_per_iter=ZOO_PENDULUM_NUM_ENVS * 1024,
+    gamma=0.9,
+    gae_lambda=0.95,
+    max_kl=0.01,
+    cg_iters=15,
+    cg_damping=0.1,
+    backtrack_iters=10,
+    backtrack_coeff=0.8,
+    baseline="mlp",
+    critic_lr=1e-3,
+    critic_epochs=15,
+    critic_batch_size=128,
+    bootstrap_time_limits=True,
+)
 
 
 def sb3_trpo_kwargs(config: TRPOConfig, num_envs: int) -> dict:
     """sb3-contrib ``TRPO``'s keyword arguments for the settings of ``config`` on ``num_envs``
     sub-environments, value network included (its ``n_critic_updates`` are our critic epochs)."""
-    return {"n_steps": config.steps_per_iter // num_envs, "gamma": config.gamma, "gae_lambda": config.gae_lambda,
-            "target_kl": config.max_kl, "cg_max_steps": config.cg_iters, "cg_damping": config.cg_damping,
-            "line_search_max_iter": config.backtrack_iters, "line_search_shrinking_factor": config.backtrack_coeff,
-            "learning_rate": config.critic_lr, "n_critic_updates": config.critic_epochs,
-            "batch_size": config.critic_batch_size,
-            "policy_kwargs": {"net_arch": {"pi": [64, 64], "vf": list(config.critic_hidden)}}}
+    return {
+        "n_steps": config.steps_per_iter // num_envs,
+        "gamma": config.gamma,
+        "gae_lambda": config.gae_lambda,
+        "target_kl": config.max_kl,
+        "cg_max_steps": config.cg_iters,
+        "cg_damping": config.cg_damping,
+        "line_search_max_iter": config.backtrack_iters,
+        "line_search_shrinking_factor": config.backtrack_coeff,
+        "learning_rate": config.critic_lr,
+        "n_critic_updates": config.critic_epochs,
+        "batch_size": config.critic_batch_size,
+        "policy_kwargs": {"net_arch": {"pi": [64, 64], "vf": list(config.critic_hidden)}},
+    }
 
 
 @dataclass(frozen=True)
@@ -90,8 +117,12 @@ class PendulumVariant:
 PENDULUM_VARIANTS = (
     PendulumVariant("ours_linear", "ours, linear baseline (the paper's setting)", PENDULUM_NUM_ENVS, PENDULUM_CONFIG),
     PendulumVariant("ours_same", "(a) ours, value network, same settings", PENDULUM_NUM_ENVS, PENDULUM_CRITIC_CONFIG),
-    PendulumVariant("sb3_same", "(a) sb3-contrib, same settings", PENDULUM_NUM_ENVS,
-                    sb3_kwargs=sb3_trpo_kwargs(PENDULUM_CRITIC_CONFIG, PENDULUM_NUM_ENVS)),
+    PendulumVariant(
+        "sb3_same",
+        "(a) sb3-contrib, same settings",
+        PENDULUM_NUM_ENVS,
+        sb3_kwargs=sb3_trpo_kwargs(PENDULUM_CRITIC_CONFIG, PENDULUM_NUM_ENVS),
+    ),
     PendulumVariant("sb3_zoo", "(b) sb3-contrib, RL Zoo tuned", ZOO_PENDULUM_NUM_ENVS, sb3_kwargs=ZOO_PENDULUM_SB3),
     PendulumVariant("ours_zoo", "(c) ours, RL Zoo tuned, no gSDE", ZOO_PENDULUM_NUM_ENVS, ZOO_PENDULUM_CONFIG),
 )
@@ -125,14 +156,15 @@ def _deterministic_return(act, seed: int, episodes: int = 10) -> float:
 
 def _ours_pendulum(variant: PendulumVariant, seed: int, total_steps: int) -> dict:
     episodes = total_steps // PENDULUM_EPISODE_STEPS + 2  # per sub-environment, with room to spare
-    env = make_vec_env(lambda: gym.wrappers.RecordEpisodeStatistics(gym.make("Pendulum-v1"), buffer_length=episodes),
-                       variant.num_envs)
+    env = make_vec_env(
+        lambda: gym.wrappers.RecordEpisodeStatistics(gym.make("Pendulum-v1"), buffer_length=episodes), variant.num_envs
+    )
     torch.manual_seed(seed)
     policy = pendulum_policy(env)
     network = value_baseline(variant.config, env, seed) if variant.config.baseline == "mlp" else None
     algo = TRPO(fast_policy(policy), env, variant.config, seed=seed, baseline=network, fvp=gauss_newton_fvp)
     start, cpu_start = time.perf_counter(), time.process_time()  # the training only, as for sb3-contrib
-    algo.run(total_steps, progress=False)                          # (building Adam imports torch._dynamo once)
+    algo.run(total_steps, progress=False)  # (building Adam imports torch._dynamo once)
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     per_env = [list(e.return_queue) for e in env.envs]
     low, high = env.single_action_space.low, env.single_action_space.high
@@ -140,10 +172,16 @@ def _ours_pendulum(variant: PendulumVariant, seed: int, total_steps: int) -> dic
 
     def act(obs):
         with torch.no_grad():
-            return np.clip(policy.distribution(torch.as_tensor(obs[None], dtype=torch.float32)).mean[0].numpy(), low, high)
+            return np.clip(
+                policy.distribution(torch.as_tensor(obs[None], dtype=torch.float32)).mean[0].numpy(), low, high
+            )
 
-    return {"final_return": _late_mean_return(per_env, variant.num_envs, total_steps),
-            "eval_return": _deterministic_return(act, seed), "seconds": seconds, "cpu_seconds": cpu_seconds}
+    return {
+        "final_return": _late_mean_return(per_env, variant.num_envs, total_steps),
+        "eval_return": _deterministic_return(act, seed),
+        "seconds": seconds,
+        "cpu_seconds": cpu_seconds,
+    }
 
 
 def _sb3_pendulum(variant: PendulumVariant, seed: int, total_steps: int) -> dict:
@@ -157,13 +195,17 @@ def _sb3_pendulum(variant: PendulumVariant, seed: int, total_steps: int) -> dict
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     per_env = env.env_method("get_episode_rewards")
     env.close()
-    return {"final_return": _late_mean_return(per_env, variant.num_envs, total_steps),
-            "eval_return": _deterministic_return(lambda obs: model.predict(obs, deterministic=True)[0], seed),
-            "seconds": seconds, "cpu_seconds": cpu_seconds}
+    return {
+        "final_return": _late_mean_return(per_env, variant.num_envs, total_steps),
+        "eval_return": _deterministic_return(lambda obs: model.predict(obs, deterministic=True)[0], seed),
+        "seconds": seconds,
+        "cpu_seconds": cpu_seconds,
+    }
 
 
-def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int | None = None,
-                        with_sb3: bool = True) -> dict[str, dict[str, list[float]]]:
+def bench_trpo_pendulum(
+    seeds: tuple[int, ...] | None = None, total_steps: int | None = None, with_sb3: bool = True
+) -> dict[str, dict[str, list[float]]]:
     """Train every :data:`PENDULUM_VARIANTS` row on Pendulum-v1 for ``total_steps`` steps per seed, on
     the same seeds, one torch thread: our TRPO with the paper's linear baseline; (a) ours and
     sb3-contrib's with identical settings, value network and time-limit bootstrapping included; (b)
@@ -184,6 +226,7 @@ def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int |
     if with_sb3:
         try:
             import sb3_contrib  # noqa: F401
+
             variants = list(PENDULUM_VARIANTS)
         except ImportError:
             print("sb3-contrib is not installed (pip install -e '.[bench]'): benchmarking our TRPO only")
@@ -199,13 +242,18 @@ def bench_trpo_pendulum(seeds: tuple[int, ...] | None = None, total_steps: int |
                 runs.append(runner(variant, seed, total_steps))
                 bar.update()
             results[variant.name] = {key: [run[key] for run in runs] for key in runs[0]}
-            final, evaluation, seconds, cpu = (np.array(results[variant.name][k]) for k in
-                                               ("final_return", "eval_return", "seconds", "cpu_seconds"))
-            tqdm.write(f"{variant.label:44} {final.mean():8.1f} +- {final.std():5.1f} {evaluation.mean():10.1f} +- "
-                       f"{evaluation.std():5.1f} {seconds.mean():11.1f} {cpu.mean():7.1f}")
-    print("(c) differs from (b) by gSDE, which our TRPO lacks. Within (a) the remaining differences are the "
-          "policy network (ours: the package's mu and sigma networks, sigma a function of the state; sb3: "
-          "one log std, orthogonal initialisation), the KL direction (sb3: KL(new || old)), the line search's KL test "
-          "(sb3: strict <) and Adam's eps (sb3: 1e-5).")
+            final, evaluation, seconds, cpu = (
+                np.array(results[variant.name][k]) for k in ("final_return", "eval_return", "seconds", "cpu_seconds")
+            )
+            tqdm.write(
+                f"{variant.label:44} {final.mean():8.1f} +- {final.std():5.1f} {evaluation.mean():10.1f} +- "
+                f"{evaluation.std():5.1f} {seconds.mean():11.1f} {cpu.mean():7.1f}"
+            )
+    print(
+        "(c) differs from (b) by gSDE, which our TRPO lacks. Within (a) the remaining differences are the "
+        "policy network (ours: the package's mu and sigma networks, sigma a function of the state; sb3: "
+        "one log std, orthogonal initialisation), the KL direction (sb3: KL(new || old)), the line search's KL test "
+        "(sb3: strict <) and Adam's eps (sb3: 1e-5)."
+    )
     torch.set_num_threads(threads)
     return results

@@ -13,6 +13,7 @@ from its entry in :mod:`vdtutorial.methods`; how a checkpoint is named, found an
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, replace
@@ -22,8 +23,14 @@ import gymnasium as gym
 import torch
 
 from vdtutorial.demos import SHIPPED_NOISE, Demos, demo_path
-from vdtutorial.experiments.checkpoints import (checkpoint_path, default_config, load_checkpoint, pretrain_command,
-                                                reusable_checkpoint, save_checkpoint)
+from vdtutorial.experiments.checkpoints import (
+    checkpoint_path,
+    default_config,
+    load_checkpoint,
+    pretrain_command,
+    reusable_checkpoint,
+    save_checkpoint,
+)
 from vdtutorial.experiments.initial_sigma import InitialSigma, set_initial_sigma
 from vdtutorial.experiments.paths import runs_dir
 from vdtutorial.methods import method as method_entry
@@ -52,9 +59,16 @@ def made_in_rounds(meta: dict) -> bool:
     return "noise" not in meta
 
 
-def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int = 0,
-                      config: PretrainConfig | None = None, checkpoints_root: Path | None = None,
-                      progress: bool = False, source: str | Path | None = None) -> GaussianPolicy:
+def pretrained_policy(
+    reg: str,
+    demos: Demos,
+    obs_mode: str = "state",
+    seed: int = 0,
+    config: PretrainConfig | None = None,
+    checkpoints_root: Path | None = None,
+    progress: bool = False,
+    source: str | Path | None = None,
+) -> GaussianPolicy:
     """The policy pre-trained with the method ``reg`` on ``demos`` with ``config`` and ``seed``.
 
     A checkpoint (:func:`~vdtutorial.experiments.checkpoints.checkpoint_path`) is reused when it was made from the
@@ -78,12 +92,18 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     cfg = replace(config or default_config(reg, obs_mode), reg=reg, obs_mode=obs_mode)
     meta = demos.meta
     if made_in_rounds(meta) and source is None:
-        raise ValueError("a data set made in rounds (DART's, DAgger's: no Sigma in its meta) is named by its file: "
-                         "give its path as source")
+        raise ValueError(
+            "a data set made in rounds (DART's, DAgger's: no Sigma in its meta) is named by its file: "
+            "give its path as source"
+        )
     data_name = Path(source).stem if made_in_rounds(meta) else None
     root = Path(checkpoints_root) if checkpoints_root is not None else budget(runs_dir(), runs_dir() / "quick")
-    names = {"initial_sigma": cfg.initial_sigma, "kl_divisor": cfg.kl_divisor, "data_name": data_name,
-             "patience": cfg.patience}
+    names = {
+        "initial_sigma": cfg.initial_sigma,
+        "kl_divisor": cfg.kl_divisor,
+        "data_name": data_name,
+        "patience": cfg.patience,
+    }
     path = checkpoint_path(meta, reg, obs_mode, seed, root=root, **names)
     shipped = checkpoint_path(meta, reg, obs_mode, seed, **names)
     candidates = [shipped] if budget(True, False) and shipped != path and data_name is None else []
@@ -107,8 +127,16 @@ def pretrained_policy(reg: str, demos: Demos, obs_mode: str = "state", seed: int
     return load_checkpoint(path)
 
 
-def spread_network(reg: str, demos: Demos, obs_mode: str, seed: int, config: PretrainConfig,
-                   checkpoints_root: Path | None, progress: bool, source: str | Path | None) -> torch.nn.Module | None:
+def spread_network(
+    reg: str,
+    demos: Demos,
+    obs_mode: str,
+    seed: int,
+    config: PretrainConfig,
+    checkpoints_root: Path | None,
+    progress: bool,
+    source: str | Path | None,
+) -> torch.nn.Module | None:
     """Under the start sigma "spread", the mean network whose predictive spread the method ``reg`` follows: that
     of the method its entry names (``spread_from``), pre-trained alike (the same data, seed and settings, with
     the default L2 coefficient, which is no setting of another method's); None when it follows its own."""
@@ -125,8 +153,12 @@ def fresh_policy(env: gym.Env | gym.vector.VectorEnv, seed: int, config: Pretrai
     torch.manual_seed(seed)
     space = getattr(env, "single_observation_space", env.observation_space)
     actions = getattr(env, "single_action_space", env.action_space)
-    return make_policy(space, actions.shape[0], variational=method_entry(config.reg).variational,
-                       init_std=InitialSigma.parse(config.initial_sigma).value)
+    return make_policy(
+        space,
+        actions.shape[0],
+        variational=method_entry(config.reg).variational,
+        init_std=InitialSigma.parse(config.initial_sigma).value,
+    )
 
 
 def ready_for_rl(reg: str, policy: GaussianPolicy) -> GaussianPolicy:
@@ -135,10 +167,19 @@ def ready_for_rl(reg: str, policy: GaussianPolicy) -> GaussianPolicy:
     return policy.prune_() if method_entry(reg).prunes else policy
 
 
-def finetune_policy(method: str, env: gym.Env | gym.vector.VectorEnv, demos: Demos | None = None,
-                  obs_mode: str = "state", seed: int = 0, config: PretrainConfig | None = None, *,
-                  checkpoints_root: Path | None = None, progress: bool = False, resumed: bool = False,
-                  source: str | Path | None = None) -> GaussianPolicy:
+def finetune_policy(
+    method: str,
+    env: gym.Env | gym.vector.VectorEnv,
+    demos: Demos | None = None,
+    obs_mode: str = "state",
+    seed: int = 0,
+    config: PretrainConfig | None = None,
+    *,
+    checkpoints_root: Path | None = None,
+    progress: bool = False,
+    resumed: bool = False,
+    source: str | Path | None = None,
+) -> GaussianPolicy:
     """The policy RL starts from, for ``method`` on ``env``: the steps of the module docstring, "in the order they run".
 
     A method that pre-trains: the policy pre-trained on ``demos`` with ``config`` (:func:`pretrained_policy`)

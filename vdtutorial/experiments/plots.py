@@ -1,4 +1,5 @@
 """The learning-curve figure of Figs. 4-7: one panel per measure, each seed thin behind the mean. Taught in chapter 07."""
+
 from __future__ import annotations
 
 import io
@@ -17,8 +18,9 @@ METRIC_LABELS = {name: measure.label for name, measure in MEASURES.items()}
 _LINESTYLES = ("-", "--", ":", "-.", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)), (0, (1, 3)), (0, (8, 3, 2, 3)))
 
 
-def figure_title(base: str, obs_mode: str, total_steps: int, seeds: int | str, fvp_subsample: float = 1.0,
-                 demo_seed: int = 0) -> str:
+def figure_title(
+    base: str, obs_mode: str, total_steps: int, seeds: int | str, fvp_subsample: float = 1.0, demo_seed: int = 0
+) -> str:
     """A figure's title that tells its variants apart: the paper's figure (``base``), the observation, the
     budget, the seeds (a range, "10 to 23", when the curves have different numbers), a draw of the demonstrations other than the shipped seed 0, and, for the control with the
     subsampled Fisher, that it is that control."""
@@ -47,9 +49,13 @@ def _draw_panel(ax, curves: dict[str, Curve], metric: str, legend: bool) -> None
         entry = method(curve.method)
         colour = entry.colour
         if not entry.finetuned:
-            ax.axhline(curve.mean[0], color=colour, linestyle="--",
-                       label=f"{curve.label} ({curve.mean[0]:.3g}; band: {CONFIDENCE:.0%} interval of its mean over "
-                             f"{curve.episodes} evaluation episodes, not seeds)")
+            ax.axhline(
+                curve.mean[0],
+                color=colour,
+                linestyle="--",
+                label=f"{curve.label} ({curve.mean[0]:.3g}; band: {CONFIDENCE:.0%} interval of its mean over "
+                f"{curve.episodes} evaluation episodes, not seeds)",
+            )
             if np.isfinite(curve.low[0]):
                 ax.axhspan(*band_limits(curve.low[0], curve.high[0], metric), color=colour, alpha=0.08)
             continue
@@ -71,8 +77,10 @@ def _draw_panel(ax, curves: dict[str, Curve], metric: str, legend: bool) -> None
 def _smoothing_text(window: int) -> str:
     """The figure's note on smoothing and bands, in lines short enough for the 7-inch single-panel figure."""
     iterations = "iteration" if window == 1 else "iterations"
-    return (f"(trailing mean over {window} {iterations} = {window * EPISODE_STEPS} steps; thin: each seed;\nband: "
-            f"{CONFIDENCE:.0%} t-interval of the mean over seeds, clipped to the measure's possible values)")
+    return (
+        f"(trailing mean over {window} {iterations} = {window * EPISODE_STEPS} steps; thin: each seed;\nband: "
+        f"{CONFIDENCE:.0%} t-interval of the mean over seeds, clipped to the measure's possible values)"
+    )
 
 
 def plot_curves(curves: dict[str, Curve], metric: str, title: str, window: int | None = None) -> Figure:
@@ -91,8 +99,9 @@ def plot_curves(curves: dict[str, Curve], metric: str, title: str, window: int |
     return fig
 
 
-def plot_measures(curves_by_measure: dict[str, dict[str, Curve]], title: str, window: int | None = None,
-                  columns: int | None = None) -> Figure:
+def plot_measures(
+    curves_by_measure: dict[str, dict[str, Curve]], title: str, window: int | None = None, columns: int | None = None
+) -> Figure:
     """:func:`plot_curves` for several measures, one panel each (the paper's metric first), under one title and one
     legend below them; ``columns`` panels a row (default: all in one row, as the shipped figures are drawn). One
     column keeps every panel and the legend readable at a notebook's width, where a row of three is shrunk."""
@@ -109,7 +118,7 @@ def plot_measures(curves_by_measure: dict[str, dict[str, Curve]], title: str, wi
     for ax, (metric, curves) in zip(axes, curves_by_measure.items()):
         _draw_panel(ax, curves, metric, legend=False)
         ax.set_xlabel("environment steps", fontsize=9)
-    for ax in axes[len(curves_by_measure):]:
+    for ax in axes[len(curves_by_measure) :]:
         ax.set_visible(False)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=8)
     fig.suptitle(f"{title}\n{_smoothing_text(window)}", fontsize=10)
@@ -126,4 +135,3 @@ def save_png(figure: Figure, path: str | Path, dpi: int) -> Path:
     with Image.open(buffer) as image:
         image.convert("RGB").quantize(colors=256).save(path, format="PNG", optimize=True)
     return Path(path)
-

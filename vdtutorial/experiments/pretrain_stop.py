@@ -13,6 +13,7 @@ this is its control.
 
 Taught in appendix A1.
 """
+
 from __future__ import annotations
 
 import json
@@ -61,8 +62,10 @@ def stop_config(reg: str) -> PretrainConfig:
 
 
 def configs() -> dict[str, dict[str, PretrainConfig]]:
-    return {FIXED: {reg: default_config(reg, OBS) for reg in ("vd", "l2")},
-            STOPPED: {reg: stop_config(reg) for reg in ("vd", "l2")}}
+    return {
+        FIXED: {reg: default_config(reg, OBS) for reg in ("vd", "l2")},
+        STOPPED: {reg: stop_config(reg) for reg in ("vd", "l2")},
+    }
 
 
 def rl_steps() -> int:
@@ -92,8 +95,14 @@ class PreRLJob(SavedInStateDir):
 
     @property
     def settings(self) -> dict:
-        return {"experiment": "pretrain_stop", "kind": self.kind, "reg": self.reg, "seed": self.seed,
-                "episodes": pre_rl_episodes(), "pretrain_config": asdict(configs()[self.kind][self.reg])}
+        return {
+            "experiment": "pretrain_stop",
+            "kind": self.kind,
+            "reg": self.reg,
+            "seed": self.seed,
+            "episodes": pre_rl_episodes(),
+            "pretrain_config": asdict(configs()[self.kind][self.reg]),
+        }
 
     rows_expected = 1
 
@@ -102,8 +111,13 @@ class PreRLJob(SavedInStateDir):
         return pre_rl_episodes() * EPISODE_STEPS
 
     def tags(self) -> dict:
-        return {"label": f"{METHOD_LABELS[self.reg]}, {self.kind}", "kind": self.kind, "method": self.reg,
-                "seed": self.seed, "stage": "pre-RL"}
+        return {
+            "label": f"{METHOD_LABELS[self.reg]}, {self.kind}",
+            "kind": self.kind,
+            "method": self.reg,
+            "seed": self.seed,
+            "stage": "pre-RL",
+        }
 
     def summary(self, rows: list[dict]) -> str:
         return f"{rows[0]['successes']:.3g} successes per 200 steps before RL after {rows[0]['epochs_run']} epochs"
@@ -118,8 +132,14 @@ class PreRLJob(SavedInStateDir):
         score = mean_action_successes(policy, TASK, self.seed, pre_rl_episodes(), NUM_ENVS, OBS, config.image_size)
         history = info["history"]
         best = info.get("best_epoch", len(history))
-        rows = [{**score, "epochs_run": info.get("epochs_run", len(history)), "best_epoch": best,
-                 "val_mse": history[best - 1]["val_mse"]}]
+        rows = [
+            {
+                **score,
+                "epochs_run": info.get("epochs_run", len(history)),
+                "best_epoch": best,
+                "val_mse": history[best - 1]["val_mse"],
+            }
+        ]
         save_finished_rows(self.state_path, self.settings, rows, time.perf_counter() - start)
         yield {"env_steps": self.env_steps}
         return rows
@@ -141,17 +161,28 @@ class _RLJob(Job):
 
 def jobs(seeds, out: Path, state_dir: Path) -> list:
     """The pre-RL jobs first (they make the stopped checkpoints), then the RL runs."""
-    pre = [PreRLJob(kind, reg, seed, out, state_dir) for kind in (FIXED, STOPPED) for reg in ("vd", "l2")
-           for seed in seeds]
+    pre = [
+        PreRLJob(kind, reg, seed, out, state_dir) for kind in (FIXED, STOPPED) for reg in ("vd", "l2") for seed in seeds
+    ]
     rl = []
     for kind, per_reg in configs().items():
         for reg, config in per_reg.items():
             for seed in seeds:
                 spec = RunSpec(reg, TASK, SAMPLES, NOISE, seed, OBS, rl_steps(), f"{METHOD_LABELS[reg]}, {kind}")
                 stem = state_dir / "rl" / f"{kind.replace(' ', '-')}_{spec.name}"
-                rl.append(_RLJob(spec, Path(f"{stem}.pt"), Path(f"{stem}.csv"), data_dir().resolve(),
-                                 out.resolve(), config, default_trpo_config(), CHECKPOINT_EVERY,
-                                 kind=kind))
+                rl.append(
+                    _RLJob(
+                        spec,
+                        Path(f"{stem}.pt"),
+                        Path(f"{stem}.csv"),
+                        data_dir().resolve(),
+                        out.resolve(),
+                        config,
+                        default_trpo_config(),
+                        CHECKPOINT_EVERY,
+                        kind=kind,
+                    )
+                )
     return pre + rl
 
 
@@ -165,19 +196,32 @@ def compare(rows: list[dict], seeds) -> list[dict]:
     the RL runs (95% Welch intervals over seeds)."""
     out, steps = [], _rl_steps_of(rows)
     for reg in ("vd", "l2"):
+
         def values(kind, stage, key):
             picked = [r for r in rows if r["method"] == reg and r["kind"] == kind and r["stage"] == stage]
             if stage == "RL":
                 return [float(np.mean([r[key] for r in picked if r["seed"] == s])) for s in seeds]
             return [float(r[key]) for r in sorted(picked, key=lambda r: r["seed"])]
-        for stage, key, what in (("pre-RL", "epochs_run", "epochs of cloning"),
-                                 ("pre-RL", "val_mse", "held-out MSE of the kept mu"),
-                                 ("pre-RL", "successes", "successes per 200 steps before RL (mean action)"),
-                                 ("RL", "successes", f"successes per 200 steps, mean over the first {steps:g} RL steps")):
+
+        for stage, key, what in (
+            ("pre-RL", "epochs_run", "epochs of cloning"),
+            ("pre-RL", "val_mse", "held-out MSE of the kept mu"),
+            ("pre-RL", "successes", "successes per 200 steps before RL (mean action)"),
+            ("RL", "successes", f"successes per 200 steps, mean over the first {steps:g} RL steps"),
+        ):
             stopped, fixed = values(STOPPED, stage, key), values(FIXED, stage, key)
             estimate, low, high = welch_interval(stopped, fixed, 0.95)
-            out.append({"method": reg, "measure": what, "stopped": stopped, "fixed": fixed, "estimate": estimate,
-                        "low": low, "high": high})
+            out.append(
+                {
+                    "method": reg,
+                    "measure": what,
+                    "stopped": stopped,
+                    "fixed": fixed,
+                    "estimate": estimate,
+                    "low": low,
+                    "high": high,
+                }
+            )
     return out
 
 
@@ -192,13 +236,26 @@ def plot(rows: list[dict], seeds) -> Figure:
     """The RL runs from both kinds of checkpoint, one panel per measure (the paper's count, the success rate,
     the env steps per trajectory), per seed thin behind the mean; the stopped checkpoints dashed."""
     rl = [r for r in rows if r["stage"] == "RL"]
-    title = figure_title("Image pre-training stopped on the held-out loss against the fixed 40 epochs: the first "
-                         "TRPO iterations (reaching)", OBS, _rl_steps_of(rows), len(seeds))
+    title = figure_title(
+        "Image pre-training stopped on the held-out loss against the fixed 40 epochs: the first "
+        "TRPO iterations (reaching)",
+        OBS,
+        _rl_steps_of(rows),
+        len(seeds),
+    )
     return plot_measures({m: curves_from_rows(rl, m, RL_WINDOW) for m in measures_of("successes")}, title, RL_WINDOW)
 
 
-def pretrain_stop(seeds=None, out=None, workers: int = 2, progress: bool | None = None, backend: str = "local",
-                  address: str | None = None, restart: bool = False, state_dir=None) -> dict:
+def pretrain_stop(
+    seeds=None,
+    out=None,
+    workers: int = 2,
+    progress: bool | None = None,
+    backend: str = "local",
+    address: str | None = None,
+    restart: bool = False,
+    state_dir=None,
+) -> dict:
     """Run the comparison (module docstring, "Per method") as one resumable grid; write ``pretrain_stop.csv.gz``,
     ``pretrain_stop.png`` (:func:`plot`) and ``pretrain_stop.json`` into ``out`` (default ``runs/pretrain_stop``;
     shipped: ``data/results/pretrain_stop``)."""
@@ -206,24 +263,39 @@ def pretrain_stop(seeds=None, out=None, workers: int = 2, progress: bool | None 
     out = Path(out) if out is not None else default_out("pretrain_stop")
     state_dir = Path(state_dir).resolve() if state_dir is not None else (out / "runs").resolve()
     start = time.perf_counter()
-    results = run_grid("pretrain_stop", jobs(seeds, out.resolve(), state_dir), workers, backend, address, restart,
-                       progress)
+    results = run_grid(
+        "pretrain_stop", jobs(seeds, out.resolve(), state_dir), workers, backend, address, restart, progress
+    )
     rows = [row for result in results for row in result["rows"]]
     out.mkdir(parents=True, exist_ok=True)
     write_csv(results_file(out, "pretrain_stop"), rows)
     save_png(plot(rows, seeds), out / "pretrain_stop.png", 110)
     comparison = compare(rows, seeds)
     shown_out = out if out != default_out("pretrain_stop") else None
-    record = {"experiment": "pretrain_stop",
-              "command": experiment_command("pretrain_stop", seeds=seeds, workers=workers, out=shown_out),
-              "quick": is_quick(), "task": TASK, "samples": SAMPLES, "noise": NOISE, "obs_mode": OBS, "seeds": list(seeds),
-              "rl_steps": rl_steps(), "pre_rl_episodes": pre_rl_episodes(), "patience": PATIENCE, "cap": CAP,
-              "pretrain_config": {kind: {reg: asdict(c) for reg, c in per.items()} for kind, per in configs().items()},
-              "comparison": comparison, "material": is_material(comparison),
-              "run_seconds": sum(result["seconds"] for result in results),  # every job's, over all invocations
-              "wall_time_s": time.perf_counter() - start,
-              "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__,
-                           "python": sys.version.split()[0]}}
+    record = {
+        "experiment": "pretrain_stop",
+        "command": experiment_command("pretrain_stop", seeds=seeds, workers=workers, out=shown_out),
+        "quick": is_quick(),
+        "task": TASK,
+        "samples": SAMPLES,
+        "noise": NOISE,
+        "obs_mode": OBS,
+        "seeds": list(seeds),
+        "rl_steps": rl_steps(),
+        "pre_rl_episodes": pre_rl_episodes(),
+        "patience": PATIENCE,
+        "cap": CAP,
+        "pretrain_config": {kind: {reg: asdict(c) for reg, c in per.items()} for kind, per in configs().items()},
+        "comparison": comparison,
+        "material": is_material(comparison),
+        "run_seconds": sum(result["seconds"] for result in results),  # every job's, over all invocations
+        "wall_time_s": time.perf_counter() - start,
+        "versions": {
+            "vdtutorial": vdtutorial.__version__,
+            "torch": torch.__version__,
+            "python": sys.version.split()[0],
+        },
+    }
     (out / "pretrain_stop.json").write_text(json.dumps(record, indent=1, default=str))
     return record
 
@@ -231,10 +303,16 @@ def pretrain_stop(seeds=None, out=None, workers: int = 2, progress: bool | None 
 def format_comparison(record: dict) -> str:
     """A line per method and measure: stopped and fixed per seed, and the difference with its interval; then
     what that means for ``fig4_rgbd`` (:func:`is_material`)."""
-    consequence = ("material: fig4_rgbd is to be made again from the stopped checkpoints" if record["material"] else
-                   "not material (no interval of the successes excludes zero): fig4_rgbd keeps its fixed 40 epochs "
-                   "and this comparison is its control")
-    lines = [f"{METHOD_LABELS[c['method']]:>3} {c['measure']}: stopped {np.round(c['stopped'], 3).tolist()}, "
-             f"fixed {np.round(c['fixed'], 3).tolist()}; stopped - fixed {c['estimate']:+.3g} "
-             f"({c['low']:+.3g} to {c['high']:+.3g})" for c in record["comparison"]]
+    consequence = (
+        "material: fig4_rgbd is to be made again from the stopped checkpoints"
+        if record["material"]
+        else "not material (no interval of the successes excludes zero): fig4_rgbd keeps its fixed 40 epochs "
+        "and this comparison is its control"
+    )
+    lines = [
+        f"{METHOD_LABELS[c['method']]:>3} {c['measure']}: stopped {np.round(c['stopped'], 3).tolist()}, "
+        f"fixed {np.round(c['fixed'], 3).tolist()}; stopped - fixed {c['estimate']:+.3g} "
+        f"({c['low']:+.3g} to {c['high']:+.3g})"
+        for c in record["comparison"]
+    ]
     return "\n".join([*lines, f"{len(record['seeds'])} seeds, 95% Welch intervals; {consequence}"])

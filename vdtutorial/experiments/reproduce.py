@@ -1,4 +1,5 @@
 """The whole pipeline, small: the package's main job (``python -m vdtutorial reproduce``). Taught in chapter 00."""
+
 from __future__ import annotations
 
 import os
@@ -17,9 +18,17 @@ from vdtutorial.runner.progress import live_by_default
 from vdtutorial.settings import QUICK_ENV, budget, use_quick
 
 
-def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise: float = 0.5,
-                    epochs: int | None = None, total_steps: int | None = None, workers: int = 2,
-                    progress: bool | None = None, quick: bool = False) -> ExperimentResult:
+def reproduce_quick(
+    out=None,
+    seeds=(0, 1, 2),
+    samples: int | None = None,
+    noise: float = 0.5,
+    epochs: int | None = None,
+    total_steps: int | None = None,
+    workers: int = 2,
+    progress: bool | None = None,
+    quick: bool = False,
+) -> ExperimentResult:
     """The paper's pipeline end to end at a small scale, in a few minutes on 2 cores: generate a small
     reaching data set, pre-train VD and L2 on it, fine-tune VD, L2 and no pre-training with TRPO, and
     draw the Fig. 4-style curves. There is no expert line: it would cost a worker ~40 s, and at ~75
@@ -38,8 +47,16 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
         before = os.environ.get(QUICK_ENV)
         use_quick(True)
         try:
-            return reproduce_quick(out=out, seeds=seeds, samples=samples, noise=noise, epochs=epochs,
-                                   total_steps=total_steps, workers=workers, progress=progress)
+            return reproduce_quick(
+                out=out,
+                seeds=seeds,
+                samples=samples,
+                noise=noise,
+                epochs=epochs,
+                total_steps=total_steps,
+                workers=workers,
+                progress=progress,
+            )
         finally:
             if before is None:
                 del os.environ[QUICK_ENV]
@@ -58,23 +75,50 @@ def reproduce_quick(out=None, seeds=(0, 1, 2), samples: int | None = None, noise
         live = live_by_default() if progress is None else progress
         generate_demos("reach", samples, noise, 0, progress=live).save(path)
     config = PretrainConfig(epochs=epochs)
-    specs = [RunSpec(m, "reach", *((samples, noise) if method(m).pretrains else (None, None)), seed, "state",
-                     total_steps, METHOD_LABELS[m]) for m in RL_METHODS for seed in seeds]
-    command = (f"python -c 'from vdtutorial.experiments import reproduce_quick; reproduce_quick(out={str(out)!r}, "
-               f"seeds={tuple(seeds)}, samples={samples}, noise={noise}, epochs={epochs}, total_steps={total_steps})'"
-               f"  # demonstrations: {demo_command('reach', samples, noise, 0)} --out {path}")
+    specs = [
+        RunSpec(
+            m,
+            "reach",
+            *((samples, noise) if method(m).pretrains else (None, None)),
+            seed,
+            "state",
+            total_steps,
+            METHOD_LABELS[m],
+        )
+        for m in RL_METHODS
+        for seed in seeds
+    ]
+    command = (
+        f"python -c 'from vdtutorial.experiments import reproduce_quick; reproduce_quick(out={str(out)!r}, "
+        f"seeds={tuple(seeds)}, samples={samples}, noise={noise}, epochs={epochs}, total_steps={total_steps})'"
+        f"  # demonstrations: {demo_command('reach', samples, noise, 0)} --out {path}"
+    )
 
     def summarise(curves: dict[str, Curve]) -> dict:
         report = sparsity_report(pretrained_policy("vd", Demos.load(path), "state", seeds[0], config, out).mu)
         (out / "sparsity.txt").write_text(f"{report}\n")
         print(report)
         reach = vd_reaches_l2_final(curves)
-        return {"neuron_fraction": report.neuron_fraction, "weight_fraction": report.weight_fraction,
-                "vd_reaches_l2_final": {**reach, "text": small_run_reach_text(reach, total_steps)}}
+        return {
+            "neuron_fraction": report.neuron_fraction,
+            "weight_fraction": report.weight_fraction,
+            "vd_reaches_l2_final": {**reach, "text": small_run_reach_text(reach, total_steps)},
+        }
 
     title = f"Quick reproduction: reaching, {samples} demos"
-    return run_experiment("reproduce_quick", specs, title, out, workers, demos_root=out, checkpoints_root=out,
-                          pretrain_config=config, command=command, summarise=summarise, progress=progress)
+    return run_experiment(
+        "reproduce_quick",
+        specs,
+        title,
+        out,
+        workers,
+        demos_root=out,
+        checkpoints_root=out,
+        pretrain_config=config,
+        command=command,
+        summarise=summarise,
+        progress=progress,
+    )
 
 
 def small_run_reach_text(reach: dict, total_steps: int) -> str:
@@ -85,7 +129,11 @@ def small_run_reach_text(reach: dict, total_steps: int) -> str:
     if reach["steps"] is None:
         where = f"VD's smoothed mean stays below {level} over these {total_steps:,} steps"
     else:
-        where = (f"VD's smoothed mean first reaches {level} at {reach['steps']:.3g} env steps, "
-                 f"{reach['fraction_of_budget']:.0%} of these {total_steps:,}")
-    return (f"{where}; the paper's claim on this, made at 3e5 steps, is tested at full scale in docs/results.md "
-            "(python -m vdtutorial experiment fig4)")
+        where = (
+            f"VD's smoothed mean first reaches {level} at {reach['steps']:.3g} env steps, "
+            f"{reach['fraction_of_budget']:.0%} of these {total_steps:,}"
+        )
+    return (
+        f"{where}; the paper's claim on this, made at 3e5 steps, is tested at full scale in docs/results.md "
+        "(python -m vdtutorial experiment fig4)"
+    )

@@ -1,4 +1,5 @@
 """An experiment's files: run a grid, then write the combined CSV, the figure and the JSON record. Taught in chapter 07."""
+
 from __future__ import annotations
 
 import json
@@ -18,8 +19,15 @@ from matplotlib.figure import Figure
 import vdtutorial
 from vdtutorial.experiments.batches import mark_batches
 from vdtutorial.experiments.checkpoints import current_field_names, default_config
-from vdtutorial.experiments.curves import (CONFIDENCE, Curve, curves_from_rows, final_point, record_window,
-                                           smooth_window, vd_reaches_l2_final)
+from vdtutorial.experiments.curves import (
+    CONFIDENCE,
+    Curve,
+    curves_from_rows,
+    final_point,
+    record_window,
+    smooth_window,
+    vd_reaches_l2_final,
+)
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.looks import looks_of
@@ -33,6 +41,7 @@ from vdtutorial.runner.rows import read_rows, results_file, write_csv
 from vdtutorial.experiments.paths import recorded_path, runs_dir
 from vdtutorial.settings import budget, data_dir, is_quick
 from vdtutorial.trpo import TRPOConfig
+
 
 @dataclass
 class ExperimentResult:
@@ -91,8 +100,12 @@ def recorded_argv() -> list[str]:
     """This process's command line as a record writes it: ``python -m vdtutorial ...`` rather than the path of
     the package's ``__main__.py``, and paths relative to the folder holding data/ (see ``recorded_path``)."""
     program = sys.argv[0]
-    head = (["python", "-m", "vdtutorial"] if Path(program).name == "__main__.py"
-            and Path(program).resolve().parent == Path(vdtutorial.__file__).resolve().parent else [Path(program).name])
+    head = (
+        ["python", "-m", "vdtutorial"]
+        if Path(program).name == "__main__.py"
+        and Path(program).resolve().parent == Path(vdtutorial.__file__).resolve().parent
+        else [Path(program).name]
+    )
     return head + [_recorded_argument(arg) for arg in sys.argv[1:]]
 
 
@@ -102,13 +115,28 @@ def default_out(name: str) -> Path:
     return Path(budget(runs_dir() / name, runs_dir() / "quick" / name))
 
 
-def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path | None = None, workers: int = 2,
-                   demos_root: Path | None = None, checkpoints_root: Path | None = None,
-                   pretrain_config: PretrainConfig | None = None, trpo_config: TRPOConfig | None = None,
-                   window: int | None = None, command: str = "", summarise=None, *, backend: str = "local",
-                   address: str | None = None, state_dir: str | Path | None = None, restart: bool = False,
-                   checkpoint_every: int = CHECKPOINT_EVERY, progress: bool | None = None,
-                   device: str = "cpu") -> ExperimentResult:
+def run_experiment(
+    name: str,
+    specs: list[RunSpec],
+    title: str,
+    out: str | Path | None = None,
+    workers: int = 2,
+    demos_root: Path | None = None,
+    checkpoints_root: Path | None = None,
+    pretrain_config: PretrainConfig | None = None,
+    trpo_config: TRPOConfig | None = None,
+    window: int | None = None,
+    command: str = "",
+    summarise=None,
+    *,
+    backend: str = "local",
+    address: str | None = None,
+    state_dir: str | Path | None = None,
+    restart: bool = False,
+    checkpoint_every: int = CHECKPOINT_EVERY,
+    progress: bool | None = None,
+    device: str = "cpu",
+) -> ExperimentResult:
     """Run ``specs`` as a restartable grid (:func:`~vdtutorial.runner.grid.run_grid`), then write
     ``NAME.csv.gz`` (all rows), ``NAME.png`` (:func:`derive`: one panel per measure) and ``NAME.json``
     (command, configuration, per-run compute times, summary) into ``out``. The summary holds each curve's
@@ -138,46 +166,92 @@ def run_experiment(name: str, specs: list[RunSpec], title: str, out: str | Path 
     trpo_config = trpo_config or default_trpo_config()
     task = specs[0].task
     metric = METRIC[task]
-    jobs = [Job(spec, state_dir.resolve() / f"{spec.name}.pt", state_dir.resolve() / f"{spec.name}.csv", demos_root,
-                checkpoints_root, pretrain_config, trpo_config, checkpoint_every, device) for spec in specs]
+    jobs = [
+        Job(
+            spec,
+            state_dir.resolve() / f"{spec.name}.pt",
+            state_dir.resolve() / f"{spec.name}.csv",
+            demos_root,
+            checkpoints_root,
+            pretrain_config,
+            trpo_config,
+            checkpoint_every,
+            device,
+        )
+        for spec in specs
+    ]
     start = time.perf_counter()
     results = run_grid(name, jobs, workers, backend, address, restart, progress)
     wall = time.perf_counter() - start
     rows = [row for result in results for row in result["rows"]]
     out.mkdir(parents=True, exist_ok=True)
     write_csv(results_file(out, name), rows)
-    title = figure_title(title, specs[0].obs_mode, specs[0].total_steps, len({spec.seed for spec in specs}),
-                         trpo_config.fvp_subsample, max(spec.demo_seed for spec in specs))
+    title = figure_title(
+        title,
+        specs[0].obs_mode,
+        specs[0].total_steps,
+        len({spec.seed for spec in specs}),
+        trpo_config.fvp_subsample,
+        max(spec.demo_seed for spec in specs),
+    )
     curves, figure, summary = derive(name, rows, metric, window, title)
     save_png(figure, out / f"{name}.png", 120)
     summary.update(summarise(curves) if summarise else {})
     record = {
-        "experiment": name, "command": command, "argv": recorded_argv(), "quick": is_quick(), "title": title,
-        "metric": metric, "measures": list(measures_of(metric)), "seeds": sorted({spec.seed for spec in specs}),
-        "num_envs": NUM_ENVS, "steps_per_iteration": trpo_config.steps_per_iter,
-        "window": window, "smoothing": f"trailing moving average over {window} iterations", "band": f"{CONFIDENCE:.0%} Student-t "
-        "interval of the mean over seeds", "workers": workers, "backend": backend, "wall_time_s": wall,
+        "experiment": name,
+        "command": command,
+        "argv": recorded_argv(),
+        "quick": is_quick(),
+        "title": title,
+        "metric": metric,
+        "measures": list(measures_of(metric)),
+        "seeds": sorted({spec.seed for spec in specs}),
+        "num_envs": NUM_ENVS,
+        "steps_per_iteration": trpo_config.steps_per_iter,
+        "window": window,
+        "smoothing": f"trailing moving average over {window} iterations",
+        "band": f"{CONFIDENCE:.0%} Student-t interval of the mean over seeds",
+        "workers": workers,
+        "backend": backend,
+        "wall_time_s": wall,
         "device": device,  # where the TRPO updates ran: a GPU's rows differ from the CPU's by rounding
-        "pretrain_config": {k: v for k, v in asdict(pretrain_config or default_config("vd", specs[0].obs_mode)).items()
-                            if k not in ("reg", "obs_mode")},  # these two are set per run
+        "pretrain_config": {
+            k: v
+            for k, v in asdict(pretrain_config or default_config("vd", specs[0].obs_mode)).items()
+            if k not in ("reg", "obs_mode")
+        },  # these two are set per run
         "trpo_config": asdict(trpo_config),
         # folders as the commands name them: relative to the folder that holds data/
-        "demos_root": recorded_path(demos_root), "checkpoints_root": recorded_path(checkpoints_root),
+        "demos_root": recorded_path(demos_root),
+        "checkpoints_root": recorded_path(checkpoints_root),
         "state_dir": recorded_path(state_dir),
-        "runs": [{**asdict(job.spec), "name": job.spec.name, "seconds": result["seconds"],
-                  # the iteration this command continued the run from; null: found finished
-                  "resumed_at_iteration": result["resumed_at"]} for job, result in zip(jobs, results)],
+        "runs": [
+            {
+                **asdict(job.spec),
+                "name": job.spec.name,
+                "seconds": result["seconds"],
+                # the iteration this command continued the run from; null: found finished
+                "resumed_at_iteration": result["resumed_at"],
+            }
+            for job, result in zip(jobs, results)
+        ],
         "summary": summary,
-        "versions": {"vdtutorial": vdtutorial.__version__, "torch": torch.__version__, "gymnasium": gym.__version__,
-                     "numpy": np.__version__, "python": sys.version.split()[0]},
+        "versions": {
+            "vdtutorial": vdtutorial.__version__,
+            "torch": torch.__version__,
+            "gymnasium": gym.__version__,
+            "numpy": np.__version__,
+            "python": sys.version.split()[0],
+        },
         "kernels": kernel_settings(),  # the CPU vector kernels in use (vdtutorial.runner.kernels)
     }
     (out / f"{name}.json").write_text(json.dumps(record, indent=1, default=str))
     return ExperimentResult(name, out, rows, curves, figure, summary, record)
 
 
-def derive(name: str, rows: list[dict], metric: str, window: int, title: str,
-           claims=None, looks=None) -> tuple[dict[str, Curve], Figure, dict]:
+def derive(
+    name: str, rows: list[dict], metric: str, window: int, title: str, claims=None, looks=None
+) -> tuple[dict[str, Curve], Figure, dict]:
     """What an experiment's rows say, all of it re-derivable from them: the curves of the paper's ``metric``,
     the figure (one panel per measure, :func:`~vdtutorial.experiments.measures.measures_of`), and the summary:
     each curve's final point on the paper's metric (``final``) and on every measure (``final_by_measure``),
@@ -185,10 +259,14 @@ def derive(name: str, rows: list[dict], metric: str, window: int, title: str,
     claims than the experiment's own; ``looks``: the seeds each look added, for an experiment extended after its
     result was seen, :mod:`~vdtutorial.experiments.looks`)."""
     by_measure = {measure: curves_from_rows(rows, measure, window) for measure in measures_of(metric)}
-    summary = {"final": {label: final_point(curve) for label, curve in by_measure[metric].items()},
-               "final_by_measure": {measure: {label: final_point(curve) for label, curve in curves.items()}
-                                    for measure, curves in by_measure.items()},
-               "claims": claim_effects(name, rows, metric, window, claims=claims, looks=looks)}
+    summary = {
+        "final": {label: final_point(curve) for label, curve in by_measure[metric].items()},
+        "final_by_measure": {
+            measure: {label: final_point(curve) for label, curve in curves.items()}
+            for measure, curves in by_measure.items()
+        },
+        "claims": claim_effects(name, rows, metric, window, claims=claims, looks=looks),
+    }
     return by_measure[metric], plot_measures(by_measure, title, window), summary
 
 
@@ -206,14 +284,18 @@ def rederive(folder: str | Path) -> ExperimentResult:
     learners = [run for run in record["runs"] if run["method"] != "expert"]
     seeds = sorted({row["seed"] for row in rows})
     counts = sorted({sum(r["label"] == run["label"] for r in record["runs"]) for run in record["runs"]})
-    title = figure_title(record["title"].split("\n")[0], learners[0]["obs_mode"],
-                         max(run["total_steps"] for run in learners),
-                         len(seeds) if len(counts) == 1 else f"{counts[0]} to {counts[-1]}",
-                         record["trpo_config"].get("fvp_subsample", 1.0), max(run.get("demo_seed", 0) for run in learners))
+    title = figure_title(
+        record["title"].split("\n")[0],
+        learners[0]["obs_mode"],
+        max(run["total_steps"] for run in learners),
+        len(seeds) if len(counts) == 1 else f"{counts[0]} to {counts[-1]}",
+        record["trpo_config"].get("fvp_subsample", 1.0),
+        max(run.get("demo_seed", 0) for run in learners),
+    )
     curves, figure, derived = derive(name, rows, record["metric"], window, title, looks=looks_of(record))
     save_png(figure, folder / f"{name}.png", 120)
     summary = {**record.get("summary", {}), **derived}
-    summary["claims"] = mark_batches(summary["claims"], record, rows)   # a merged record: claims crossing batches
+    summary["claims"] = mark_batches(summary["claims"], record, rows)  # a merged record: claims crossing batches
     if "vd_reaches_l2_final" in summary:
         summary["vd_reaches_l2_final"] = vd_reaches_l2_final(curves)
     record.update(title=title, measures=list(measures_of(record["metric"])), seeds=seeds, summary=summary)
@@ -224,8 +306,18 @@ def rederive(folder: str | Path) -> ExperimentResult:
 #: A merged part's kernels when its record predates the ``kernels`` entry (runner.kernels): unknown, not the default.
 NOT_RECORDED = "not recorded (the run predates the record's kernels entry)"
 #: What two records must agree on for their rows to be one experiment's (everything that shapes a run but its seed).
-SAME_EXPERIMENT = ("experiment", "metric", "num_envs", "steps_per_iteration", "window", "pretrain_config",
-                   "trpo_config", "quick", "versions", "kernels")
+SAME_EXPERIMENT = (
+    "experiment",
+    "metric",
+    "num_envs",
+    "steps_per_iteration",
+    "window",
+    "pretrain_config",
+    "trpo_config",
+    "quick",
+    "versions",
+    "kernels",
+)
 #: The settings a record holds as a dataclass's fields. A field added since a record was written is absent from
 #: it; a new field's default is what the code did before the field existed (``PretrainConfig.patience``: None,
 #: no early stop), so a missing field is read as its default.
@@ -238,8 +330,10 @@ def with_defaults(key: str, value, names) -> dict:
     if key not in CONFIGS or not isinstance(value, dict):
         return value
     names = current_field_names(dict.fromkeys(names))
-    return {**{f.name: f.default for f in fields(CONFIGS[key]) if f.name in names and f.default is not MISSING},
-            **current_field_names(value)}
+    return {
+        **{f.name: f.default for f in fields(CONFIGS[key]) if f.name in names and f.default is not MISSING},
+        **current_field_names(value),
+    }
 
 
 def _names(records: list[dict], key: str) -> set:
@@ -266,15 +360,24 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     folder, other = Path(folder), Path(other)
     paths = [next(Path(f).glob("*.json")) for f in (folder, other)]
     records = [json.loads(path.read_text()) for path in paths]
-    differ = [key for key in SAME_EXPERIMENT
-              if with_defaults(key, records[0].get(key), _names(records, key))
-              != with_defaults(key, records[1].get(key), _names(records, key))
-              and not (other_cpu and key == "kernels")]
+    differ = [
+        key
+        for key in SAME_EXPERIMENT
+        if with_defaults(key, records[0].get(key), _names(records, key))
+        != with_defaults(key, records[1].get(key), _names(records, key))
+        and not (other_cpu and key == "kernels")
+    ]
     shape = [{(r["method"], r["obs_mode"], r["total_steps"]) for r in record["runs"]} for record in records]
-    if differ or not shape[1] <= shape[0]:   # other seeds of all the curves, or of some (``--methods vd l2``)
-        hint = " (rows from another CPU: merge them with other_cpu, rederive --add-other-cpu)" if differ == ["kernels"] else ""
-        raise ValueError(f"{other} is not {folder}'s experiment with other seeds: it differs in "
-                         f"{', '.join(differ) or 'its runs (methods, observations or budgets)'}{hint}")
+    if differ or not shape[1] <= shape[0]:  # other seeds of all the curves, or of some (``--methods vd l2``)
+        hint = (
+            " (rows from another CPU: merge them with other_cpu, rederive --add-other-cpu)"
+            if differ == ["kernels"]
+            else ""
+        )
+        raise ValueError(
+            f"{other} is not {folder}'s experiment with other seeds: it differs in "
+            f"{', '.join(differ) or 'its runs (methods, observations or budgets)'}{hint}"
+        )
     seeds = [{run["seed"] for run in record["runs"]} for record in records]
     if seeds[0] & seeds[1]:
         raise ValueError(f"{folder} and {other} share seeds {sorted(seeds[0] & seeds[1])}")
@@ -285,23 +388,53 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     write_csv(results_file(folder, name), rows)
     runs = records[0]["runs"] + records[1]["runs"]
     order = list(dict.fromkeys((run["label"], run["method"]) for run in runs))
-    merged = [entry for record, folder_seeds in zip(records, seeds) for entry in record.get("merged") or
-              [{**{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s")},
-                "seeds": sorted(folder_seeds), "kernels": record.get("kernels") or NOT_RECORDED}]]
-    merged.append({"command": shlex.join(["python", "-m", "vdtutorial", "rederive", recorded_path(folder),
-                                          "--add-other-cpu" if other_cpu else "--add", recorded_path(other)])})
+    merged = [
+        entry
+        for record, folder_seeds in zip(records, seeds)
+        for entry in record.get("merged")
+        or [
+            {
+                **{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s")},
+                "seeds": sorted(folder_seeds),
+                "kernels": record.get("kernels") or NOT_RECORDED,
+            }
+        ]
+    ]
+    merged.append(
+        {
+            "command": shlex.join(
+                [
+                    "python",
+                    "-m",
+                    "vdtutorial",
+                    "rederive",
+                    recorded_path(folder),
+                    "--add-other-cpu" if other_cpu else "--add",
+                    recorded_path(other),
+                ]
+            )
+        }
+    )
     parts = shlex.split(records[0]["command"])
     start = parts.index("--seeds") + 1
     end = next((i for i in range(start, len(parts)) if parts[i].startswith("--")), len(parts))
-    per_curve = {tuple(sorted(run["seed"] for run in runs if (run["label"], run["method"]) == curve)) for curve in order}
+    per_curve = {
+        tuple(sorted(run["seed"] for run in runs if (run["label"], run["method"]) == curve)) for curve in order
+    }
     # one command makes all the rows only when every curve has the same seeds; else the first part's stays
-    command = (shlex.join(parts[:start] + [str(seed) for seed in sorted(seeds[0] | seeds[1])] + parts[end:])
-               if len(per_curve) == 1 else records[0]["command"])
-    records[0].update(command=command,
-                      runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
-                      argv=None, merged=merged, wall_time_s=sum(entry.get("wall_time_s", 0.0) for entry in merged),
-                      **{key: with_defaults(key, records[0][key], _names(records, key)) for key in CONFIGS
-                         if key in records[0]})
+    command = (
+        shlex.join(parts[:start] + [str(seed) for seed in sorted(seeds[0] | seeds[1])] + parts[end:])
+        if len(per_curve) == 1
+        else records[0]["command"]
+    )
+    records[0].update(
+        command=command,
+        runs=sorted(runs, key=lambda run: (order.index((run["label"], run["method"])), run["seed"])),
+        argv=None,
+        merged=merged,
+        wall_time_s=sum(entry.get("wall_time_s", 0.0) for entry in merged),
+        **{key: with_defaults(key, records[0][key], _names(records, key)) for key in CONFIGS if key in records[0]},
+    )
     if records[0].get("kernels") != records[1].get("kernels"):
         records[0]["kernels"] = "mixed"
     paths[0].write_text(json.dumps(records[0], indent=1, default=str))

@@ -3,6 +3,7 @@ expert measured as a reference line. See the package docstring for what a run an
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,8 +28,13 @@ from vdtutorial.methods import method as method_entry
 from vdtutorial.policy import GaussianPolicy
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.rollout import make_vec_env
-from vdtutorial.runner.resume import (check_resumable, numerics_warning, read_run_state, restore_random_states,
-                                     save_run_state)
+from vdtutorial.runner.resume import (
+    check_resumable,
+    numerics_warning,
+    read_run_state,
+    restore_random_states,
+    save_run_state,
+)
 from vdtutorial.runner.rows import write_csv
 from vdtutorial.settings import budget
 from vdtutorial.trpo import TRPO, TRPOConfig
@@ -72,20 +78,46 @@ def default_expert_episodes() -> int:
     return budget(5, 1)
 
 
-def run_settings(method: str, task: str, demos_meta: dict | None, obs_mode: str, seed: int, num_envs: int,
-                 pretrain_config: PretrainConfig, trpo_config: TRPOConfig, source: str | Path | None = None) -> dict:
+def run_settings(
+    method: str,
+    task: str,
+    demos_meta: dict | None,
+    obs_mode: str,
+    seed: int,
+    num_envs: int,
+    pretrain_config: PretrainConfig,
+    trpo_config: TRPOConfig,
+    source: str | Path | None = None,
+) -> dict:
     """Everything that determines a fine-tuning run's numbers, as plain data: what a saved run state must
     match to be resumed (:mod:`vdtutorial.runner.resume`). The budget is not in it: a run is the same
     run whatever its length, so a finished run can be extended and a shorter request finds it too long.
     A data set made in rounds (:func:`made_in_rounds`) is named by its method, rounds and file (``source``)."""
-    settings = {"method": method, "task": task, "obs_mode": obs_mode, "seed": int(seed), "num_envs": int(num_envs),
-                "image_size": int(pretrain_config.image_size), "trpo_config": asdict(trpo_config)}
+    settings = {
+        "method": method,
+        "task": task,
+        "obs_mode": obs_mode,
+        "seed": int(seed),
+        "num_envs": int(num_envs),
+        "image_size": int(pretrain_config.image_size),
+        "trpo_config": asdict(trpo_config),
+    }
     if method_entry(method).pretrains:
-        settings["demos"] = ({"samples": int(demos_meta["samples"]), "seed": int(demos_meta["seed"]),
-                              "method": demos_meta["method"], "rounds_done": int(demos_meta["rounds_done"]),
-                              "file": Path(source).name} if made_in_rounds(demos_meta) else
-                             {"samples": int(demos_meta["samples"]), "noise": float(demos_meta["noise"]),
-                              "seed": int(demos_meta["seed"])})
+        settings["demos"] = (
+            {
+                "samples": int(demos_meta["samples"]),
+                "seed": int(demos_meta["seed"]),
+                "method": demos_meta["method"],
+                "rounds_done": int(demos_meta["rounds_done"]),
+                "file": Path(source).name,
+            }
+            if made_in_rounds(demos_meta)
+            else {
+                "samples": int(demos_meta["samples"]),
+                "noise": float(demos_meta["noise"]),
+                "seed": int(demos_meta["seed"]),
+            }
+        )
         settings["pretrain_config"] = asdict(replace(pretrain_config, reg=method, obs_mode=obs_mode))
     else:  # no demonstrations: only the fixed sigma the run starts from comes from the pre-training config
         settings["init_std"] = InitialSigma.parse(pretrain_config.initial_sigma).value
@@ -97,12 +129,24 @@ def expert_settings(task: str, seed: int, episodes: int, num_envs: int = NUM_ENV
     return {"method": "expert", "task": task, "seed": int(seed), "episodes": int(episodes), "num_envs": int(num_envs)}
 
 
-def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path | None = None,
-                   obs_mode: str = "state", seed: int = 0, total_steps: int | None = None,
-                   csv_path: str | Path | None = None, *, pretrain_config: PretrainConfig | None = None,
-                   trpo_config: TRPOConfig | None = None, num_envs: int = NUM_ENVS,
-                   checkpoints_root: Path | None = None, progress: bool = False, state_path: str | Path | None = None,
-                   checkpoint_every: int = CHECKPOINT_EVERY, device: str = "cpu"):
+def finetune_steps(
+    method: str,
+    task: str = "reach",
+    demos: Demos | str | Path | None = None,
+    obs_mode: str = "state",
+    seed: int = 0,
+    total_steps: int | None = None,
+    csv_path: str | Path | None = None,
+    *,
+    pretrain_config: PretrainConfig | None = None,
+    trpo_config: TRPOConfig | None = None,
+    num_envs: int = NUM_ENVS,
+    checkpoints_root: Path | None = None,
+    progress: bool = False,
+    state_path: str | Path | None = None,
+    checkpoint_every: int = CHECKPOINT_EVERY,
+    device: str = "cpu",
+):
     """:func:`finetune` as a generator: it yields after every ``checkpoint_every`` iterations (with no
     ``state_path``: once, at the end) a progress report ``{"iteration": done so far, "iterations": total,
     "env_steps": steps of this chunk}``, and returns ``(policy, rows)`` (``yield from`` gets them).
@@ -135,8 +179,18 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
     start = time.perf_counter()
     env = make_vec_env(ENV_IDS[task], num_envs, obs_mode=obs_mode, image_size=cfg.image_size)
     try:
-        policy = finetune_policy(method, env, data, obs_mode, seed, cfg, checkpoints_root=checkpoints_root,
-                               progress=progress, resumed=saved is not None, source=source)
+        policy = finetune_policy(
+            method,
+            env,
+            data,
+            obs_mode,
+            seed,
+            cfg,
+            checkpoints_root=checkpoints_root,
+            progress=progress,
+            resumed=saved is not None,
+            source=source,
+        )
         algo = TRPO(fast_policy(policy), env, trpo_config, seed=seed, fvp=gauss_newton_fvp, device=device)
         if saved is not None:
             algo.restore(saved)
@@ -149,24 +203,42 @@ def finetune_steps(method: str, task: str = "reach", demos: Demos | str | Path |
         chunk = checkpoint_every if state_path is not None else iterations
         while algo.iteration_index < iterations:
             first = algo.iteration_index
-            algo.run(min(iterations, first + chunk) * trpo_config.steps_per_iter, csv_path=csv_path,
-                     progress=progress and state_path is None)
+            algo.run(
+                min(iterations, first + chunk) * trpo_config.steps_per_iter,
+                csv_path=csv_path,
+                progress=progress and state_path is None,
+            )
             if state_path is not None:
                 seconds = (saved or {}).get("seconds", 0.0) + time.perf_counter() - start
                 save_run_state(algo.checkpoint(), state_path, settings, seconds)
-            yield {"iteration": algo.iteration_index, "iterations": iterations,
-                   "env_steps": (algo.iteration_index - first) * trpo_config.steps_per_iter}
+            yield {
+                "iteration": algo.iteration_index,
+                "iterations": iterations,
+                "env_steps": (algo.iteration_index - first) * trpo_config.steps_per_iter,
+            }
     finally:
         env.close()
     return policy, algo.rows
 
 
-def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None = None, obs_mode: str = "state",
-             seed: int = 0, total_steps: int | None = None, csv_path: str | Path | None = None, *,
-             pretrain_config: PretrainConfig | None = None, trpo_config: TRPOConfig | None = None,
-             num_envs: int = NUM_ENVS, checkpoints_root: Path | None = None, progress: bool = False,
-             state_path: str | Path | None = None, checkpoint_every: int = CHECKPOINT_EVERY,
-             device: str = "cpu") -> tuple[GaussianPolicy, list[dict]]:
+def finetune(
+    method: str,
+    task: str = "reach",
+    demos: Demos | str | Path | None = None,
+    obs_mode: str = "state",
+    seed: int = 0,
+    total_steps: int | None = None,
+    csv_path: str | Path | None = None,
+    *,
+    pretrain_config: PretrainConfig | None = None,
+    trpo_config: TRPOConfig | None = None,
+    num_envs: int = NUM_ENVS,
+    checkpoints_root: Path | None = None,
+    progress: bool = False,
+    state_path: str | Path | None = None,
+    checkpoint_every: int = CHECKPOINT_EVERY,
+    device: str = "cpu",
+) -> tuple[GaussianPolicy, list[dict]]:
     """One run of the RL stage: the policy of ``method`` (a fine-tuned method of :mod:`vdtutorial.methods`: the
     paper's "vd", "l2", "none", or one registered there) trained by TRPO for
     ``total_steps`` env steps (default 3e5) on ``num_envs`` copies of the task (default 8 x 25 = 200 steps
@@ -184,10 +256,23 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
     state_path, checkpoint_every: make the run resumable (see :func:`finetune_steps`).
     device: where TRPO's updates run (see :func:`finetune_steps`).
     """
-    steps = finetune_steps(method, task, demos, obs_mode, seed, total_steps, csv_path,
-                           pretrain_config=pretrain_config, trpo_config=trpo_config, num_envs=num_envs,
-                           checkpoints_root=checkpoints_root, progress=progress, state_path=state_path,
-                           checkpoint_every=checkpoint_every, device=device)
+    steps = finetune_steps(
+        method,
+        task,
+        demos,
+        obs_mode,
+        seed,
+        total_steps,
+        csv_path,
+        pretrain_config=pretrain_config,
+        trpo_config=trpo_config,
+        num_envs=num_envs,
+        checkpoints_root=checkpoints_root,
+        progress=progress,
+        state_path=state_path,
+        checkpoint_every=checkpoint_every,
+        device=device,
+    )
     while True:
         try:
             next(steps)
@@ -195,8 +280,9 @@ def finetune(method: str, task: str = "reach", demos: Demos | str | Path | None 
             return finished.value
 
 
-def expert_reference(task: str = "reach", seed: int = 0, episodes: int | None = None,
-                     num_envs: int = NUM_ENVS) -> list[dict]:
+def expert_reference(
+    task: str = "reach", seed: int = 0, episodes: int | None = None, num_envs: int = NUM_ENVS
+) -> list[dict]:
     """The IK expert's score per 200-step episode, measured as TRPO's iterations count: each episode is
     ``num_envs`` runs of ``200 / num_envs`` steps from a fresh reset (the seeds of episode k derive
     from (seed, k)); trajectories still running at the end are not counted. One row per episode with
@@ -218,4 +304,3 @@ def expert_reference(task: str = "reach", seed: int = 0, episodes: int | None = 
         rows.append(row)
     env.close()
     return rows
-

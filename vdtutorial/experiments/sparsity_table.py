@@ -10,6 +10,7 @@ size, eq. 3 as written, ``PretrainConfig.kl_divisor=None``) and ``fixed`` (1/N_8
 
 Taught in chapter 05 and appendix A1.
 """
+
 from __future__ import annotations
 
 import math
@@ -67,8 +68,19 @@ def table_means(rows: list[dict], column: str = "neuron_fraction") -> list[dict]
         if not values:
             continue
         mean, low, high = (float(x[0]) for x in mean_band([[v] for v in values]))
-        out.append({"experiment": experiment, "task": task, "samples": samples, "noise": noise, column: mean,
-                    "low": low, "high": high, "seeds": len(values), "neuron_fraction_paper": paper})
+        out.append(
+            {
+                "experiment": experiment,
+                "task": task,
+                "samples": samples,
+                "noise": noise,
+                column: mean,
+                "low": low,
+                "high": high,
+                "seeds": len(values),
+                "neuron_fraction_paper": paper,
+            }
+        )
     return out
 
 
@@ -77,9 +89,11 @@ def sparsity_trends(rows: list[dict], column: str = "neuron_fraction") -> dict[s
     :func:`table_means`): sparsity grows strictly with the number of demonstrations (2000 < 4000 < 8000
     at Sigma = 0.5) and as the expert noise falls (Sigma 0.5 < 0.25 < 0.05 at 8000 demonstrations)."""
     value = {(r["samples"], r["noise"]): r[column] for r in rows if r["task"] == "reach"}
-    increasing = (lambda keys: all(value[a] < value[b] for a, b in zip(keys, keys[1:])))
-    return {"more demonstrations -> sparser": increasing([(2000, 0.5), (4000, 0.5), (8000, 0.5)]),
-            "less noise -> sparser": increasing([(8000, 0.5), (8000, 0.25), (8000, 0.05)])}
+    increasing = lambda keys: all(value[a] < value[b] for a, b in zip(keys, keys[1:]))
+    return {
+        "more demonstrations -> sparser": increasing([(2000, 0.5), (4000, 0.5), (8000, 0.5)]),
+        "less noise -> sparser": increasing([(8000, 0.5), (8000, 0.25), (8000, 0.05)]),
+    }
 
 
 def seeds_with_trend(rows: list[dict]) -> dict[str, tuple[int, int]]:
@@ -96,20 +110,33 @@ def format_table1(rows: list[dict]) -> str:
     lines = [f"{'experiment':<36}{'neurons':>9}{'95% interval':>16}{'paper':>8}{'weights':>9}"]
     for n, w in zip(neurons, weights):
         band = f"{n['low']:.3f}-{n['high']:.3f}" if math.isfinite(n["low"]) else "(1 seed)"
-        lines.append(f"{n['experiment']:<36}{n['neuron_fraction']:>9.3f}{band:>16}{n['neuron_fraction_paper']:>8.3f}"
-                     f"{w['weight_fraction']:>9.3f}")
+        lines.append(
+            f"{n['experiment']:<36}{n['neuron_fraction']:>9.3f}{band:>16}{n['neuron_fraction_paper']:>8.3f}"
+            f"{w['weight_fraction']:>9.3f}"
+        )
     measured, paper = sparsity_trends(neurons), sparsity_trends(neurons, "neuron_fraction_paper")
     per_seed = seeds_with_trend(rows)
-    lines += [f"trend '{k}': measured on the means {'holds' if measured[k] else 'does NOT hold'}, in "
-              f"{per_seed[k][0]} of {per_seed[k][1]} seeds (paper: {'holds' if paper[k] else 'does not hold'})"
-              for k in measured]
+    lines += [
+        f"trend '{k}': measured on the means {'holds' if measured[k] else 'does NOT hold'}, in "
+        f"{per_seed[k][0]} of {per_seed[k][1]} seeds (paper: {'holds' if paper[k] else 'does not hold'})"
+        for k in measured
+    ]
     return "\n".join(lines)
 
 
-def table1(obs_mode: str = "state", seeds=(0,), kl_weighting: str = "per-set", out=None, workers: int = 2,
-           demos_root: Path | None = None, checkpoints_root: Path | None = None,
-           pretrain_config: PretrainConfig | None = None, *, backend: str = "local",
-           address: str | None = None) -> list[dict]:
+def table1(
+    obs_mode: str = "state",
+    seeds=(0,),
+    kl_weighting: str = "per-set",
+    out=None,
+    workers: int = 2,
+    demos_root: Path | None = None,
+    checkpoints_root: Path | None = None,
+    pretrain_config: PretrainConfig | None = None,
+    *,
+    backend: str = "local",
+    address: str | None = None,
+) -> list[dict]:
     """Table I: neuron sparsification of the VD-pre-trained mu on each of the five reaching data sets and
     the grasping set, for each of ``seeds``, beside the paper's ratios, plus the fraction of weights
     pruned. ``kl_weighting`` ("per-set" or "fixed", :data:`KL_WEIGHTINGS`) sets ``kl_divisor`` of the
@@ -125,21 +152,44 @@ def table1(obs_mode: str = "state", seeds=(0,), kl_weighting: str = "per-set", o
     out = Path(out) if out is not None else default_out("table1")
     checkpoints_root = Path(checkpoints_root if checkpoints_root is not None else out).resolve()
     # sparsity is a property of mu, which the initial sigma does not change: the checkpoints of the base setting
-    config = replace(pretrain_config or default_config("vd", obs_mode), kl_divisor=KL_WEIGHTINGS[kl_weighting],
-                     initial_sigma=PAPER_SIGMA_OPTION)
+    config = replace(
+        pretrain_config or default_config("vd", obs_mode),
+        kl_divisor=KL_WEIGHTINGS[kl_weighting],
+        initial_sigma=PAPER_SIGMA_OPTION,
+    )
     plan = [(entry, seed) for seed in seeds for entry in TABLE1]
-    jobs = [_SparsityJob(demo_path(task, samples, noise, 0, root=demos_root).resolve(), obs_mode, seed,
-                         checkpoints_root, config) for (_, task, samples, noise, _), seed in plan]
+    jobs = [
+        _SparsityJob(
+            demo_path(task, samples, noise, 0, root=demos_root).resolve(), obs_mode, seed, checkpoints_root, config
+        )
+        for (_, task, samples, noise, _), seed in plan
+    ]
     measured = run_jobs(_sparsity_job, jobs, workers, backend, address)
-    rows = stored_rows([{"experiment": row, "task": task, "samples": samples, "noise": noise, "obs_mode": obs_mode, "seed": seed,
-             "kl_weighting": kl_weighting, "kl_divisor": config.kl_divisor, **m, "neuron_fraction_paper": paper}
-            for ((row, task, samples, noise, paper), seed), m in zip(plan, measured)])
+    rows = stored_rows(
+        [
+            {
+                "experiment": row,
+                "task": task,
+                "samples": samples,
+                "noise": noise,
+                "obs_mode": obs_mode,
+                "seed": seed,
+                "kl_weighting": kl_weighting,
+                "kl_divisor": config.kl_divisor,
+                **m,
+                "neuron_fraction_paper": paper,
+            }
+            for ((row, task, samples, noise, paper), seed), m in zip(plan, measured)
+        ]
+    )
     write_csv(out / f"table1_{kl_weighting}.csv", rows)
     text = format_table1(rows)
-    command = experiment_command("table1", obs=obs_mode, seeds=seeds, kl_weighting=kl_weighting, workers=workers,
-                                 out=out)
+    command = experiment_command(
+        "table1", obs=obs_mode, seeds=seeds, kl_weighting=kl_weighting, workers=workers, out=out
+    )
     (out / f"table1_{kl_weighting}.txt").write_text(
         f"KL weighting: {kl_weighting} (kl_divisor={config.kl_divisor})\n{text}\n\ncommand: {command}\n"
-        f"pretrain config: {asdict(config)}\n")
+        f"pretrain config: {asdict(config)}\n"
+    )
     print(text)
     return rows

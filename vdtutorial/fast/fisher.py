@@ -21,6 +21,7 @@ theta_old.
 
 Taught in chapter 06b.
 """
+
 from __future__ import annotations
 
 from typing import Callable
@@ -30,8 +31,14 @@ import torch.nn.functional as F
 from torch import nn
 from torch.distributions import Normal
 
-from vdtutorial.fast.policy import (FastGaussianPolicy, applied_weight, conv_geometry, fused_conv2d, fused_first_layers,
-                                    prepare_inputs)
+from vdtutorial.fast.policy import (
+    FastGaussianPolicy,
+    applied_weight,
+    conv_geometry,
+    fused_conv2d,
+    fused_first_layers,
+    prepare_inputs,
+)
 from vdtutorial.policy import GaussianPolicy, PolicyNet
 from vdtutorial.trust_region import double_backward_fvp
 from vdtutorial.vd import WEIGHT_LAYERS, SVDOLayer
@@ -82,7 +89,8 @@ def _affine_backward(layer: nn.Module, x: torch.Tensor, weight: torch.Tensor, g:
         return g.T @ x, g.sum(0), (g @ weight if input_grad else None)
     stride, padding, dilation, groups = conv_geometry(layer)
     grad_x, grad_w, grad_b = torch.ops.aten.convolution_backward(
-        g, x, weight, [weight.shape[0]], stride, padding, dilation, False, [0, 0], groups, [input_grad, True, True])
+        g, x, weight, [weight.shape[0]], stride, padding, dilation, False, [0, 0], groups, [input_grad, True, True]
+    )
     return grad_w, grad_b, grad_x
 
 
@@ -161,8 +169,10 @@ def _unfold(x: torch.Tensor, kernel: tuple[int, int], stride, padding, dilation)
     rows = (height - dilation[0] * (kernel[0] - 1) - 1) // stride[0] + 1
     cols = (width - dilation[1] * (kernel[1] - 1) - 1) // stride[1] + 1
     s_n, s_c, s_h, s_w = x.stride()
-    view = x.as_strided((n, c, kernel[0], kernel[1], rows, cols),
-                        (s_n, s_c, dilation[0] * s_h, dilation[1] * s_w, stride[0] * s_h, stride[1] * s_w))
+    view = x.as_strided(
+        (n, c, kernel[0], kernel[1], rows, cols),
+        (s_n, s_c, dilation[0] * s_h, dilation[1] * s_w, stride[0] * s_h, stride[1] * s_w),
+    )
     return view.reshape(n, c * kernel[0] * kernel[1], rows * cols)
 
 
@@ -266,8 +276,10 @@ class GaussNewtonFisher:
 
     def __init__(self, policy: GaussianPolicy, obs, old: Normal, params: list[nn.Parameter]):
         if not supports(policy):
-            raise TypeError("GaussNewtonFisher needs a GaussianPolicy of Linear/Conv2d/ReLU/Tanh/Flatten layers "
-                            "with its sparse-VD layers pruned or in eval mode; use trust_region.double_backward_fvp")
+            raise TypeError(
+                "GaussNewtonFisher needs a GaussianPolicy of Linear/Conv2d/ReLU/Tanh/Flatten layers "
+                "with its sparse-VD layers pruned or in eval mode; use trust_region.double_backward_fvp"
+            )
         self.params = params
         with torch.no_grad():
             inputs = policy.prepare(obs) if isinstance(policy, FastGaussianPolicy) else prepare_inputs(policy, obs)
@@ -277,10 +289,14 @@ class GaussNewtonFisher:
             self.mu = _NetTrace(policy.mu, inputs.mu, first_outputs[0])
             self.sigma = _NetTrace(policy.sigma, inputs.sigma, first_outputs[1])
             std = policy.min_std + F.softplus(self.sigma.output)
-        if not (torch.allclose(self.mu.output, old.mean, rtol=1e-4, atol=1e-6)
-                and torch.allclose(std, old.stddev, rtol=1e-4, atol=1e-6)):
-            raise RuntimeError("GaussNewtonFisher's forward pass disagrees with policy.distribution(): "
-                               "the two must compute the same mu and sigma")
+        if not (
+            torch.allclose(self.mu.output, old.mean, rtol=1e-4, atol=1e-6)
+            and torch.allclose(std, old.stddev, rtol=1e-4, atol=1e-6)
+        ):
+            raise RuntimeError(
+                "GaussNewtonFisher's forward pass disagrees with policy.distribution(): "
+                "the two must compute the same mu and sigma"
+            )
         # d sigma / d (sigma network output), and M per output (1/N: the KL is a mean over the batch)
         self.dstd = torch.sigmoid(self.sigma.output)
         variance = old.variance.detach()
@@ -303,8 +319,9 @@ class GaussNewtonFisher:
         return torch.cat([grads[p].reshape(-1) if p in grads else v.new_zeros(p.numel()) for p in self.params])
 
 
-def gauss_newton_fvp(policy: nn.Module, params: list[nn.Parameter], obs, old: Normal, damping: float,
-                     dist: Normal | None = None) -> Callable[[torch.Tensor], torch.Tensor]:
+def gauss_newton_fvp(
+    policy: nn.Module, params: list[nn.Parameter], obs, old: Normal, damping: float, dist: Normal | None = None
+) -> Callable[[torch.Tensor], torch.Tensor]:
     """v -> (F + damping * I) v, with the signature of :func:`vdtutorial.trust_region.double_backward_fvp`: pass it
     as ``TRPO(fvp=gauss_newton_fvp)``. For a policy that :func:`supports` accepts, in Gauss-Newton form
     (:class:`GaussNewtonFisher`, which runs its own forward pass: ``dist`` is not needed); for any other policy,

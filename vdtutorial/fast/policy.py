@@ -18,6 +18,7 @@ and with :func:`vdtutorial.fast.fisher.gauss_newton_fvp`, which reads the same p
 
 Taught in chapter 06b.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -59,8 +60,13 @@ def fusable_convolutions(layers) -> bool:
         elif not isinstance(layer, nn.Conv2d) or layer.padding_mode != "zeros" or isinstance(layer.padding, str):
             return False
     first = layers[0]
-    return all(conv_geometry(layer) == conv_geometry(first) and layer.weight.shape[1:] == first.weight.shape[1:]
-               for layer in layers) and conv_geometry(first)[3] == 1
+    return (
+        all(
+            conv_geometry(layer) == conv_geometry(first) and layer.weight.shape[1:] == first.weight.shape[1:]
+            for layer in layers
+        )
+        and conv_geometry(first)[3] == 1
+    )
 
 
 def fused_conv2d(
@@ -70,8 +76,9 @@ def fused_conv2d(
     weights and biases, computed as one convolution with all their filters stacked, then split per layer."""
     stride, padding, dilation, _ = conv_geometry(layers[0])
     if any(b is None for b in biases):
-        biases = [torch.zeros(w.shape[0], dtype=w.dtype, device=w.device) if b is None else b
-                  for w, b in zip(weights, biases)]
+        biases = [
+            torch.zeros(w.shape[0], dtype=w.dtype, device=w.device) if b is None else b for w, b in zip(weights, biases)
+        ]
     y = F.conv2d(x, torch.cat(weights), torch.cat(biases), stride, padding, dilation)
     return list(y.split([w.shape[0] for w in weights], dim=1))
 

@@ -10,6 +10,7 @@ files) and :mod:`~vdtutorial.runner.kernels` (the CPU kernels pinned for exact r
 
 Taught in chapter 07.
 """
+
 from vdtutorial.runner.backends import run_jobs
 from vdtutorial.runner.grid import GridJob, SavedInStateDir, run_grid
 from vdtutorial.runner.resume import ResumeError

@@ -20,6 +20,7 @@ thread, so the results do not depend on the backend or on the number of workers 
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import inspect
@@ -63,8 +64,9 @@ def _drive(fn, job, report):
             return finished.value
 
 
-def run_jobs(fn, jobs: list, workers: int = 2, backend: str = "local", address: str | None = None,
-             listener=None) -> list:
+def run_jobs(
+    fn, jobs: list, workers: int = 2, backend: str = "local", address: str | None = None, listener=None
+) -> list:
     """``[result of fn(job) for job in jobs]`` on ``backend``
     (module docstring, "Where the runs of a grid execute"); ``fn`` must be a module-level function. ``listener`` receives the reports (see below).
 
@@ -164,8 +166,10 @@ def _run_pool(fn, jobs, workers, listener) -> list:
                 dead = [index for index, pid in running.items() if not process_exists(pid)]
                 if dead:
                     name = getattr(getattr(jobs[dead[0]], "spec", None), "name", f"job {dead[0]}")
-                    raise RuntimeError(f"the worker process running {name} died without an error (killed by the "
-                                       "system, out of memory?)")
+                    raise RuntimeError(
+                        f"the worker process running {name} died without an error (killed by the "
+                        "system, out of memory?)"
+                    )
                 listener.tick()
                 continue
             if kind == "started":
@@ -218,8 +222,14 @@ def _start_local_ray(ray, workers: int, runtime_env: dict) -> None:
     times (whatever a failed try left behind is shut down before the next)."""
     for attempt in range(1, LOCAL_RAY_ATTEMPTS + 1):
         try:
-            ray.init(address="local", num_cpus=max(1, workers), include_dashboard=False, runtime_env=runtime_env,
-                     logging_level=logging.WARNING, object_store_memory=200 * 2 ** 20)
+            ray.init(
+                address="local",
+                num_cpus=max(1, workers),
+                include_dashboard=False,
+                runtime_env=runtime_env,
+                logging_level=logging.WARNING,
+                object_store_memory=200 * 2**20,
+            )
             return
         except Exception as exc:  # Ray raises a bare Exception when its node does not come up
             ray.shutdown()
@@ -227,7 +237,8 @@ def _start_local_ray(ray, workers: int, runtime_env: dict) -> None:
                 raise RuntimeError(
                     f"Ray could not start on this machine in {attempt} tries ({exc}). On a heavily loaded machine "
                     "Ray's raylet gives up when its agent process takes more than 15 s to start (ray-project/ray "
-                    "issue 65983): retry when the machine is less busy, or use the local backend") from exc
+                    "issue 65983): retry when the machine is less busy, or use the local backend"
+                ) from exc
 
 
 #: Seconds to wait for a Ray cluster's address to answer before the run is refused. Ray itself keeps retrying an
@@ -244,8 +255,9 @@ def _check_reachable(address: str, timeout: float = RAY_CONNECT_TIMEOUT) -> None
     try:
         socket.create_connection((host, int(port)), timeout=timeout).close()
     except OSError as exc:
-        raise ConnectionError(f"no Ray cluster answers at {address} ({exc}): start its head node "
-                              f"(ray start --head) or check the address") from None
+        raise ConnectionError(
+            f"no Ray cluster answers at {address} ({exc}): start its head node (ray start --head) or check the address"
+        ) from None
 
 
 def _run_ray(fn, jobs, workers, address, listener) -> list:

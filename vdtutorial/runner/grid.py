@@ -12,6 +12,7 @@ progress (:mod:`~vdtutorial.runner.progress`). The paper's runs are such jobs:
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import os
@@ -64,8 +65,12 @@ def _result(job: GridJob, rows: list[dict], seconds: float, resumed_at: int | No
     (:func:`~vdtutorial.runner.rows.stored_rows`)."""
     tags = job.tags()
     # rounded as the CSVs store them: an experiment derives what its shipped CSV gives back (runner.rows)
-    return {"rows": stored_rows([{**tags, **row} for row in rows]), "seconds": seconds, "resumed_at": resumed_at,
-            "summary": job.summary(rows)}
+    return {
+        "rows": stored_rows([{**tags, **row} for row in rows]),
+        "seconds": seconds,
+        "resumed_at": resumed_at,
+        "summary": job.summary(rows),
+    }
 
 
 def run_job(job: GridJob):
@@ -86,8 +91,15 @@ def run_job(job: GridJob):
     return _result(job, rows, read_run_state(job.state_path)["seconds"], resumed_at)
 
 
-def run_grid(name: str, jobs: list[GridJob], workers: int = 2, backend: str = "local", address: str | None = None,
-             restart: bool = False, progress: bool | None = None) -> list[dict]:
+def run_grid(
+    name: str,
+    jobs: list[GridJob],
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    restart: bool = False,
+    progress: bool | None = None,
+) -> list[dict]:
     """Run ``jobs`` (see :func:`run_job`) and return their results in order; restartable.
 
     Before anything runs, each job's saved state is checked: a finished run is not run again (its saved
@@ -136,8 +148,10 @@ def run_grid(name: str, jobs: list[GridJob], workers: int = 2, backend: str = "l
     try:
         elsewhere = f", {len(busy)} of them being computed by another grid (waited for last)" if busy else ""
         states = Path(os.path.commonpath([job.state_path.parent for job in jobs]))
-        bar.note(f"{len(jobs)} runs: {len(jobs) - len(pending)} found finished, {partial} to resume, "
-                 f"{len(pending) - partial} to start{elsewhere} (states saved in {states})")
+        bar.note(
+            f"{len(jobs)} runs: {len(jobs) - len(pending)} found finished, {partial} to resume, "
+            f"{len(pending) - partial} to start{elsewhere} (states saved in {states})"
+        )
         for i, result in zip(pending, run_jobs(run_job, [jobs[i] for i in pending], workers, backend, address, bar)):
             results[i] = result
     finally:

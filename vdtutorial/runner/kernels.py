@@ -17,6 +17,7 @@ stop the process.
 Taught in chapter 04. Stdlib only (torch is imported inside :func:`kernel_settings`), so that it can run before
 numpy loads.
 """
+
 from __future__ import annotations
 
 import os
@@ -55,10 +56,13 @@ def pin_vector_kernels(environ=os.environ, flags: set[str] | None = None) -> dic
     added = {name: value for name, value in PINNED.items() if name not in environ}
     environ.update(added)
     if "OPENBLAS_CORETYPE" in added and environ is os.environ and "numpy" in sys.modules and "avx512f" in flags:
-        warnings.warn("numpy was loaded before the kernels were pinned, so its OpenBLAS uses this CPU's AVX-512 "
-                      "kernels: results may differ from the shipped ones in the last digits. Pin them before "
-                      "numpy loads (the commands' --exact-kernels does), or set OPENBLAS_CORETYPE=Haswell "
-                      "before starting Python.", stacklevel=2)
+        warnings.warn(
+            "numpy was loaded before the kernels were pinned, so its OpenBLAS uses this CPU's AVX-512 "
+            "kernels: results may differ from the shipped ones in the last digits. Pin them before "
+            "numpy loads (the commands' --exact-kernels does), or set OPENBLAS_CORETYPE=Haswell "
+            "before starting Python.",
+            stacklevel=2,
+        )
     return added
 
 
@@ -71,5 +75,7 @@ def kernel_settings() -> dict[str, str]:
     """What an experiment record notes about the kernels: torch's CPU capability in use, and the variables."""
     import torch
 
-    return {"torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
-            **{name: os.environ.get(name, "") for name in PINNED}}
+    return {
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        **{name: os.environ.get(name, "") for name in PINNED},
+    }

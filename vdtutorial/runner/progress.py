@@ -9,6 +9,7 @@ never fills with redrawn bars. ``progress=False`` silences both, ``progress=True
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import sys
@@ -41,17 +42,24 @@ class GridProgress:
     or False.
     """
 
-    def __init__(self, name: str, names: list[str], steps: list[int], done: int, total: int,
-                 progress: bool | None = None):
+    def __init__(
+        self, name: str, names: list[str], steps: list[int], done: int, total: int, progress: bool | None = None
+    ):
         self.name = name
         self.names = names
         self.done = done
         self.total = total
         self.lines = progress is not False
         live = live_by_default() if progress is None else progress
-        self.bar = tqdm(total=sum(steps), unit="step", unit_scale=True, dynamic_ncols=True, disable=not live,
-                        desc=self._label(), bar_format="{desc}: {percentage:3.0f}% | {n_fmt}/{total_fmt} env steps "
-                        "[{elapsed}<{remaining}, {rate_fmt}]")
+        self.bar = tqdm(
+            total=sum(steps),
+            unit="step",
+            unit_scale=True,
+            dynamic_ncols=True,
+            disable=not live,
+            desc=self._label(),
+            bar_format="{desc}: {percentage:3.0f}% | {n_fmt}/{total_fmt} env steps [{elapsed}<{remaining}, {rate_fmt}]",
+        )
 
     def _label(self) -> str:
         return f"{self.name}: runs {self.done}/{self.total}"
@@ -69,8 +77,11 @@ class GridProgress:
         self.bar.set_description_str(self._label())
         if self.lines:
             resumed = f", resumed at iteration {result['resumed_at']}" if result.get("resumed_at") else ""
-            tqdm.write(f"{self.name}: run {self.done}/{self.total} finished: {self.names[index]} "
-                       f"({result['summary']}; {result['seconds']:.0f} s{resumed})", file=sys.stdout)
+            tqdm.write(
+                f"{self.name}: run {self.done}/{self.total} finished: {self.names[index]} "
+                f"({result['summary']}; {result['seconds']:.0f} s{resumed})",
+                file=sys.stdout,
+            )
 
     def note(self, text: str) -> None:
         """A line about the grid as a whole (e.g. the runs found finished), when lines are on."""

@@ -19,6 +19,7 @@ Writes go to a temporary file and are moved into place with ``os.replace``, so a
 Uncompressed states are still read.
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import gzip
@@ -64,8 +65,11 @@ def _atomic_save(state: dict, path: Path) -> None:
 
 def _rng_state() -> dict:
     kind, keys, position, has_gauss, gauss = np.random.get_state()
-    return {"torch": torch.get_rng_state(), "python": random.getstate(),
-            "numpy": (kind, torch.from_numpy(keys.astype(np.int64)), position, has_gauss, gauss)}
+    return {
+        "torch": torch.get_rng_state(),
+        "python": random.getstate(),
+        "numpy": (kind, torch.from_numpy(keys.astype(np.int64)), position, has_gauss, gauss),
+    }
 
 
 def _set_rng_state(state: dict) -> None:
@@ -88,16 +92,20 @@ def numerics_warning(state: dict) -> str | None:
     differences = settings_differences(state.get("numerics", numerics()), numerics())
     if not differences:
         return None
-    return (f"resuming a run saved under other numerics ({'; '.join(differences)}): it continues, but its rows "
-            "may differ in the last digits from those of an uninterrupted run")
+    return (
+        f"resuming a run saved under other numerics ({'; '.join(differences)}): it continues, but its rows "
+        "may differ in the last digits from those of an uninterrupted run"
+    )
 
 
 def save_run_state(checkpoint: dict, path: str | os.PathLike, settings: dict, seconds: float) -> None:
     """Write a run's ``checkpoint`` (a dict with its ``rows``, e.g. :meth:`TRPO.checkpoint
     <vdtutorial.trpo.TRPO.checkpoint>`) with the run's settings, the global random states, the numerics
     (:func:`numerics`) and the run's compute time so far (``seconds``), atomically."""
-    _atomic_save({**checkpoint, "run_settings": settings, "rng": _rng_state(), "numerics": numerics(),
-                  "seconds": seconds}, Path(path))
+    _atomic_save(
+        {**checkpoint, "run_settings": settings, "rng": _rng_state(), "numerics": numerics(), "seconds": seconds},
+        Path(path),
+    )
 
 
 def save_finished_rows(path: str | os.PathLike, settings: dict, rows: list[dict], seconds: float) -> None:
@@ -113,8 +121,7 @@ def read_run_state(path: str | os.PathLike) -> dict:
     except Exception as exc:  # truncated or not a state file: say which file, and what to do
         raise ResumeError(f"{path} is not a readable run state ({exc}); delete it or rerun with --restart") from exc
     if not isinstance(state, dict) or "run_settings" not in state:
-        raise ResumeError(f"{path} is not a run state written by vdtutorial; delete it or rerun "
-                          "with --restart")
+        raise ResumeError(f"{path} is not a run state written by vdtutorial; delete it or rerun with --restart")
     return state
 
 
@@ -135,12 +142,16 @@ def check_resumable(path: str | os.PathLike, state: dict, settings: dict, iterat
     should end after ``iterations`` rows (fewer saved rows: it resumes; as many: it is finished)."""
     differences = settings_differences(state["run_settings"], settings)
     if differences:
-        raise ResumeError(f"{path} holds a run with other settings ({'; '.join(differences)}): rerun with "
-                          "--restart to discard the saved runs of this experiment, or choose another --out "
-                          "(another --state-dir if you named one)")
+        raise ResumeError(
+            f"{path} holds a run with other settings ({'; '.join(differences)}): rerun with "
+            "--restart to discard the saved runs of this experiment, or choose another --out "
+            "(another --state-dir if you named one)"
+        )
     if len(state["rows"]) > iterations:
-        raise ResumeError(f"{path} holds {len(state['rows'])} iterations, more than the {iterations} asked for: "
-                          "rerun with --restart, or ask for at least as many steps")
+        raise ResumeError(
+            f"{path} holds {len(state['rows'])} iterations, more than the {iterations} asked for: "
+            "rerun with --restart, or ask for at least as many steps"
+        )
 
 
 def restore_random_states(state: dict) -> None:

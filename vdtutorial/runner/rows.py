@@ -13,6 +13,7 @@ what :func:`read_rows` gives back from its CSV.
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import csv

@@ -15,6 +15,7 @@ compute, never correctness, since every state is written atomically (:mod:`~vdtu
 
 Taught in chapter 07.
 """
+
 from __future__ import annotations
 
 import json

@@ -22,6 +22,7 @@ The checks of chapter NN are in ``chNN.py`` (its list ``CHECKS``); :func:`check`
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -84,7 +85,7 @@ def plain(values: dict, prefix: str = "") -> dict[str, np.ndarray]:
         if isinstance(value, dict):
             flat.update(plain(value, f"{name}/"))
             continue
-        if hasattr(value, "detach"):   # a tensor (or a subclass of one): its numbers only
+        if hasattr(value, "detach"):  # a tensor (or a subclass of one): its numbers only
             value = value.detach().cpu().numpy()
         array = np.array(value)
         if array.dtype == object:
@@ -137,7 +138,7 @@ def run_check(exercise: str, namespace: dict) -> None:
     """The hidden tests of ``exercise``, called from its tests cell with the notebook's ``globals()``."""
     item = check(exercise)
     folder = os.environ.get(EXCHANGE_ENV)
-    if folder:   # graded: the grader compares, in its own process
+    if folder:  # graded: the grader compares, in its own process
         save(outputs_path(folder, exercise), _probe(item, namespace, load(inputs_path(folder, exercise))))
         return
     inputs = plain(item.inputs(np.random.default_rng(SELF_CHECK_SEED)))

@@ -7,6 +7,7 @@ episodes say. Each process builds its pybullet environments once (:func:`environ
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -97,8 +98,14 @@ def reward_reference(inputs: dict) -> dict:
     for cup_xy, q, action in zip(inputs["cup_xy"], inputs["q"], inputs["action"]):
         base.set_state(q, cup_xy)
         _, _, _, _, info = base.step(action)
-        terms.append([-np.linalg.norm(base.check_action(action)), -info["distance"],
-                      C_SUCCESS * info["is_success"], -C_FAILURE * info["is_failure"]])
+        terms.append(
+            [
+                -np.linalg.norm(base.check_action(action)),
+                -info["distance"],
+                C_SUCCESS * info["is_success"],
+                -C_FAILURE * info["is_failure"],
+            ]
+        )
         joints.append(base.scene.joints.copy())
         hands.append(base.scene.tcp_pose()[0])
     return {"terms": np.array(terms), "joints": np.array(joints), "hand": np.array(hands)}
@@ -108,18 +115,32 @@ def reward_verdict(inputs: dict, outputs: dict) -> list[str]:
     failures = Failures()
     want = reward_reference(inputs)
     n = len(inputs["q"])
-    if not failures.true(np.shape(outputs["terms"]) == (n, len(TERMS)) and np.shape(outputs["keys"]) == (n,),
-                         "eq11_terms must return one dict of the four terms per step (case)"):
+    if not failures.true(
+        np.shape(outputs["terms"]) == (n, len(TERMS)) and np.shape(outputs["keys"]) == (n,),
+        "eq11_terms must return one dict of the four terms per step (case)",
+    ):
         return failures
-    failures.true(outputs["keys"], f"cases {failing(outputs['keys'])}: return the four terms of eq. 11 under the keys "
-                  + ", ".join(repr(k) for k in TERMS))
-    for k, (term, meaning) in enumerate(zip(TERMS, ("minus the action's length", "minus the hand centre's distance "
-                                                    "from the goal point after the move", "the success bonus",
-                                                    "the collision penalty, for a collision anywhere on the way"))):
+    failures.true(
+        outputs["keys"],
+        f"cases {failing(outputs['keys'])}: return the four terms of eq. 11 under the keys "
+        + ", ".join(repr(k) for k in TERMS),
+    )
+    for k, (term, meaning) in enumerate(
+        zip(
+            TERMS,
+            (
+                "minus the action's length",
+                "minus the hand centre's distance from the goal point after the move",
+                "the success bonus",
+                "the collision penalty, for a collision anywhere on the way",
+            ),
+        )
+    ):
         ok = np.isclose(np.asarray(outputs["terms"], dtype=float)[:, k], want["terms"][:, k], rtol=0, atol=1e-9)
         failures.true(ok, f"cases {failing(ok)}: {term} ({meaning}) differs from the environment's")
-    ok = np.isclose(np.asarray(outputs["joints"], dtype=float), want["joints"], rtol=0, atol=1e-9).all(axis=1) \
-        & np.isclose(np.asarray(outputs["hand"], dtype=float), want["hand"], rtol=0, atol=1e-9).all(axis=1)
+    ok = np.isclose(np.asarray(outputs["joints"], dtype=float), want["joints"], rtol=0, atol=1e-9).all(
+        axis=1
+    ) & np.isclose(np.asarray(outputs["hand"], dtype=float), want["hand"], rtol=0, atol=1e-9).all(axis=1)
     failures.true(ok, f"cases {failing(ok)}: leave the arm at the new joint angles, within the joint limits")
     return failures
 
@@ -127,8 +148,13 @@ def reward_verdict(inputs: dict, outputs: dict) -> list[str]:
 # -- Exercise 1.2: an episode runner ------------------------------------------------------------------------------
 #: The policies the runner is checked with, and how many episodes each runs.
 POLICIES = {"still": 1, "down": 2, "wide": 6, "narrow": 3, "expert": 4}
-_NAMES = {"still": "the policy that stands still", "down": "the policy that collides at once",
-          "wide": "random actions over the whole range", "narrow": "small random actions", "expert": "the IK expert"}
+_NAMES = {
+    "still": "the policy that stands still",
+    "down": "the policy that collides at once",
+    "wide": "random actions over the whole range",
+    "narrow": "small random actions",
+    "expert": "the IK expert",
+}
 
 
 class ExpertPolicy:
@@ -171,8 +197,10 @@ def runner_inputs(rng: np.random.Generator) -> dict:
     """Distinct episode seeds for each policy of :data:`POLICIES`, and the random policies' seed."""
     seeds = rng.choice(2**31, size=sum(POLICIES.values()), replace=False)
     ends = np.cumsum(list(POLICIES.values()))
-    return {"seeds": {name: seeds[end - n:end] for (name, n), end in zip(POLICIES.items(), ends)},
-            "policy_seed": int(rng.integers(2**31))}
+    return {
+        "seeds": {name: seeds[end - n : end] for (name, n), end in zip(POLICIES.items(), ends)},
+        "policy_seed": int(rng.integers(2**31)),
+    }
 
 
 def runner_probe(namespace: dict, inputs: dict) -> dict:
@@ -181,8 +209,12 @@ def runner_probe(namespace: dict, inputs: dict) -> dict:
         recorded = policy(name, env, int(inputs["policy_seed"]))
         outcomes, lengths = namespace["run_episodes"](env, recorded, [int(s) for s in inputs["seeds"][name]])
         outcomes = dict(outcomes)
-        out[name] = {"keys": set(outcomes) == set(OUTCOMES), "counts": [int(outcomes.get(k, -1)) for k in OUTCOMES],
-                     "lengths": [int(n) for n in lengths], "seen": np.array(recorded.seen).reshape(-1, 9)}
+        out[name] = {
+            "keys": set(outcomes) == set(OUTCOMES),
+            "counts": [int(outcomes.get(k, -1)) for k in OUTCOMES],
+            "lengths": [int(n) for n in lengths],
+            "seen": np.array(recorded.seen).reshape(-1, 9),
+        }
     return out
 
 
@@ -208,14 +240,19 @@ def runner_verdict(inputs: dict, outputs: dict) -> list[str]:
     want = runner_reference(inputs)
     for name in POLICIES:
         got, where = outputs[name], _NAMES[name]
-        failures.true(got["keys"], f"{where}: the outcomes dict must have the keys 'success', 'failure' and "
-                                   "'truncated' (zeros included), nothing else")
+        failures.true(
+            got["keys"],
+            f"{where}: the outcomes dict must have the keys 'success', 'failure' and "
+            "'truncated' (zeros included), nothing else",
+        )
         failures.equal(got["counts"], want[name]["counts"], f"{where}: the counts of how the episodes ended")
         failures.equal(got["lengths"], want[name]["lengths"], f"{where}: the episodes' lengths in steps")
         seen, wanted = np.asarray(got["seen"], dtype=float), want[name]["seen"]
-        failures.true(seen.shape == wanted.shape and np.allclose(seen, wanted, rtol=0, atol=1e-6),
-                      f"{where}: one episode per seed, on that seed's cup, each action policy(obs) from the latest "
-                      "observation, once per step, until the episode ends")
+        failures.true(
+            seen.shape == wanted.shape and np.allclose(seen, wanted, rtol=0, atol=1e-6),
+            f"{where}: one episode per seed, on that seed's cup, each action policy(obs) from the latest "
+            "observation, once per step, until the episode ends",
+        )
     return failures
 
 
@@ -238,14 +275,20 @@ def grasp_inputs(rng: np.random.Generator) -> dict:
     cups = np.column_stack([rng.uniform(CUP_REGION_LOW, CUP_REGION_HIGH, (n, 2)), np.zeros(n)])
     axes = rng.normal(size=(n, 3)) * np.array([1.0, 1.0, 0.3])
     tcp = np.array([grasp_point(cup) for cup in cups]) + rng.normal(0, POSITION_TOLERANCE, (n, 3))
-    poses = {"cup": cups, "tcp": tcp,
-             "approach": axes / np.linalg.norm(axes, axis=1, keepdims=True), "failure": rng.integers(2, size=n)}
+    poses = {
+        "cup": cups,
+        "tcp": tcp,
+        "approach": axes / np.linalg.norm(axes, axis=1, keepdims=True),
+        "failure": rng.integers(2, size=n),
+    }
     scene = environment("grasp", "grader").unwrapped.scene
     cups, qs, flags = [_cup(rng)] * 2, [HOME, HOME], [0, 1]
     while len(qs) < 17:
         scene.set_cup(_cup(rng))
-        found = [solve_ik(scene, grasp_point(scene.cup_position), orientation, HOME)
-                 for _, orientation in grasp_targets(scene.cup_position, standoff=0.0)]
+        found = [
+            solve_ik(scene, grasp_point(scene.cup_position), orientation, HOME)
+            for _, orientation in grasp_targets(scene.cup_position, standoff=0.0)
+        ]
         found = [q for q in found if q is not None][:2]
         if len(found) < 2:
             continue
@@ -258,15 +301,19 @@ def grasp_inputs(rng: np.random.Generator) -> dict:
 
 def grasp_probe(namespace: dict, inputs: dict) -> dict:
     poses, states = inputs["poses"], inputs["states"]
-    results = [namespace["grasp_outcome"](Pose(*case[:3]), bool(case[3]))
-               for case in zip(poses["tcp"], poses["approach"], poses["cup"], poses["failure"])]
+    results = [
+        namespace["grasp_outcome"](Pose(*case[:3]), bool(case[3]))
+        for case in zip(poses["tcp"], poses["approach"], poses["cup"], poses["failure"])
+    ]
     out = {"poses": results, "states": []}
     base = environment("grasp", "probe").unwrapped
     for q, cup_xy, flag in zip(states["q"], states["cup_xy"], states["failure"]):
         base.set_state(q, cup_xy)
         out["states"].append(namespace["grasp_outcome"](base.scene, bool(flag)))
-    return {key: {"reward": [float(r) for r, _ in rows], "terminated": [bool(t) for _, t in rows]}
-            for key, rows in out.items()}
+    return {
+        key: {"reward": [float(r) for r, _ in rows], "terminated": [bool(t) for _, t in rows]}
+        for key, rows in out.items()
+    }
 
 
 def _outcome(env, failure: bool) -> tuple[float, bool]:
@@ -280,17 +327,22 @@ def grasp_verdict(inputs: dict, outputs: dict) -> list[str]:
     failures = Failures()
     poses, states = inputs["poses"], inputs["states"]
     base = environment("grasp", "grader").unwrapped
-    want = {"poses": [_outcome(SimpleNamespace(scene=Pose(*case[:3])), bool(case[3]))
-                      for case in zip(poses["tcp"], poses["approach"], poses["cup"], poses["failure"])],
-            "states": []}
+    want = {
+        "poses": [
+            _outcome(SimpleNamespace(scene=Pose(*case[:3])), bool(case[3]))
+            for case in zip(poses["tcp"], poses["approach"], poses["cup"], poses["failure"])
+        ],
+        "states": [],
+    }
     for q, cup_xy, flag in zip(states["q"], states["cup_xy"], states["failure"]):
         base.set_state(q, cup_xy)
         want["states"].append(_outcome(base, bool(flag)))
     for key, where in (("poses", "hand poses"), ("states", "arm states in the grasping scene")):
         reward, ended = np.array(want[key], dtype=float).T
         got_reward, got_ended = np.asarray(outputs[key]["reward"], float), np.asarray(outputs[key]["terminated"])
-        if not failures.true(got_reward.shape == reward.shape and got_ended.shape == ended.shape,
-                             f"{where}: return (reward, terminated)"):
+        if not failures.true(
+            got_reward.shape == reward.shape and got_ended.shape == ended.shape, f"{where}: return (reward, terminated)"
+        ):
             continue
         ok = np.isclose(got_reward, reward, rtol=0, atol=1e-9)
         failures.true(ok, f"{where} {failing(ok)}: the reward differs from the grasping task's")
@@ -299,6 +351,8 @@ def grasp_verdict(inputs: dict, outputs: dict) -> list[str]:
     return failures
 
 
-CHECKS = [Check("ch01_reward_eq11", reward_inputs, reward_probe, reward_verdict),
-          Check("ch01_collision_share", runner_inputs, runner_probe, runner_verdict),
-          Check("ch01_grasp_reward", grasp_inputs, grasp_probe, grasp_verdict)]
+CHECKS = [
+    Check("ch01_reward_eq11", reward_inputs, reward_probe, reward_verdict),
+    Check("ch01_collision_share", runner_inputs, runner_probe, runner_verdict),
+    Check("ch01_grasp_reward", grasp_inputs, grasp_probe, grasp_verdict),
+]

@@ -7,6 +7,7 @@ each process's own (:func:`vdtutorial.course.checks.ch01.environment`).
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 import math
@@ -30,8 +31,11 @@ def goal_set_inputs(rng: np.random.Generator) -> dict:
     sets, cups = {}, rng.uniform(CUP_REGION_LOW, CUP_REGION_HIGH, (2, 2))
     for k, (cup, targets) in enumerate([(cup, make) for cup in cups for make in (reach_targets, grasp_targets)]):
         poses = list(targets(np.append(cup, 0.0)))
-        sets[f"set{k}"] = {"cup_xy": cup, "positions": np.array([p for p, _ in poses]),
-                           "orientations": np.array([o for _, o in poses])}
+        sets[f"set{k}"] = {
+            "cup_xy": cup,
+            "positions": np.array([p for p, _ in poses]),
+            "orientations": np.array([o for _, o in poses]),
+        }
     far = sets["set0"]
     sets["set4"] = {**far, "positions": far["positions"] + [rng.uniform(1.5, 2.5), 0.0, 0.0]}
     sets["set5"] = {"cup_xy": cups[0], "positions": np.zeros((0, 3)), "orientations": np.zeros((0, 4))}
@@ -57,10 +61,13 @@ def goal_set_verdict(inputs: dict, outputs: dict) -> list[str]:
         scene.set_cup(inputs[key]["cup_xy"])
         scene.set_joints(HOME)
         want, got, where = solution_set(scene, _targets(inputs[key])), outputs[key], f"target set {key[3:]}"
-        shape = (f"{where}: no target gives a verified answer here, so G is empty, an array with one column per joint"
-                 if len(want) == 0 else f"{where}: G has the wrong number of rows or columns (every target tried "
-                 "from every rest pose, going through the targets once; each distinct posture once, one row of "
-                 "joint angles)")
+        shape = (
+            f"{where}: no target gives a verified answer here, so G is empty, an array with one column per joint"
+            if len(want) == 0
+            else f"{where}: G has the wrong number of rows or columns (every target tried "
+            "from every rest pose, going through the targets once; each distinct posture once, one row of "
+            "joint angles)"
+        )
         if failures.true(np.shape(got) == want.shape, shape):
             failures.close(got, want, f"{where}: the same postures, in the order found", 0, 1e-9)
     return failures
@@ -68,8 +75,12 @@ def goal_set_verdict(inputs: dict, outputs: dict) -> list[str]:
 
 # -- Exercise 2.2: eq. 9 with wrap-around joints ------------------------------------------------------------------
 #: The kinds of cases of Exercise 2.2, as the verdict names them.
-_NEAREST = {"within": "joint angles anywhere within the limits", "edge": "joint angles near the limits",
-            "turn": "a goal one turn away on a continuous joint", "tie": "a tie between two goals"}
+_NEAREST = {
+    "within": "joint angles anywhere within the limits",
+    "edge": "joint angles near the limits",
+    "turn": "a goal one turn away on a continuous joint",
+    "tie": "a tie between two goals",
+}
 
 
 def _one_turn_away(rng, lower, upper):
@@ -102,12 +113,18 @@ def nearest_inputs(rng: np.random.Generator) -> dict:
     for k in range(48):
         if k < 40:
             G = rng.uniform(lower, upper, (int(rng.integers(1, 9)), 6))
-            j = rng.uniform(lower, upper) if k < 20 else \
-                np.clip(rng.choice([-1, 1], 6) * rng.uniform(4.0, 6.5, 6), lower, upper)
+            j = (
+                rng.uniform(lower, upper)
+                if k < 20
+                else np.clip(rng.choice([-1, 1], 6) * rng.uniform(4.0, 6.5, 6), lower, upper)
+            )
         else:
             G, j = (_one_turn_away if k < 45 else _tie)(rng, lower, upper)
-        cases[f"case{k}"] = {"G": G, "j": j, "kind": "within" if k < 20 else "edge" if k < 40 else
-                             "turn" if k < 45 else "tie"}
+        cases[f"case{k}"] = {
+            "G": G,
+            "j": j,
+            "kind": "within" if k < 20 else "edge" if k < 40 else "turn" if k < 45 else "tie",
+        }
     return {"cases": cases, "lower": lower, "upper": upper}
 
 
@@ -140,8 +157,12 @@ def nearest_verdict(inputs: dict, outputs: dict) -> list[str]:
 # -- Exercise 2.3: eq. 10 with the overshoot fix ------------------------------------------------------------------
 #: How far the goals are from the joint angles (radians, per joint at most; a step moves a joint by up to pi/5), as
 #: the verdict names them.
-_SCALES = {0.05: "goals very near", 0.3: "goals within one step", 0.8: "goals about one step away",
-           3.0: "goals far away"}
+_SCALES = {
+    0.05: "goals very near",
+    0.3: "goals within one step",
+    0.8: "goals about one step away",
+    3.0: "goals far away",
+}
 #: Cases per distance.
 _PER_SCALE = 10
 
@@ -154,8 +175,12 @@ def step_inputs(rng: np.random.Generator) -> dict:
 
 
 def step_probe(namespace: dict, inputs: dict) -> dict:
-    return {"step": [np.asarray(namespace["my_step"](goal.copy(), j.copy()), dtype=float)
-                     for goal, j in zip(inputs["goal"], inputs["j"])]}
+    return {
+        "step": [
+            np.asarray(namespace["my_step"](goal.copy(), j.copy()), dtype=float)
+            for goal, j in zip(inputs["goal"], inputs["j"])
+        ]
+    }
 
 
 def step_verdict(inputs: dict, outputs: dict) -> list[str]:
@@ -166,12 +191,14 @@ def step_verdict(inputs: dict, outputs: dict) -> list[str]:
         return failures
     ok = np.isclose(got, want, rtol=1e-7, atol=1e-12).all(axis=1)
     for k, where in enumerate(_SCALES.values()):
-        right = ok[k * _PER_SCALE:(k + 1) * _PER_SCALE]
+        right = ok[k * _PER_SCALE : (k + 1) * _PER_SCALE]
         failures.true(right, f"{where}, cases {failing(right)}: the step differs from eq. 10 with the overshoot fix")
     failures.true(ok[-1], "at the goal the step must be zero")
     return failures
 
 
-CHECKS = [Check("ch02_goal_set", goal_set_inputs, goal_set_probe, goal_set_verdict),
-          Check("ch02_nearest_goal", nearest_inputs, nearest_probe, nearest_verdict),
-          Check("ch02_step_towards", step_inputs, step_probe, step_verdict)]
+CHECKS = [
+    Check("ch02_goal_set", goal_set_inputs, goal_set_probe, goal_set_verdict),
+    Check("ch02_nearest_goal", nearest_inputs, nearest_probe, nearest_verdict),
+    Check("ch02_step_towards", step_inputs, step_probe, step_verdict),
+]

@@ -13,6 +13,7 @@ the trajectories are ``generate_demos``'s own, and the data set must be ``genera
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -68,28 +69,37 @@ def rollout_verdict(inputs: dict, outputs: dict) -> list[str]:
         where, sigma, seed = f"trajectory {key[-1]}", float(inputs[key]["sigma"]), int(inputs[key]["seed"])
         joints = np.asarray(outputs[key]["joints"], dtype=float)
         labels = np.asarray(outputs[key]["labels"], dtype=float)
-        if not failures.true(joints.ndim == 2 and joints.shape == labels.shape and joints.shape[1] == 6
-                             and 1 <= len(joints) <= HORIZON, f"{where}: return two arrays with one row of six "
-                             "joint values per visited state, at most HORIZON rows"):
+        if not failures.true(
+            joints.ndim == 2 and joints.shape == labels.shape and joints.shape[1] == 6 and 1 <= len(joints) <= HORIZON,
+            f"{where}: return two arrays with one row of six joint values per visited state, at most HORIZON rows",
+        ):
             continue
         failures.close(joints[0], HOME, f"{where}: the first state is the home pose", 0, 1e-6)
         env.reset(seed=_reset_seed(seed)[1])
         expert.reset()
-        failures.close(labels, [expert.action(q) for q in joints],
-                       f"{where}: labels must be the noiseless expert action in each visited state", 0, 1e-6)
+        failures.close(
+            labels,
+            [expert.action(q) for q in joints],
+            f"{where}: labels must be the noiseless expert action in each visited state",
+            0,
+            1e-6,
+        )
         moves = np.diff(joints, axis=0)
         if sigma == 0:
-            failures.close(moves, labels[:-1], f"{where}: without noise the arm must execute the expert's action", 0,
-                           1e-6)
+            failures.close(
+                moves, labels[:-1], f"{where}: without noise the arm must execute the expert's action", 0, 1e-6
+            )
         elif len(joints) > 1:
             failures.true(not np.allclose(moves, labels[:-1]), f"{where}: the executed actions must carry the noise")
         # generate_demos's rollout for T states: its first trajectory, which must have ended there
-        library, record = collect("reach", len(joints), seed,
-                                  lambda state, label, rng: label + rng.normal(0.0, sigma, 6))
-        failures.true(record["episodes"] == record["finished"] == 1
-                      and np.allclose(joints, library.joints, rtol=0, atol=1e-5),
-                      f"{where}: the visited states differ from the library's rollout (execute the label plus noise "
-                      "drawn from rng, one draw per step; stop when the episode ends)")
+        library, record = collect(
+            "reach", len(joints), seed, lambda state, label, rng: label + rng.normal(0.0, sigma, 6)
+        )
+        failures.true(
+            record["episodes"] == record["finished"] == 1 and np.allclose(joints, library.joints, rtol=0, atol=1e-5),
+            f"{where}: the visited states differ from the library's rollout (execute the label plus noise "
+            "drawn from rng, one draw per step; stop when the episode ends)",
+        )
     return failures
 
 
@@ -97,8 +107,11 @@ def _trajectories(rng, lengths) -> dict:
     """Random trajectories of the given lengths, as arrays padded to the longest (what a stand-in returns)."""
     longest = int(max(lengths))
     shape = (len(lengths), longest, 6)
-    return {"lengths": np.asarray(lengths, dtype=int), "joints": rng.uniform(-np.pi, np.pi, shape),
-            "labels": rng.uniform(-MAX_DELTA, MAX_DELTA, shape)}
+    return {
+        "lengths": np.asarray(lengths, dtype=int),
+        "joints": rng.uniform(-np.pi, np.pi, shape),
+        "labels": rng.uniform(-MAX_DELTA, MAX_DELTA, shape),
+    }
 
 
 def demos_inputs(rng: np.random.Generator) -> dict:
@@ -108,7 +121,7 @@ def demos_inputs(rng: np.random.Generator) -> dict:
     whole = int(rng.integers(2, 4))
     case0 = {"samples": int(lengths[:whole].sum() + rng.integers(1, lengths[whole])), **_trajectories(rng, lengths)}
     lengths = rng.integers(1, 7, size=4)
-    case1 = {"samples": int(lengths[:int(rng.integers(1, 3))].sum()), **_trajectories(rng, lengths)}
+    case1 = {"samples": int(lengths[: int(rng.integers(1, 3))].sum()), **_trajectories(rng, lengths)}
     samples, sigma, seed = int(rng.integers(6, 15)), rng.uniform(0.1, 0.5), int(rng.integers(1000))
     library = generate_demos("reach", samples, sigma, seed, progress=False)
     lengths = np.bincount(library.episode)
@@ -127,14 +140,16 @@ def demos_inputs(rng: np.random.Generator) -> dict:
 
 def _stand_in(case: dict, calls: list):
     """noisy_rollout's stand-in for one case: records each call, then resets, draws and returns as described above."""
+
     def rollout(env, expert, rng, sigma, seed):
         calls.append((int(seed), float(sigma), env, expert))
         k = (len(calls) - 1) % len(case["lengths"])
         env.reset(seed=seed)
         length = int(case["lengths"][k])
         for _ in range(length):
-            rng.normal(0.0, sigma, 6)   # the noise a rollout of this length draws
+            rng.normal(0.0, sigma, 6)  # the noise a rollout of this length draws
         return case["joints"][k, :length].copy(), case["labels"][k, :length].copy()
+
     return rollout
 
 
@@ -145,8 +160,12 @@ def demos_probe(namespace: dict, inputs: dict) -> dict:
         case, calls = inputs[key], []
         with swapped(namespace, env=env, expert=expert, noisy_rollout=_stand_in(case, calls)):
             demos = namespace["rollout_demos"](float(case["sigma"]), int(case["samples"]), seed=int(case["seed"]))
-        got = {"is_demos": isinstance(demos, Demos), "seeds": [c[0] for c in calls], "sigmas": [c[1] for c in calls],
-               "context": [c[2] is env and c[3] is expert for c in calls]}
+        got = {
+            "is_demos": isinstance(demos, Demos),
+            "seeds": [c[0] for c in calls],
+            "sigmas": [c[1] for c in calls],
+            "context": [c[2] is env and c[3] is expert for c in calls],
+        }
         if got["is_demos"]:
             got.update(rows=len(demos), **{name: np.asarray(getattr(demos, name), dtype=float) for name in ARRAYS})
         out[key] = got
@@ -164,8 +183,13 @@ def _expected(case: dict, env) -> tuple[list[int], dict]:
         rng.normal(0.0, float(case["sigma"]), (int(length), 6))
         keep = min(int(length), samples - n)
         env.reset(seed=seeds[-1])
-        columns = {"joints": case["joints"][k, :keep], "cup": np.tile(env.unwrapped.cup_position, (keep, 1)),
-                   "actions": case["labels"][k, :keep], "episode": np.full(keep, k), "t": np.arange(keep)}
+        columns = {
+            "joints": case["joints"][k, :keep],
+            "cup": np.tile(env.unwrapped.cup_position, (keep, 1)),
+            "actions": case["labels"][k, :keep],
+            "episode": np.full(keep, k),
+            "t": np.arange(keep),
+        }
         for name in ARRAYS:
             rows[name].append(columns[name])
         n += keep
@@ -178,24 +202,39 @@ def demos_verdict(inputs: dict, outputs: dict) -> list[str]:
     for key in sorted(inputs):
         case, got, where = inputs[key], outputs[key], f"case {key[-1]}"
         seeds, want = _expected(case, env)
-        if key == "case2":   # the library's trajectories: the library's data set
-            library = generate_demos("reach", int(case["samples"]), float(case["sigma"]), int(case["seed"]),
-                                     progress=False)
+        if key == "case2":  # the library's trajectories: the library's data set
+            library = generate_demos(
+                "reach", int(case["samples"]), float(case["sigma"]), int(case["seed"]), progress=False
+            )
             want = {name: getattr(library, name) for name in ARRAYS}
-        failures.equal(got["seeds"], seeds, f"{where}: call noisy_rollout once per trajectory until D is full, with "
-                       "reset seeds drawn from the generator seeded with `seed`, and pass that generator on")
-        failures.true(np.allclose(got["sigmas"], float(case["sigma"]), rtol=0, atol=1e-12),
-                      f"{where}: pass Sigma on to noisy_rollout")
+        failures.equal(
+            got["seeds"],
+            seeds,
+            f"{where}: call noisy_rollout once per trajectory until D is full, with "
+            "reset seeds drawn from the generator seeded with `seed`, and pass that generator on",
+        )
+        failures.true(
+            np.allclose(got["sigmas"], float(case["sigma"]), rtol=0, atol=1e-12),
+            f"{where}: pass Sigma on to noisy_rollout",
+        )
         failures.true(got["context"], f"{where}: pass the chapter's env and expert to noisy_rollout")
-        if not failures.true(got["is_demos"] and int(got["rows"]) == int(case["samples"]),
-                             f"{where}: return a Demos with exactly `samples` rows"):
+        if not failures.true(
+            got["is_demos"] and int(got["rows"]) == int(case["samples"]),
+            f"{where}: return a Demos with exactly `samples` rows",
+        ):
             continue
-        for name, what in (("joints", "the joint angles of the visited states"), ("cup", "each row's cup position"),
-                           ("actions", "the actions (the trajectories' labels)"), ("episode", "the episode indices"),
-                           ("t", "the time steps within each trajectory")):
+        for name, what in (
+            ("joints", "the joint angles of the visited states"),
+            ("cup", "each row's cup position"),
+            ("actions", "the actions (the trajectories' labels)"),
+            ("episode", "the episode indices"),
+            ("t", "the time steps within each trajectory"),
+        ):
             failures.close(got[name], want[name], f"{where}: {what}", 0, 1e-6)
     return failures
 
 
-CHECKS = [Check("ch03_noisy_rollout", rollout_inputs, rollout_probe, rollout_verdict),
-          Check("ch03_rollout_demos", demos_inputs, demos_probe, demos_verdict)]
+CHECKS = [
+    Check("ch03_noisy_rollout", rollout_inputs, rollout_probe, rollout_verdict),
+    Check("ch03_rollout_demos", demos_inputs, demos_probe, demos_verdict),
+]

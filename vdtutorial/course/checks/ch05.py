@@ -14,6 +14,7 @@ rate asked for; and the mean loss of each epoch.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 import math
@@ -49,7 +50,7 @@ def _policy(seed: int):
     policy = make_policy(_space(), 6, variational=True, **SIZES)
     with torch.no_grad():
         for layer in svdo_layers(policy.mu):
-            layer.log_sigma2.copy_(torch.log(layer.weight ** 2 + 1e-8) + 4 * torch.rand(layer.weight.shape) - 4)
+            layer.log_sigma2.copy_(torch.log(layer.weight**2 + 1e-8) + 4 * torch.rand(layer.weight.shape) - 4)
     return policy
 
 
@@ -65,10 +66,16 @@ def step_inputs(rng: np.random.Generator) -> dict:
     cases = {}
     for k, beta in enumerate((0.0, rng.uniform(0.1, 0.9), 1.0)):
         rows = int(rng.integers(16, 65))
-        cases[f"case{k}"] = {"beta": beta, "n_train": int(rng.integers(rows, 10000)), "obs": _observations(rng, rows),
-                             "actions": rng.uniform(-MAX_DELTA, MAX_DELTA, (rows, 6)), "adam": k == 0,
-                             "lr": 10 ** rng.uniform(-3, -1.5), "policy_seed": int(rng.integers(2**31)),
-                             "noise_seed": int(rng.integers(2**31 - STEPS))}
+        cases[f"case{k}"] = {
+            "beta": beta,
+            "n_train": int(rng.integers(rows, 10000)),
+            "obs": _observations(rng, rows),
+            "actions": rng.uniform(-MAX_DELTA, MAX_DELTA, (rows, 6)),
+            "adam": k == 0,
+            "lr": 10 ** rng.uniform(-3, -1.5),
+            "policy_seed": int(rng.integers(2**31)),
+            "noise_seed": int(rng.integers(2**31 - STEPS)),
+        }
     return cases
 
 
@@ -132,10 +139,21 @@ def _step_failures(inputs: dict, outputs: dict) -> list[str]:
             optimiser.step()
             losses.append(loss.item())
         failures.true(got["floats"], f"{where}: return the loss as a Python float")
-        failures.close(got["losses"], losses, f"{where}: the loss (the mean negative log-likelihood with the weight "
-                       "noise on, plus beta KL / N)", 1e-4, 1e-4)
-        failures.close(got["mu"], _flat(policy.mu), f"{where}: mu after the steps (each one step of the optimiser on "
-                       "that loss, from gradients of that loss alone)", 1e-4, 1e-6)
+        failures.close(
+            got["losses"],
+            losses,
+            f"{where}: the loss (the mean negative log-likelihood with the weight noise on, plus beta KL / N)",
+            1e-4,
+            1e-4,
+        )
+        failures.close(
+            got["mu"],
+            _flat(policy.mu),
+            f"{where}: mu after the steps (each one step of the optimiser on "
+            "that loss, from gradients of that loss alone)",
+            1e-4,
+            1e-6,
+        )
         failures.close(got["sigma"], sigma, f"{where}: the sigma network must stay as it is", 0, 0)
     return failures
 
@@ -147,10 +165,16 @@ def loop_inputs(rng: np.random.Generator) -> dict:
         n = int(rng.integers(60, 201))
         train = np.flatnonzero(rng.random(n) < rng.uniform(0.6, 0.95))
         seed = int(rng.integers(2**31 - 1000))
-        cases[f"case{k}"] = {"actions": rng.normal(size=n), "train_idx": train, "epochs": int(rng.integers(2, 5)),
-                             "batch_size": int(rng.integers(10, len(train) // 3 + 1)), "warmup": rng.uniform(0.2, 0.8),
-                             "lr": 10 ** rng.uniform(-4, -2), "seed": seed,
-                             "other_seed": seed + int(rng.integers(1, 1000))}
+        cases[f"case{k}"] = {
+            "actions": rng.normal(size=n),
+            "train_idx": train,
+            "epochs": int(rng.integers(2, 5)),
+            "batch_size": int(rng.integers(10, len(train) // 3 + 1)),
+            "warmup": rng.uniform(0.2, 0.8),
+            "lr": 10 ** rng.uniform(-4, -2),
+            "seed": seed,
+            "other_seed": seed + int(rng.integers(1, 1000)),
+        }
     return cases
 
 
@@ -163,31 +187,56 @@ def _record(namespace: dict, case: dict, seed: int) -> dict:
     policy, calls = make_policy(_space(), 6, variational=True, **SIZES), []
 
     def recorder(policy_, optimiser, obs_, actions_, n_train, beta):
-        calls.append((torch.as_tensor(obs_)[:, 0].long(), torch.as_tensor(actions_)[:, 0], n_train, float(beta),
-                      optimiser, policy_))
-        return float(len(calls))   # the "loss" of step k is k
+        calls.append(
+            (
+                torch.as_tensor(obs_)[:, 0].long(),
+                torch.as_tensor(actions_)[:, 0],
+                n_train,
+                float(beta),
+                optimiser,
+                policy_,
+            )
+        )
+        return float(len(calls))  # the "loss" of step k is k
 
     with swapped(namespace, elbo_step=recorder):
-        history = namespace["clone_vd"](policy, obs, actions, case["train_idx"], int(case["epochs"]),
-                                        batch_size=int(case["batch_size"]), lr=float(case["lr"]),
-                                        warmup=float(case["warmup"]), seed=seed)
+        history = namespace["clone_vd"](
+            policy,
+            obs,
+            actions,
+            case["train_idx"],
+            int(case["epochs"]),
+            batch_size=int(case["batch_size"]),
+            lr=float(case["lr"]),
+            warmup=float(case["warmup"]),
+            seed=seed,
+        )
     optimiser = calls[0][4] if calls else None
     groups = getattr(optimiser, "param_groups", [])
-    return {"rows": torch.cat([c[0] for c in calls]) if calls else [], "sizes": [len(c[0]) for c in calls],
-            "actions": torch.cat([c[1] for c in calls]) if calls else [], "n_train": [c[2] for c in calls],
-            "beta": [c[3] for c in calls], "history": np.asarray(history, dtype=float),
-            "adam": isinstance(optimiser, torch.optim.Adam), "one_optimiser": all(c[4] is optimiser for c in calls),
-            "on_mu": {id(p) for g in groups for p in g["params"]} == {id(p) for p in policy.mu.parameters()},
-            "lr": [g["lr"] for g in groups], "same_policy": all(c[5] is policy for c in calls)}
+    return {
+        "rows": torch.cat([c[0] for c in calls]) if calls else [],
+        "sizes": [len(c[0]) for c in calls],
+        "actions": torch.cat([c[1] for c in calls]) if calls else [],
+        "n_train": [c[2] for c in calls],
+        "beta": [c[3] for c in calls],
+        "history": np.asarray(history, dtype=float),
+        "adam": isinstance(optimiser, torch.optim.Adam),
+        "one_optimiser": all(c[4] is optimiser for c in calls),
+        "on_mu": {id(p) for g in groups for p in g["params"]} == {id(p) for p in policy.mu.parameters()},
+        "lr": [g["lr"] for g in groups],
+        "same_policy": all(c[5] is policy for c in calls),
+    }
 
 
 def loop_probe(namespace: dict, inputs: dict) -> dict:
     out = {}
     for key in sorted(inputs):
         case = inputs[key]
-        out[key] = {"run": _record(namespace, case, int(case["seed"])),
-                    "again": _record(namespace, case, int(case["seed"]))["rows"],
-                    "other": _record(namespace, case, int(case["other_seed"]))["rows"]}
+        out[key] = {
+            "run": _record(namespace, case, int(case["seed"])),
+            "again": _record(namespace, case, int(case["seed"]))["rows"],
+            "other": _record(namespace, case, int(case["other_seed"]))["rows"],
+        }
     return out
 
 
@@ -199,37 +248,56 @@ def loop_verdict(inputs: dict, outputs: dict) -> list[str]:
         per_epoch = math.ceil(len(train) / size)
         total = epochs * per_epoch
         sizes = np.asarray(got["sizes"], dtype=int)
-        if not failures.true(len(sizes) == total and np.all(sizes <= size) and np.shape(got["history"]) == (epochs,),
-                             f"{where}: one elbo_step per mini-batch of at most batch_size rows, the fewest "
-                             "mini-batches that cover the training rows in each epoch, and one mean loss per epoch"):
+        if not failures.true(
+            len(sizes) == total and np.all(sizes <= size) and np.shape(got["history"]) == (epochs,),
+            f"{where}: one elbo_step per mini-batch of at most batch_size rows, the fewest "
+            "mini-batches that cover the training rows in each epoch, and one mean loss per epoch",
+        ):
             continue
         rows = np.asarray(got["rows"], dtype=int)
-        orders = np.split(rows, np.cumsum(sizes)[per_epoch - 1:-1:per_epoch])
-        failures.true(all(np.array_equal(np.sort(order), train) for order in orders),
-                      f"{where}: every epoch visits every training row exactly once (and no other row)")
-        failures.true(len({tuple(order) for order in orders}) == epochs
-                      and not np.array_equal(orders[0], np.sort(orders[0])),
-                      f"{where}: a fresh random order of the training rows in every epoch")
+        orders = np.split(rows, np.cumsum(sizes)[per_epoch - 1 : -1 : per_epoch])
+        failures.true(
+            all(np.array_equal(np.sort(order), train) for order in orders),
+            f"{where}: every epoch visits every training row exactly once (and no other row)",
+        )
+        failures.true(
+            len({tuple(order) for order in orders}) == epochs and not np.array_equal(orders[0], np.sort(orders[0])),
+            f"{where}: a fresh random order of the training rows in every epoch",
+        )
         failures.equal(outputs[key]["again"], rows, f"{where}: the same seed must give the same order")
         failures.true(not np.array_equal(outputs[key]["other"], rows), f"{where}: another seed must give another order")
-        failures.close(got["actions"], np.asarray(case["actions"], dtype=np.float32)[rows],
-                       f"{where}: each action must stay with its observation", 0, 1e-6)
-        failures.true(np.asarray(got["n_train"]) == len(train), f"{where}: the KL is divided by the size of the "
-                      "training set")
+        failures.close(
+            got["actions"],
+            np.asarray(case["actions"], dtype=np.float32)[rows],
+            f"{where}: each action must stay with its observation",
+            0,
+            1e-6,
+        )
+        failures.true(
+            np.asarray(got["n_train"]) == len(train), f"{where}: the KL is divided by the size of the training set"
+        )
         beta, warmup_steps = np.asarray(got["beta"], dtype=float), float(case["warmup"]) * total
         schedule = np.minimum(1, np.arange(total) / warmup_steps)
-        failures.true(beta[0] == 0 and beta[-1] == 1 and np.all(np.diff(beta) >= 0)
-                      and np.allclose(beta, schedule, rtol=0, atol=1 / warmup_steps + 1e-9),   # off by one step at most
-                      f"{where}: beta rises from zero to one, linearly in the steps, over the warm-up share of them")
+        failures.true(
+            beta[0] == 0
+            and beta[-1] == 1
+            and np.all(np.diff(beta) >= 0)
+            and np.allclose(beta, schedule, rtol=0, atol=1 / warmup_steps + 1e-9),  # off by one step at most
+            f"{where}: beta rises from zero to one, linearly in the steps, over the warm-up share of them",
+        )
         failures.true(got["adam"] and got["one_optimiser"], f"{where}: one torch.optim.Adam for all steps")
         failures.true(got["on_mu"], f"{where}: the optimiser holds mu's parameters, and no others")
-        failures.true(len(got["lr"]) > 0 and np.all(np.asarray(got["lr"]) == case["lr"]),
-                      f"{where}: the optimiser's learning rate is lr")
+        failures.true(
+            len(got["lr"]) > 0 and np.all(np.asarray(got["lr"]) == case["lr"]),
+            f"{where}: the optimiser's learning rate is lr",
+        )
         failures.true(got["same_policy"], f"{where}: elbo_step gets the policy that clone_vd was given")
         mean_loss = [np.mean(np.arange(e * per_epoch, (e + 1) * per_epoch) + 1) for e in range(epochs)]
         failures.close(got["history"], mean_loss, f"{where}: return the mean loss of each epoch")
     return failures
 
 
-CHECKS = [Check("ch05_elbo_step", step_inputs, step_probe, step_verdict),
-          Check("ch05_clone_vd", loop_inputs, loop_probe, loop_verdict)]
+CHECKS = [
+    Check("ch05_elbo_step", step_inputs, step_probe, step_verdict),
+    Check("ch05_clone_vd", loop_inputs, loop_probe, loop_verdict),
+]

@@ -16,6 +16,7 @@ downhill (the surrogate's sign) and the step solved without damping, so that the
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -70,9 +71,12 @@ def reinforce_inputs(rng: np.random.Generator) -> dict:
 
 
 def reinforce_probe(namespace: dict, inputs: dict) -> dict:
-    return {key: namespace["reinforce_gradient"](np.array(case["w"]), float(case["log_std"]), case["states"],
-                                                 case["actions"], case["advantages"])
-            for key, case in inputs.items()}
+    return {
+        key: namespace["reinforce_gradient"](
+            np.array(case["w"]), float(case["log_std"]), case["states"], case["actions"], case["advantages"]
+        )
+        for key, case in inputs.items()
+    }
 
 
 def reinforce_verdict(inputs: dict, outputs: dict) -> list[str]:
@@ -81,8 +85,14 @@ def reinforce_verdict(inputs: dict, outputs: dict) -> list[str]:
         case = inputs[key]
         theta = torch.tensor(np.append(case["w"], case["log_std"]), requires_grad=True)
         (_log_density(theta, case) * torch.as_tensor(case["advantages"])).mean().backward()
-        failures.close(outputs[key], theta.grad.numpy(), f"batch {key[4:]}: the gradient (w's components, then "
-                       "log sigma's) must equal autograd's gradient of mean(log pi * A)", 1e-7, 1e-10)
+        failures.close(
+            outputs[key],
+            theta.grad.numpy(),
+            f"batch {key[4:]}: the gradient (w's components, then "
+            "log sigma's) must equal autograd's gradient of mean(log pi * A)",
+            1e-7,
+            1e-10,
+        )
     return failures
 
 
@@ -100,13 +110,17 @@ def surrogate_probe(namespace: dict, inputs: dict) -> dict:
     out = {}
     for key, case in inputs.items():
         theta = torch.tensor(case["theta"], dtype=torch.float64, requires_grad=True)
-        value = namespace["surrogate"](theta, np.array(case["theta_old"]), case["states"], case["actions"],
-                                       case["advantages"])
+        value = namespace["surrogate"](
+            theta, np.array(case["theta_old"]), case["states"], case["actions"], case["advantages"]
+        )
         got = {"scalar": torch.is_tensor(value) and value.ndim == 0}
         if got["scalar"]:
             grad = torch.autograd.grad(value, theta, allow_unused=True)[0] if value.requires_grad else None
-            got.update(value=value, differentiable=grad is not None,
-                       grad=torch.zeros(4, dtype=torch.float64) if grad is None else grad)
+            got.update(
+                value=value,
+                differentiable=grad is not None,
+                grad=torch.zeros(4, dtype=torch.float64) if grad is None else grad,
+            )
         out[key] = got
     return out
 
@@ -121,11 +135,15 @@ def surrogate_verdict(inputs: dict, outputs: dict) -> list[str]:
         ratio = torch.exp(_log_density(theta, case) - _log_density(torch.as_tensor(case["theta_old"]), case))
         value = (ratio * torch.as_tensor(case["advantages"])).mean()
         at_old = " (at theta_old every ratio is 1)" if key == "case0" else ""
-        failures.close(got["value"], value.item(), f"{where}: the value of L{at_old}", 1e-10 if at_old else 1e-9,
-                       1e-13)
+        failures.close(got["value"], value.item(), f"{where}: the value of L{at_old}", 1e-10 if at_old else 1e-9, 1e-13)
         if failures.true(got["differentiable"], f"{where}: autograd must differentiate L with respect to theta"):
-            failures.close(got["grad"], torch.autograd.grad(value, theta)[0].numpy(),
-                           f"{where}: the gradient of L" + (", the policy gradient g" if at_old else ""), 1e-7, 1e-10)
+            failures.close(
+                got["grad"],
+                torch.autograd.grad(value, theta)[0].numpy(),
+                f"{where}: the gradient of L" + (", the policy gradient g" if at_old else ""),
+                1e-7,
+                1e-10,
+            )
     return failures
 
 
@@ -159,8 +177,13 @@ def cg_verdict(inputs: dict, outputs: dict) -> list[str]:
         n = len(case["b"])
         for iters in CG_ITERS:
             where = f"system {key[4:]} ({n} unknowns), {iters} iteration{'s' if iters > 1 else ''}"
-            failures.close(got[f"iters{iters}"], conjugate_gradient(lambda v: matrix @ v, b, iters).numpy(),
-                           f"{where}: x", 1e-7, 1e-7)
+            failures.close(
+                got[f"iters{iters}"],
+                conjugate_gradient(lambda v: matrix @ v, b, iters).numpy(),
+                f"{where}: x",
+                1e-7,
+                1e-7,
+            )
             failures.true(np.array_equal(got[f"b_after{iters}"], case["b"]), f"{where}: my_cg must not change b")
     return failures
 
@@ -170,8 +193,13 @@ def _bare_policy(obs_dim: int, act_dim: int, hidden, init_std: float, seed: int 
     leaving torch's global generator as it was (the kernel's later cells draw from it)."""
     with torch.random.fork_rng():
         torch.manual_seed(seed)
-        return make_policy(gym.spaces.Box(-1.0, 1.0, (obs_dim,), np.float32), act_dim, kind="mlp", init_std=init_std,
-                           scene_hidden=tuple(int(h) for h in np.atleast_1d(hidden)))
+        return make_policy(
+            gym.spaces.Box(-1.0, 1.0, (obs_dim,), np.float32),
+            act_dim,
+            kind="mlp",
+            init_std=init_std,
+            scene_hidden=tuple(int(h) for h in np.atleast_1d(hidden)),
+        )
 
 
 def _policy(case: dict) -> GaussianPolicy:
@@ -207,9 +235,11 @@ def fvp_inputs(rng: np.random.Generator) -> dict:
     for k, (obs_dim, act_dim, hidden, n) in enumerate(((3, 1, (4,), 64), (5, 2, (6,), 20))):
         case = _policy_case(rng, obs_dim, act_dim, hidden, float(rng.uniform(0.3, 0.8)))
         n_params = sum(np.size(p) for p in case["params"].values())
-        case.update(states=rng.uniform(-1.0, 1.0, (n, obs_dim)).astype(np.float32),
-                    dampings=np.array([0.0, 10 ** rng.uniform(-3, -1)]),
-                    vectors=rng.standard_normal((3, n_params)).astype(np.float32))
+        case.update(
+            states=rng.uniform(-1.0, 1.0, (n, obs_dim)).astype(np.float32),
+            dampings=np.array([0.0, 10 ** rng.uniform(-3, -1)]),
+            vectors=rng.standard_normal((3, n_params)).astype(np.float32),
+        )
         cases[f"case{k}"] = case
     return cases
 
@@ -224,8 +254,10 @@ def fvp_probe(namespace: dict, inputs: dict) -> dict:
         got = {}
         for j, damping in enumerate(case["dampings"]):
             product = namespace["my_fvp"](policy, params, states, old, float(damping))
-            got[f"damping{j}"] = {"products": torch.stack([product(v) for v in vectors]),
-                                  "again": product(2 * vectors[0])}
+            got[f"damping{j}"] = {
+                "products": torch.stack([product(v) for v in vectors]),
+                "again": product(2 * vectors[0]),
+            }
         out[key] = got
     return out
 
@@ -243,8 +275,13 @@ def fvp_verdict(inputs: dict, outputs: dict) -> list[str]:
             product = double_backward_fvp(policy, params, states, _old(policy, states), float(damping))
             want = torch.stack([product(v) for v in vectors]).detach().numpy()
             failures.close(got["products"], want, f"{where}: (F + damping I) v", 1e-4, 1e-6)
-            failures.close(got["again"], 2 * want[0], f"{where}: the product must work again on another vector "
-                           "(keep the graph of the KL's gradient)", 1e-4, 1e-6)
+            failures.close(
+                got["again"],
+                2 * want[0],
+                f"{where}: the product must work again on another vector (keep the graph of the KL's gradient)",
+                1e-4,
+                1e-6,
+            )
     return failures
 
 
@@ -257,27 +294,56 @@ def gae_inputs(rng: np.random.Generator) -> dict:
         steps = int(rng.integers(20, 41))
         dones = (rng.random(steps) < 0.15).astype(float)
         dones[rng.integers(0, steps - 1)] = 1.0
-        cases[f"case{k}"] = {"rewards": rng.normal(size=steps), "values": rng.normal(size=steps),
-                             "last_value": rng.normal(), "dones": dones, "gamma": gamma, "lam": lam}
-    cases["case4"] = {"rewards": rng.normal(size=1), "values": rng.normal(size=1), "last_value": rng.normal(),
-                      "dones": np.ones(1), "gamma": 0.99, "lam": 0.95}
+        cases[f"case{k}"] = {
+            "rewards": rng.normal(size=steps),
+            "values": rng.normal(size=steps),
+            "last_value": rng.normal(),
+            "dones": dones,
+            "gamma": gamma,
+            "lam": lam,
+        }
+    cases["case4"] = {
+        "rewards": rng.normal(size=1),
+        "values": rng.normal(size=1),
+        "last_value": rng.normal(),
+        "dones": np.ones(1),
+        "gamma": 0.99,
+        "lam": 0.95,
+    }
     return cases
 
 
 def gae_probe(namespace: dict, inputs: dict) -> dict:
-    return {key: namespace["my_gae"](case["rewards"], case["values"], float(case["last_value"]), case["dones"],
-                                     float(case["gamma"]), float(case["lam"]))
-            for key, case in inputs.items()}
+    return {
+        key: namespace["my_gae"](
+            case["rewards"],
+            case["values"],
+            float(case["last_value"]),
+            case["dones"],
+            float(case["gamma"]),
+            float(case["lam"]),
+        )
+        for key, case in inputs.items()
+    }
 
 
 def gae_verdict(inputs: dict, outputs: dict) -> list[str]:
     failures = Failures()
     for key in _cases(inputs):
         case = inputs[key]
-        want = gae(case["rewards"], case["values"], float(case["last_value"]), case["dones"], float(case["gamma"]),
-                   float(case["lam"]))
-        what = ("one step that ends its episode: the advantage is the reward minus V" if key == "case4"
-                else f"sequence {key[4:]}: the advantages")
+        want = gae(
+            case["rewards"],
+            case["values"],
+            float(case["last_value"]),
+            case["dones"],
+            float(case["gamma"]),
+            float(case["lam"]),
+        )
+        what = (
+            "one step that ends its episode: the advantage is the reward minus V"
+            if key == "case4"
+            else f"sequence {key[4:]}: the advantages"
+        )
         failures.close(outputs[key], want, what, 1e-7, 1e-12)
     return failures
 
@@ -286,21 +352,27 @@ def baseline_inputs(rng: np.random.Generator) -> dict:
     """Four regressions: 1-5 features, small and large ridge terms, features scaled so that the clipping at +-10
     matters, and timesteps up to 25 (as floats) or up to 200 (as integers)."""
     cases = {}
-    for k, (n_features, reg, scale, horizon) in enumerate(((3, 1e-5, 1.0, 200), (1, 1e-5, 1.0, 25), (5, 10.0, 1.0, 25),
-                                                           (2, 1e-3, 30.0, 25))):
+    for k, (n_features, reg, scale, horizon) in enumerate(
+        ((3, 1e-5, 1.0, 200), (1, 1e-5, 1.0, 25), (5, 10.0, 1.0, 25), (2, 1e-3, 30.0, 25))
+    ):
         n = int(rng.integers(60, 81))
         features = scale * rng.normal(size=(n, n_features))
         timesteps = rng.integers(0, horizon, n)
         returns = rng.normal(size=n) + features[:, 0].clip(-10, 10) - timesteps / 50
-        cases[f"case{k}"] = {"features": features, "timesteps": timesteps if k == 0 else timesteps.astype(float),
-                             "returns": returns, "reg": reg * 10 ** rng.uniform(-0.5, 0.5)}
+        cases[f"case{k}"] = {
+            "features": features,
+            "timesteps": timesteps if k == 0 else timesteps.astype(float),
+            "returns": returns,
+            "reg": reg * 10 ** rng.uniform(-0.5, 0.5),
+        }
     return cases
 
 
 def baseline_probe(namespace: dict, inputs: dict) -> dict:
-    return {key: namespace["fit_linear_baseline"](case["features"], case["timesteps"], case["returns"],
-                                                  float(case["reg"]))
-            for key, case in inputs.items()}
+    return {
+        key: namespace["fit_linear_baseline"](case["features"], case["timesteps"], case["returns"], float(case["reg"]))
+        for key, case in inputs.items()
+    }
 
 
 def baseline_verdict(inputs: dict, outputs: dict) -> list[str]:
@@ -309,8 +381,14 @@ def baseline_verdict(inputs: dict, outputs: dict) -> list[str]:
         case = inputs[key]
         reference = LinearFeatureBaseline(float(case["reg"]))
         reference.fit(case["features"], case["timesteps"], case["returns"])
-        failures.close(outputs[key], reference.weights, f"regression {key[4:]}: the weights (one per column of phi, "
-                       "in the equation's order; f clipped, t divided by 100, the ridge term)", 1e-6, 1e-8)
+        failures.close(
+            outputs[key],
+            reference.weights,
+            f"regression {key[4:]}: the weights (one per column of phi, "
+            "in the equation's order; f clipped, t divided by 100, the ridge term)",
+            1e-6,
+            1e-8,
+        )
     return failures
 
 
@@ -323,11 +401,17 @@ def line_search_inputs(rng: np.random.Generator) -> dict:
         dim = int(rng.integers(2, 7))
         b = rng.standard_normal((dim, dim))
         fisher, g = b @ b.T + 0.5 * np.eye(dim), rng.standard_normal(dim)
-        cases[f"case{k}"] = {"theta": rng.standard_normal(dim), "g": g, "F": fisher,
-                             "direction": np.linalg.solve(fisher, g), "gain_sign": -1.0 if k % 5 == 4 else 1.0,
-                             "curvature": [0.0, 5.0, 500.0][k % 3] * rng.uniform(0.5, 2.0),
-                             "max_kl": [0.01, 0.1, 1.0][k % 3] * rng.uniform(0.5, 2.0),
-                             "backtrack_coeff": [0.5, 0.8][k % 2], "backtrack_iters": 3 if k % 4 == 0 else 10}
+        cases[f"case{k}"] = {
+            "theta": rng.standard_normal(dim),
+            "g": g,
+            "F": fisher,
+            "direction": np.linalg.solve(fisher, g),
+            "gain_sign": -1.0 if k % 5 == 4 else 1.0,
+            "curvature": [0.0, 5.0, 500.0][k % 3] * rng.uniform(0.5, 2.0),
+            "max_kl": [0.01, 0.1, 1.0][k % 3] * rng.uniform(0.5, 2.0),
+            "backtrack_coeff": [0.5, 0.8][k % 2],
+            "backtrack_iters": 3 if k % 4 == 0 else 10,
+        }
     return cases
 
 
@@ -346,14 +430,21 @@ def _toy_problem(case: dict):
 
 
 def _search_config(case: dict) -> TRPOConfig:
-    return TRPOConfig(max_kl=float(case["max_kl"]), backtrack_coeff=float(case["backtrack_coeff"]),
-                      backtrack_iters=int(case["backtrack_iters"]))
+    return TRPOConfig(
+        max_kl=float(case["max_kl"]),
+        backtrack_coeff=float(case["backtrack_coeff"]),
+        backtrack_iters=int(case["backtrack_iters"]),
+    )
 
 
 def _search_outcome(fraction, improvement, kl, params) -> dict:
-    return {"rejected": fraction is None, "fraction": math.nan if fraction is None else float(fraction),
-            "improvement": float(improvement), "kl": float(kl),
-            "params": torch.cat([p.detach().reshape(-1) for p in params])}
+    return {
+        "rejected": fraction is None,
+        "fraction": math.nan if fraction is None else float(fraction),
+        "improvement": float(improvement),
+        "kl": float(kl),
+        "params": torch.cat([p.detach().reshape(-1) for p in params]),
+    }
 
 
 def line_search_probe(namespace: dict, inputs: dict) -> dict:
@@ -369,17 +460,24 @@ def line_search_probe(namespace: dict, inputs: dict) -> dict:
 def _compare_outcome(failures: Failures, got: dict, want: dict, where: str, tolerances: dict) -> None:
     """The line search's outcome (accepted fraction or rejection, improvement, KL, parameters) against the
     library's. ``tolerances``: (rtol, atol) of the numbers and of the parameters."""
-    if not failures.true(bool(got["rejected"]) == want["rejected"],
-                         f"{where}: accept the first fraction whose true mean KL is within max_kl and whose "
-                         "surrogate rose; when none does, reject (return None)"):
+    if not failures.true(
+        bool(got["rejected"]) == want["rejected"],
+        f"{where}: accept the first fraction whose true mean KL is within max_kl and whose "
+        "surrogate rose; when none does, reject (return None)",
+    ):
         return
     if not want["rejected"]:
         failures.close(got["fraction"], want["fraction"], f"{where}: the accepted fraction", 1e-12, 0)
-    failures.close(got["improvement"], want["improvement"], f"{where}: the surrogate's improvement",
-                   *tolerances["stats"])
+    failures.close(
+        got["improvement"], want["improvement"], f"{where}: the surrogate's improvement", *tolerances["stats"]
+    )
     failures.close(got["kl"], want["kl"], f"{where}: the mean KL", *tolerances["stats"])
-    failures.close(got["params"], want["params"], f"{where}: the parameters must be left at the accepted point "
-                   "(at theta_old when the step is rejected)", *tolerances["params"])
+    failures.close(
+        got["params"],
+        want["params"],
+        f"{where}: the parameters must be left at the accepted point (at theta_old when the step is rejected)",
+        *tolerances["params"],
+    )
 
 
 def line_search_verdict(inputs: dict, outputs: dict) -> list[str]:
@@ -389,8 +487,9 @@ def line_search_verdict(inputs: dict, outputs: dict) -> list[str]:
         theta, surrogate_and_kl, fvp = _toy_problem(case)
         direction = torch.as_tensor(case["direction"], dtype=torch.float64)
         want = _search_outcome(*_reference_line_search([theta], direction, fvp, surrogate_and_kl, config), [theta])
-        _compare_outcome(failures, outputs[key], want, f"problem {key[4:]}",
-                         {"stats": (1e-9, 1e-12), "params": (1e-7, 1e-7)})
+        _compare_outcome(
+            failures, outputs[key], want, f"problem {key[4:]}", {"stats": (1e-9, 1e-12), "params": (1e-7, 1e-7)}
+        )
     return failures
 
 
@@ -398,17 +497,24 @@ def update_inputs(rng: np.random.Generator) -> dict:
     """Five batches of 96-160 random states, actions and normalised advantages for small policies (3 or 4
     observations, 1 or 2 actions), with the old hidden tests' configurations, a trust region so wide that the
     line search backtracks, and a line search allowed no try (so the step is rejected)."""
-    configs = ({"max_kl": 0.01}, {"max_kl": 0.002, "cg_iters": 5}, {"max_kl": 0.05, "backtrack_coeff": 0.8},
-               {"max_kl": 2.0, "cg_damping": 0.01}, {"max_kl": 0.01, "backtrack_iters": 0})
+    configs = (
+        {"max_kl": 0.01},
+        {"max_kl": 0.002, "cg_iters": 5},
+        {"max_kl": 0.05, "backtrack_coeff": 0.8},
+        {"max_kl": 2.0, "cg_damping": 0.01},
+        {"max_kl": 0.01, "backtrack_iters": 0},
+    )
     cases = {}
     for k, config in enumerate(configs):
         obs_dim, act_dim, n = int(rng.integers(3, 5)), 1 + k % 2, int(rng.integers(96, 161))
         case = _policy_case(rng, obs_dim, act_dim, (8, 8), float(rng.uniform(0.5, 1.0)))
         advantages = rng.standard_normal(n)
-        case.update(obs=rng.uniform(-1.0, 1.0, (n, obs_dim)).astype(np.float32),
-                    actions=rng.normal(0.0, 0.8, (n, act_dim)).astype(np.float32),
-                    advantages=((advantages - advantages.mean()) / advantages.std()).astype(np.float32),
-                    config=config)
+        case.update(
+            obs=rng.uniform(-1.0, 1.0, (n, obs_dim)).astype(np.float32),
+            actions=rng.normal(0.0, 0.8, (n, act_dim)).astype(np.float32),
+            advantages=((advantages - advantages.mean()) / advantages.std()).astype(np.float32),
+            config=config,
+        )
         cases[f"case{k}"] = case
     return cases
 
@@ -421,8 +527,9 @@ def _reference_line_search(params, direction, fvp, surrogate_and_kl, config):
     """Exercise 6.7's contract met by the library: the step scaled to the trust region's edge, then
     :func:`~vdtutorial.trust_region.line_search`."""
     full_step = math.sqrt(2 * config.max_kl / (direction @ fvp(direction)).item()) * direction
-    return line_search(params, full_step, surrogate_and_kl, config.max_kl, config.backtrack_iters,
-                       config.backtrack_coeff)
+    return line_search(
+        params, full_step, surrogate_and_kl, config.max_kl, config.backtrack_iters, config.backtrack_coeff
+    )
 
 
 def update_probe(namespace: dict, inputs: dict) -> dict:
@@ -452,9 +559,11 @@ def _update_outcomes(namespace: dict, inputs: dict) -> dict:
         out[key] = {"keys": keys}
         if all(keys):
             fraction = None if isinstance(stats["line_search"], str) else stats["line_search"]
-            out[key].update(_search_outcome(fraction, stats["surrogate_improvement"], stats["mean_kl"], params),
-                            entropy=float(stats["entropy"]),
-                            label=str(stats["line_search"]) if fraction is None else "")
+            out[key].update(
+                _search_outcome(fraction, stats["surrogate_improvement"], stats["mean_kl"], params),
+                entropy=float(stats["entropy"]),
+                label=str(stats["line_search"]) if fraction is None else "",
+            )
     return out
 
 
@@ -469,9 +578,18 @@ def _library_update(case: dict, config: TRPOConfig, sign: float = 1.0) -> tuple[
     the case's policy: its statistics and its outcome (:func:`_search_outcome`)."""
     algo = TRPO(_policy(case), _env(), config)
     n = len(case["advantages"])
-    stats = algo.update(Batch(torch.as_tensor(case["obs"]), torch.as_tensor(case["actions"]),
-                              sign * torch.as_tensor(case["advantages"]), features=np.zeros((n, 1)),
-                              timesteps=np.zeros(n), returns=np.zeros(n), episode_returns=[], successes=0))
+    stats = algo.update(
+        Batch(
+            torch.as_tensor(case["obs"]),
+            torch.as_tensor(case["actions"]),
+            sign * torch.as_tensor(case["advantages"]),
+            features=np.zeros((n, 1)),
+            timesteps=np.zeros(n),
+            returns=np.zeros(n),
+            episode_returns=[],
+            successes=0,
+        )
+    )
     fraction = None if stats["line_search"] == "rejected" else stats["line_search"]
     return stats, _search_outcome(fraction, stats["surrogate_improvement"], stats["mean_kl"], algo.params)
 
@@ -485,12 +603,16 @@ def _named_slip(case: dict, got: dict, want: dict) -> str | None:
         return None
     start = torch.cat([p.detach().reshape(-1) for p in _policy(case).parameters() if p.requires_grad]).numpy()
     if float((np.asarray(got["params"]) - start) @ (np.asarray(want["params"]) - start)) < 0:
-        return ("the step went downhill on the surrogate, the opposite way to the library's: check the sign of your "
-                "surrogate, L = mean(pi_theta / pi_old * A), which the update maximises")
+        return (
+            "the step went downhill on the surrogate, the opposite way to the library's: check the sign of your "
+            "surrogate, L = mean(pi_theta / pi_old * A), which the update maximises"
+        )
     undamped = _library_update(case, dataclasses.replace(_update_config(case), cg_damping=0.0))[1]
     if np.allclose(got["params"], undamped["params"], **tolerance):
-        return ("the step is the one solved without damping: the Fisher-vector products of the direction's solve "
-                "must be (F + config.cg_damping I) v")
+        return (
+            "the step is the one solved without damping: the Fisher-vector products of the direction's solve "
+            "must be (F + config.cg_damping I) v"
+        )
     return None
 
 
@@ -506,17 +628,19 @@ def update_verdict(inputs: dict, outputs: dict) -> list[str]:
             failures.append(f"{where}: {slip}")
             continue
         if want["rejected"]:
-            failures.true(str(got["label"]) == "rejected", f"{where}: a rejected step's line_search is \"rejected\"")
+            failures.true(str(got["label"]) == "rejected", f'{where}: a rejected step\'s line_search is "rejected"')
         failures.close(got["entropy"], stats["entropy"], f"{where}: the entropy of pi_old", 1e-4, 1e-7)
         _compare_outcome(failures, got, want, where, {"stats": (1e-4, 1e-7), "params": (1e-4, 1e-6)})
     return failures
 
 
-CHECKS = [Check("ch06_reinforce", reinforce_inputs, reinforce_probe, reinforce_verdict),
-          Check("ch06_surrogate", surrogate_inputs, surrogate_probe, surrogate_verdict),
-          Check("ch06_conjugate_gradient", cg_inputs, cg_probe, cg_verdict),
-          Check("ch06_fisher_vector_product", fvp_inputs, fvp_probe, fvp_verdict),
-          Check("ch06_gae", gae_inputs, gae_probe, gae_verdict),
-          Check("ch06_linear_baseline", baseline_inputs, baseline_probe, baseline_verdict),
-          Check("ch06_line_search", line_search_inputs, line_search_probe, line_search_verdict),
-          Check("ch06_trpo_update", update_inputs, update_probe, update_verdict)]
+CHECKS = [
+    Check("ch06_reinforce", reinforce_inputs, reinforce_probe, reinforce_verdict),
+    Check("ch06_surrogate", surrogate_inputs, surrogate_probe, surrogate_verdict),
+    Check("ch06_conjugate_gradient", cg_inputs, cg_probe, cg_verdict),
+    Check("ch06_fisher_vector_product", fvp_inputs, fvp_probe, fvp_verdict),
+    Check("ch06_gae", gae_inputs, gae_probe, gae_verdict),
+    Check("ch06_linear_baseline", baseline_inputs, baseline_probe, baseline_verdict),
+    Check("ch06_line_search", line_search_inputs, line_search_probe, line_search_verdict),
+    Check("ch06_trpo_update", update_inputs, update_probe, update_verdict),
+]

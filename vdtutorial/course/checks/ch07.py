@@ -11,6 +11,7 @@ included where the smoothing is exact (a window of one iteration).
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 import functools
@@ -25,8 +26,9 @@ from vdtutorial.policy import GaussianPolicy
 from vdtutorial.vd import THRESHOLD, svdo_layers
 
 #: A small state-mode policy (6 joints and the cup: 9 numbers in, 6 joint changes out) with sparse VD layers.
-POLICY_CONFIG = dict(kind="state", obs_shape=(9,), action_dim=6, variational=True,
-                     sizes={"scene_hidden": (8, 6), "joint_hidden": (8,)})
+POLICY_CONFIG = dict(
+    kind="state", obs_shape=(9,), action_dim=6, variational=True, sizes={"scene_hidden": (8, 6), "joint_hidden": (8,)}
+)
 #: The methods of 7.2's rows, with labels of their own (the library's curves go by label, the exercise by method).
 _METHODS = {"vd": "VD pre-trained", "none": "no pre-training", "l2": "L2 pre-trained"}
 
@@ -57,9 +59,12 @@ def prune_inputs(rng: np.random.Generator) -> dict:
     """Three policies: one pruned at the default threshold (no argument), two at random thresholds."""
     cases = {}
     for k in range(3):
-        cases[f"case{k}"] = {"params": policy_arrays(rng), "default": k == 0,
-                             "threshold": THRESHOLD if k == 0 else float(rng.uniform(-2, 6)),
-                             "x": np.concatenate([rng.uniform(-3, 3, (12, 6)), rng.uniform(-0.5, 0.8, (12, 3))], 1)}
+        cases[f"case{k}"] = {
+            "params": policy_arrays(rng),
+            "default": k == 0,
+            "threshold": THRESHOLD if k == 0 else float(rng.uniform(-2, 6)),
+            "x": np.concatenate([rng.uniform(-3, 3, (12, 6)), rng.uniform(-0.5, 0.8, (12, 3))], 1),
+        }
     return cases
 
 
@@ -71,10 +76,14 @@ def prune_probe(namespace: dict, inputs: dict) -> dict:
         prune_for_rl = namespace["prune_for_rl"]
         mine = prune_for_rl(policy) if bool(case["default"]) else prune_for_rl(policy, float(case["threshold"]))
         x = torch.as_tensor(case["x"], dtype=torch.float32)
-        got = {"copy": mine is not policy, "original": policy.state_dict(),
-               "original_trains": {name: p.requires_grad for name, p in policy.named_parameters()},
-               "state": mine.state_dict(), "trains": {name: p.requires_grad for name, p in mine.named_parameters()},
-               "layers": len(svdo_layers(mine))}
+        got = {
+            "copy": mine is not policy,
+            "original": policy.state_dict(),
+            "original_trains": {name: p.requires_grad for name, p in policy.named_parameters()},
+            "state": mine.state_dict(),
+            "trains": {name: p.requires_grad for name, p in mine.named_parameters()},
+            "layers": len(svdo_layers(mine)),
+        }
         mine.train()
         with torch.no_grad():
             dist = mine.distribution(x)
@@ -96,31 +105,45 @@ def prune_verdict(inputs: dict, outputs: dict) -> list[str]:
         original_trains = {name: p.requires_grad for name, p in ref.named_parameters()}
         ref.prune_(float(case["threshold"]))
         failures.true(got["copy"], f"{where}: prune a copy, not the policy you were given")
-        failures.true(_same(got["original"], original) and _same(got["original_trains"], original_trains),
-                      f"{where}: the policy you were given must stay unchanged (unpruned)")
+        failures.true(
+            _same(got["original"], original) and _same(got["original_trains"], original_trains),
+            f"{where}: the policy you were given must stay unchanged (unpruned)",
+        )
         state = {name: value.numpy() for name, value in ref.state_dict().items()}
-        if not failures.true(int(got["layers"]) == len(svdo_layers(ref)) and set(got["state"]) == set(state),
-                             f"{where}: return a copy of the policy, with all of its layers"):
+        if not failures.true(
+            int(got["layers"]) == len(svdo_layers(ref)) and set(got["state"]) == set(state),
+            f"{where}: return a copy of the policy, with all of its layers",
+        ):
             continue
         layers = [name.rsplit(".", 1)[0] for name in state if name.endswith(".pruned")]
-        for part, what in (("pruned", "set every layer's `pruned` flag"),
-                           ("mask", "`mask` must keep exactly the weights with log alpha <= threshold"),
-                           ("weight", "pruned weights exactly 0, kept weights unchanged"),
-                           ("bias", "biases unchanged"), ("log_sigma2", "log sigma^2 unchanged")):
-            failures.true(all(np.array_equal(got["state"][f"{layer}.{part}"], state[f"{layer}.{part}"])
-                              for layer in layers), f"{where}: {what}")
+        for part, what in (
+            ("pruned", "set every layer's `pruned` flag"),
+            ("mask", "`mask` must keep exactly the weights with log alpha <= threshold"),
+            ("weight", "pruned weights exactly 0, kept weights unchanged"),
+            ("bias", "biases unchanged"),
+            ("log_sigma2", "log sigma^2 unchanged"),
+        ):
+            failures.true(
+                all(np.array_equal(got["state"][f"{layer}.{part}"], state[f"{layer}.{part}"]) for layer in layers),
+                f"{where}: {what}",
+            )
         trains = {name: p.requires_grad for name, p in ref.named_parameters()}
-        failures.true(all(not got["trains"][n] for n in trains if n.endswith("log_sigma2")),
-                      f"{where}: alpha (log_sigma2) must not train during RL")
-        failures.true(all(got["trains"][n] for n in trains if not n.endswith("log_sigma2")),
-                      f"{where}: the weights and biases must still train")
+        failures.true(
+            all(not got["trains"][n] for n in trains if n.endswith("log_sigma2")),
+            f"{where}: alpha (log_sigma2) must not train during RL",
+        )
+        failures.true(
+            all(got["trains"][n] for n in trains if not n.endswith("log_sigma2")),
+            f"{where}: the weights and biases must still train",
+        )
         x = torch.as_tensor(case["x"], dtype=torch.float32)
         with torch.no_grad():
             dist = ref.distribution(x)
             failures.close(got["mean"], dist.mean, f"{where}: the pruned policy's mean action", 1e-5, 1e-6)
             failures.close(got["std"], dist.stddev, f"{where}: the pruned policy's sigma", 1e-5, 1e-6)
-        failures.true(np.array_equal(got["mu_once"], got["mu_again"]),
-                      f"{where}: deterministic forward pass, also in train mode")
+        failures.true(
+            np.array_equal(got["mu_once"], got["mu_again"]), f"{where}: deterministic forward pass, also in train mode"
+        )
     return failures
 
 
@@ -129,9 +152,12 @@ def _curve_rows(rng: np.random.Generator, seeds: int, iterations: int) -> dict:
     shuffled; uneven env steps per iteration, seeds not numbered from 0."""
     env_steps = np.cumsum(rng.integers(100, 1000, iterations))
     seed_ids = rng.choice(100, seeds, replace=False)
-    rows = [(method, label, s, i, env_steps[i], rng.poisson(1 + slope * i / iterations))
-            for (method, label), slope in zip(_METHODS.items(), rng.uniform(0, 9, 3))
-            for s in seed_ids for i in range(iterations)]
+    rows = [
+        (method, label, s, i, env_steps[i], rng.poisson(1 + slope * i / iterations))
+        for (method, label), slope in zip(_METHODS.items(), rng.uniform(0, 9, 3))
+        for s in seed_ids
+        for i in range(iterations)
+    ]
     rows = [rows[j] for j in rng.permutation(len(rows))]
     columns = ("method", "label", "seed", "iteration", "env_steps", "successes")
     return {name: np.array([row[c] for row in rows]) for c, name in enumerate(columns)}
@@ -139,9 +165,19 @@ def _curve_rows(rng: np.random.Generator, seeds: int, iterations: int) -> dict:
 
 def _as_rows(rows: dict) -> list[dict]:
     """The rows as the chapter's dicts of plain Python values."""
-    return [{"method": str(m), "label": str(lab), "seed": int(s), "iteration": int(i), "env_steps": int(e),
-             "successes": int(v)} for m, lab, s, i, e, v in zip(*(rows[c] for c in
-             ("method", "label", "seed", "iteration", "env_steps", "successes")))]
+    return [
+        {
+            "method": str(m),
+            "label": str(lab),
+            "seed": int(s),
+            "iteration": int(i),
+            "env_steps": int(e),
+            "successes": int(v),
+        }
+        for m, lab, s, i, e, v in zip(
+            *(rows[c] for c in ("method", "label", "seed", "iteration", "env_steps", "successes"))
+        )
+    ]
 
 
 def steps_inputs(rng: np.random.Generator) -> dict:
@@ -168,8 +204,10 @@ def steps_probe(namespace: dict, inputs: dict) -> dict:
     for key in sorted(inputs):
         case = inputs[key]
         rows = _as_rows(case["rows"])
-        found = [namespace["steps_to_level"](rows, str(m), float(level), int(case["window"]))
-                 for m, level in zip(case["methods"], case["levels"])]
+        found = [
+            namespace["steps_to_level"](rows, str(m), float(level), int(case["window"]))
+            for m, level in zip(case["methods"], case["levels"])
+        ]
         out[key] = {"never": [f is None for f in found], "steps": [math.nan if f is None else float(f) for f in found]}
     return out
 
@@ -179,8 +217,10 @@ def steps_verdict(inputs: dict, outputs: dict) -> list[str]:
     for key in sorted(inputs):
         case, got, where = inputs[key], outputs[key], f"rows {key[-1]}"
         curves = curves_from_rows(_as_rows(case["rows"]), "successes", int(case["window"]))
-        want = [steps_to_reach(curves[_METHODS[str(m)]].steps, curves[_METHODS[str(m)]].mean, float(level))
-                for m, level in zip(case["methods"], case["levels"])]
+        want = [
+            steps_to_reach(curves[_METHODS[str(m)]].steps, curves[_METHODS[str(m)]].mean, float(level))
+            for m, level in zip(case["methods"], case["levels"])
+        ]
         never, steps = np.asarray(got["never"]), np.asarray(got["steps"], dtype=float)
         if not failures.true(never.shape == steps.shape == (len(want),), f"{where}: one answer per question"):
             continue
@@ -189,10 +229,14 @@ def steps_verdict(inputs: dict, outputs: dict) -> list[str]:
         if wrong_never:
             failures.append(f"{where}, question {wrong_never[0]}: a level the smoothed curve never reaches gives None")
         if wrong_steps:
-            failures.append(f"{where}, question {wrong_steps[0]}: the env steps of the first point where the smoothed "
-                            "mean over seeds is at or above the level")
+            failures.append(
+                f"{where}, question {wrong_steps[0]}: the env steps of the first point where the smoothed "
+                "mean over seeds is at or above the level"
+            )
     return failures
 
 
-CHECKS = [Check("ch07_prune", prune_inputs, prune_probe, prune_verdict),
-          Check("ch07_steps_to_level", steps_inputs, steps_probe, steps_verdict)]
+CHECKS = [
+    Check("ch07_prune", prune_inputs, prune_probe, prune_verdict),
+    Check("ch07_steps_to_level", steps_inputs, steps_probe, steps_verdict),
+]

@@ -9,6 +9,7 @@ actions the env got; the grader replays each trajectory in its own env, built on
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 import functools
@@ -50,17 +51,24 @@ def success_inputs(rng: np.random.Generator) -> dict:
     quaternions[-20:] = rng.normal(size=(20, 4))
     quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
     quaternions *= rng.choice([-1.0, 1.0], (FRAMES, 1))
-    exact_cups = cups[:len(_EXACT)]
-    return {"cups": np.concatenate([cups, exact_cups]),
-            "tcps": np.concatenate([tcps, [grasp_point(c) for c in exact_cups]]),
-            "quaternions": np.concatenate([quaternions, _EXACT])}
+    exact_cups = cups[: len(_EXACT)]
+    return {
+        "cups": np.concatenate([cups, exact_cups]),
+        "tcps": np.concatenate([tcps, [grasp_point(c) for c in exact_cups]]),
+        "quaternions": np.concatenate([quaternions, _EXACT]),
+    }
 
 
 def success_probe(namespace: dict, inputs: dict) -> dict:
-    found = [namespace["grasp_success"](tcp, q, cup)
-             for tcp, q, cup in zip(inputs["tcps"], inputs["quaternions"], inputs["cups"])]
-    return {"success": [bool(f[0]) for f in found], "distance": [float(f[1]) for f in found],
-            "tilt": [float(f[2]) for f in found]}
+    found = [
+        namespace["grasp_success"](tcp, q, cup)
+        for tcp, q, cup in zip(inputs["tcps"], inputs["quaternions"], inputs["cups"])
+    ]
+    return {
+        "success": [bool(f[0]) for f in found],
+        "distance": [float(f[1]) for f in found],
+        "tilt": [float(f[2]) for f in found],
+    }
 
 
 def _first_wrong(failures: Failures, wrong: np.ndarray, what: str) -> None:
@@ -74,9 +82,11 @@ def success_verdict(inputs: dict, outputs: dict) -> list[str]:
     approach = [np.array(p.getMatrixFromQuaternion(q)).reshape(3, 3)[:, 2] for q in inputs["quaternions"]]
     tilt = np.array([tilt_deg(a) for a in approach])
     success = (distance < POSITION_TOLERANCE) & (tilt < TILT_TOLERANCE_DEG)
-    for key, want, what, atol in (("distance", distance, "the distance to the grasp point", 1e-9),
-                                  ("tilt", tilt, "the tilt of the approach axis (degrees)", 1e-4),
-                                  ("success", success, "the success flag", 0)):
+    for key, want, what, atol in (
+        ("distance", distance, "the distance to the grasp point", 1e-9),
+        ("tilt", tilt, "the tilt of the approach axis (degrees)", 1e-4),
+        ("success", success, "the success flag", 0),
+    ):
         got = np.asarray(outputs[key], dtype=float)
         if failures.true(got.shape == want.shape, f"{what}: one per hand frame"):
             _first_wrong(failures, np.flatnonzero(~(np.abs(got - want) <= atol)), what)
@@ -112,11 +122,17 @@ def trajectory_inputs(rng: np.random.Generator) -> dict:
     """Three random env seeds; for each, the expert, a random constant action and a slow constant action."""
     cases = {}
     for k, seed in enumerate(rng.choice(10**6, 3, replace=False)):
-        for name, constant in (("expert", None), ("constant", rng.uniform(-MAX_DELTA, MAX_DELTA, 6)),
-                               ("slow", rng.uniform(-MAX_DELTA, MAX_DELTA, 6) / 50)):
-            cases[f"{name}{k}"] = {"seed": int(seed), "expert": constant is None,
-                                   "noise_seed": int(rng.integers(2**31)),
-                                   "action": np.zeros(6) if constant is None else constant}
+        for name, constant in (
+            ("expert", None),
+            ("constant", rng.uniform(-MAX_DELTA, MAX_DELTA, 6)),
+            ("slow", rng.uniform(-MAX_DELTA, MAX_DELTA, 6) / 50),
+        ):
+            cases[f"{name}{k}"] = {
+                "seed": int(seed),
+                "expert": constant is None,
+                "noise_seed": int(rng.integers(2**31)),
+                "action": np.zeros(6) if constant is None else constant,
+            }
     return cases
 
 
@@ -146,9 +162,14 @@ def trajectory_probe(namespace: dict, inputs: dict) -> dict:
     for key in sorted(inputs):
         env = _Recorder(_grasp_env())
         found = namespace["run_trajectory"](env, _policy(env, inputs[key]), int(inputs[key]["seed"]))
-        out[key] = {"outcome": str(found["outcome"]), "steps": int(found["steps"]), "return": float(found["return"]),
-                    "discounted": float(found["discounted"]), "starts": np.array(env.starts).reshape(-1, 9),
-                    "actions": np.array(env.actions).reshape(-1, 6)}
+        out[key] = {
+            "outcome": str(found["outcome"]),
+            "steps": int(found["steps"]),
+            "return": float(found["return"]),
+            "discounted": float(found["discounted"]),
+            "starts": np.array(env.starts).reshape(-1, 9),
+            "actions": np.array(env.actions).reshape(-1, 6),
+        }
     return out
 
 
@@ -167,17 +188,28 @@ def trajectory_verdict(inputs: dict, outputs: dict) -> list[str]:
                 break
         outcome = "success" if info["is_success"] else "collision" if info["is_failure"] else "time out"
         starts, taken = np.asarray(got["starts"], dtype=float), np.asarray(got["actions"], dtype=float)
-        failures.true(len(starts) > 0 and np.allclose(starts[-1], start, rtol=0, atol=1e-9),
-                      f"{where}: start the trajectory with env.reset(seed=seed)")
-        failures.true(taken.shape == np.shape(actions) and np.allclose(taken, actions, rtol=0, atol=1e-9),
-                      f"{where}: the actions taken must be the policy's mean actions, one per step until the end")
+        failures.true(
+            len(starts) > 0 and np.allclose(starts[-1], start, rtol=0, atol=1e-9),
+            f"{where}: start the trajectory with env.reset(seed=seed)",
+        )
+        failures.true(
+            taken.shape == np.shape(actions) and np.allclose(taken, actions, rtol=0, atol=1e-9),
+            f"{where}: the actions taken must be the policy's mean actions, one per step until the end",
+        )
         failures.true(str(got["outcome"]) == outcome, f"{where}: the outcome")
         failures.true(int(got["steps"]) == len(rewards), f"{where}: the number of steps")
         failures.close(got["return"], sum(rewards), f"{where}: the return", 0, 1e-9)
-        failures.close(got["discounted"], sum(gamma ** t * r for t, r in enumerate(rewards)),
-                       f"{where}: the discounted return", 0, 1e-9)
+        failures.close(
+            got["discounted"],
+            sum(gamma**t * r for t, r in enumerate(rewards)),
+            f"{where}: the discounted return",
+            0,
+            1e-9,
+        )
     return failures
 
 
-CHECKS = [Check("ch08_grasp_success", success_inputs, success_probe, success_verdict),
-          Check("ch08_trajectory_return", trajectory_inputs, trajectory_probe, trajectory_verdict)]
+CHECKS = [
+    Check("ch08_grasp_success", success_inputs, success_probe, success_verdict),
+    Check("ch08_trajectory_return", trajectory_inputs, trajectory_probe, trajectory_verdict),
+]

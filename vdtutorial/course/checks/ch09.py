@@ -11,6 +11,7 @@ action on the others.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -55,22 +56,35 @@ def _demos_arrays(rng: np.random.Generator) -> dict:
     """A data set of 20 episodes of 3 to 12 steps: random joints and cups, labels with a random offset."""
     lengths = rng.integers(3, 13, 20)
     n = int(lengths.sum())
-    return {"joints": rng.uniform(-np.pi, np.pi, (n, N_JOINTS)), "cup": rng.uniform(_CUP_LOW, _CUP_HIGH, (n, 3)),
-            "actions": rng.normal(0, 0.3, (n, N_JOINTS)) + rng.normal(0, 0.3, N_JOINTS),
-            "episode": np.repeat(np.arange(20), lengths), "t": np.concatenate([np.arange(k) for k in lengths])}
+    return {
+        "joints": rng.uniform(-np.pi, np.pi, (n, N_JOINTS)),
+        "cup": rng.uniform(_CUP_LOW, _CUP_HIGH, (n, 3)),
+        "actions": rng.normal(0, 0.3, (n, N_JOINTS)) + rng.normal(0, 0.3, N_JOINTS),
+        "episode": np.repeat(np.arange(20), lengths),
+        "t": np.concatenate([np.arange(k) for k in lengths]),
+    }
 
 
 def _demos(arrays: dict) -> Demos:
-    return Demos(**{key: np.asarray(arrays[key], dtype=np.int64 if key in ("episode", "t") else np.float32)
-                    for key in ("joints", "cup", "actions", "episode", "t")})
+    return Demos(
+        **{
+            key: np.asarray(arrays[key], dtype=np.int64 if key in ("episode", "t") else np.float32)
+            for key in ("joints", "cup", "actions", "episode", "t")
+        }
+    )
 
 
 def _round(rng: np.random.Generator, k: int, learner: bool) -> dict:
     """Round ``k``'s inputs: a learner and its data set (or none), states and an expert action to act on."""
-    case = {"k": k, "learner": learner, "draw_seed": int(rng.integers(2**31)),
-            "states": np.column_stack([rng.uniform(-np.pi, np.pi, (_STATES, N_JOINTS)),
-                                       rng.uniform(_CUP_LOW, _CUP_HIGH, (_STATES, 3))]),
-            "expert_action": rng.uniform(5, 9, N_JOINTS) * rng.choice([-1, 1], N_JOINTS)}
+    case = {
+        "k": k,
+        "learner": learner,
+        "draw_seed": int(rng.integers(2**31)),
+        "states": np.column_stack(
+            [rng.uniform(-np.pi, np.pi, (_STATES, N_JOINTS)), rng.uniform(_CUP_LOW, _CUP_HIGH, (_STATES, 3))]
+        ),
+        "expert_action": rng.uniform(5, 9, N_JOINTS) * rng.choice([-1, 1], N_JOINTS),
+    }
     if learner:
         case.update(params=policy_arrays(rng), demos=_demos_arrays(rng))
     return case
@@ -88,17 +102,22 @@ def _plan_and_draws(plan, case: dict, draws: int) -> dict:
 
 def dart_inputs(rng: np.random.Generator) -> dict:
     """Round 0 (no learner), round 1 and a random later round, each with its own learner and data set."""
-    return {"round0": _round(rng, 0, False), "round1": _round(rng, 1, True),
-            "roundk": _round(rng, int(rng.integers(2, 6)), True)}
+    return {
+        "round0": _round(rng, 0, False),
+        "round1": _round(rng, 1, True),
+        "roundk": _round(rng, int(rng.integers(2, 6)), True),
+    }
 
 
 def dart_probe(namespace: dict, inputs: dict) -> dict:
     out = {}
     for key in sorted(inputs):
         got = _plan_and_draws(namespace["dart_plan"], inputs[key], DART_DRAWS)
-        out[key] = {"covariance": np.asarray(got["record"]["covariance"], dtype=np.float64),
-                    "sigma_per_joint": np.asarray(got["record"]["sigma_per_joint"], dtype=np.float64),
-                    "actions": got["actions"]}
+        out[key] = {
+            "covariance": np.asarray(got["record"]["covariance"], dtype=np.float64),
+            "sigma_per_joint": np.asarray(got["record"]["sigma_per_joint"], dtype=np.float64),
+            "actions": got["actions"],
+        }
     return out
 
 
@@ -108,7 +127,7 @@ def _noise_matches(actions: np.ndarray, centre: np.ndarray, covariance: np.ndarr
     noise, n = actions - centre, len(actions)
     variance = np.diag(covariance)
     mean_ok = np.abs(noise.mean(0)) <= 6 * np.sqrt(variance / n) + 1e-12
-    spread = np.sqrt((np.outer(variance, variance) + covariance ** 2) / n)
+    spread = np.sqrt((np.outer(variance, variance) + covariance**2) / n)
     return bool(np.all(mean_ok) and np.all(np.abs(noise.T @ noise / n - covariance) <= 6 * spread + 1e-12))
 
 
@@ -117,26 +136,37 @@ def dart_verdict(inputs: dict, outputs: dict) -> list[str]:
     for key in sorted(inputs):
         case, got, where = inputs[key], outputs[key], f"round {int(inputs[key]['k'])}"
         if bool(case["learner"]):
-            covariance = estimate_noise(policy_from_arrays(case["params"]), _demos(case["demos"]),
-                                        cloning_config("vd"), seed=0)
+            covariance = estimate_noise(
+                policy_from_arrays(case["params"]), _demos(case["demos"]), cloning_config("vd"), seed=0
+            )
             what = "Sigma_hat: the mean outer product of the eval-mode errors on the held-out states"
         else:
-            covariance, what = START_SIGMA ** 2 * np.eye(N_JOINTS), "round 0: Sigma_0 = START_SIGMA^2 I"
+            covariance, what = START_SIGMA**2 * np.eye(N_JOINTS), "round 0: Sigma_0 = START_SIGMA^2 I"
         failures.close(got["covariance"], covariance, f"{where}: {what}", 1e-4, 1e-10)
-        failures.close(got["sigma_per_joint"], sigma_per_joint(covariance), f"{where}: sigma per joint, the "
-                       "standard deviation of each joint's noise", 1e-4, 1e-10)
+        failures.close(
+            got["sigma_per_joint"],
+            sigma_per_joint(covariance),
+            f"{where}: sigma per joint, the standard deviation of each joint's noise",
+            1e-4,
+            1e-10,
+        )
         actions = np.asarray(got["actions"], dtype=float)
         if failures.true(actions.shape == (DART_DRAWS, N_JOINTS), f"{where}: the behaviour returns one action"):
-            failures.true(_noise_matches(actions, case["expert_action"], covariance),
-                          f"{where}: the executed action must be the expert's plus N(0, Sigma)")
+            failures.true(
+                _noise_matches(actions, case["expert_action"], covariance),
+                f"{where}: the executed action must be the expert's plus N(0, Sigma)",
+            )
     return failures
 
 
 def dagger_inputs(rng: np.random.Generator) -> dict:
     """Round 0 without and with a learner (the expert alone), then two random rounds 1 to 4 with learners."""
-    return {"round0": _round(rng, 0, False), "round0_learner": _round(rng, 0, True),
-            "roundk": _round(rng, int(rng.integers(1, 3)), True),
-            "roundk_later": _round(rng, int(rng.integers(3, 5)), True)}
+    return {
+        "round0": _round(rng, 0, False),
+        "round0_learner": _round(rng, 0, True),
+        "roundk": _round(rng, int(rng.integers(1, 3)), True),
+        "roundk_later": _round(rng, int(rng.integers(3, 5)), True),
+    }
 
 
 def dagger_probe(namespace: dict, inputs: dict) -> dict:
@@ -165,10 +195,14 @@ def dagger_verdict(inputs: dict, outputs: dict) -> list[str]:
             with torch.no_grad():
                 mean = policy.act(case["states"].astype(np.float32), deterministic=True)
             learner = mean[np.arange(DAGGER_DRAWS) % _STATES]
-            failures.true(np.allclose(actions[~expert], learner[~expert], rtol=0, atol=1e-5),
-                          f"{where}: when the expert does not act, the learner's mean action (eval mode) on the state")
+            failures.true(
+                np.allclose(actions[~expert], learner[~expert], rtol=0, atol=1e-5),
+                f"{where}: when the expert does not act, the learner's mean action (eval mode) on the state",
+            )
     return failures
 
 
-CHECKS = [Check("ch09_dart_noise", dart_inputs, dart_probe, dart_verdict),
-          Check("ch09_dagger_plan", dagger_inputs, dagger_probe, dagger_verdict)]
+CHECKS = [
+    Check("ch09_dart_noise", dart_inputs, dart_probe, dart_verdict),
+    Check("ch09_dagger_plan", dagger_inputs, dagger_probe, dagger_verdict),
+]

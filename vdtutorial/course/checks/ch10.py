@@ -8,6 +8,7 @@ grader recomputes them with :func:`vdtutorial.experiments.effects.holm_rejection
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,8 +19,11 @@ from vdtutorial.experiments.effects import holm_rejections, verdict, welch_inter
 #: The exercises' default confidence (welch_verdict) and alpha (holm), as their signatures in the chapter give them.
 CONFIDENCE, ALPHA = 0.95, 0.05
 #: Fixed cases of 10.1 (a, b, direction): not confirmed, contradicted, confirmed.
-_FIXED = (([3.0, 4.0, 5.0], [1.0, 2.0, 3.0], 1), ([10.0, 11.0, 12.0], [1.0, 2.0, 3.0], -1),
-          ([10.0, 11.0, 12.0], [1.0, 2.0, 3.0], 1))
+_FIXED = (
+    ([3.0, 4.0, 5.0], [1.0, 2.0, 3.0], 1),
+    ([10.0, 11.0, 12.0], [1.0, 2.0, 3.0], -1),
+    ([10.0, 11.0, 12.0], [1.0, 2.0, 3.0], 1),
+)
 
 
 def welch_inputs(rng: np.random.Generator) -> dict:
@@ -27,12 +31,21 @@ def welch_inputs(rng: np.random.Generator) -> dict:
     cases = {}
     for k in range(10):
         n_a, n_b = rng.integers(3, 13, 2)
-        cases[f"case{k}"] = {"a": rng.normal(rng.uniform(-4, 4), rng.uniform(0.3, 3), n_a),
-                             "b": rng.normal(0, rng.uniform(0.3, 3), n_b), "direction": int(rng.choice([-1, 1])),
-                             "default": k < 4, "confidence": CONFIDENCE if k < 4 else float(rng.uniform(0.5, 0.99))}
+        cases[f"case{k}"] = {
+            "a": rng.normal(rng.uniform(-4, 4), rng.uniform(0.3, 3), n_a),
+            "b": rng.normal(0, rng.uniform(0.3, 3), n_b),
+            "direction": int(rng.choice([-1, 1])),
+            "default": k < 4,
+            "confidence": CONFIDENCE if k < 4 else float(rng.uniform(0.5, 0.99)),
+        }
     for k, (a, b, direction) in enumerate(_FIXED, start=10):
-        cases[f"case{k}"] = {"a": np.array(a), "b": np.array(b), "direction": direction, "default": True,
-                             "confidence": CONFIDENCE}
+        cases[f"case{k}"] = {
+            "a": np.array(a),
+            "b": np.array(b),
+            "direction": direction,
+            "default": True,
+            "confidence": CONFIDENCE,
+        }
     return cases
 
 
@@ -41,8 +54,11 @@ def welch_probe(namespace: dict, inputs: dict) -> dict:
     for key in sorted(inputs):
         case = inputs[key]
         a, b, direction = [float(x) for x in case["a"]], [float(x) for x in case["b"]], int(case["direction"])
-        found = namespace["welch_verdict"](a, b, direction) if bool(case["default"]) else \
-            namespace["welch_verdict"](a, b, direction, confidence=float(case["confidence"]))
+        found = (
+            namespace["welch_verdict"](a, b, direction)
+            if bool(case["default"])
+            else namespace["welch_verdict"](a, b, direction, confidence=float(case["confidence"]))
+        )
         out[key] = {"interval": [float(x) for x in found[:3]], "verdict": str(found[3])}
     return out
 
@@ -55,8 +71,10 @@ def welch_verdict(inputs: dict, outputs: dict) -> list[str]:
         interval = np.asarray(got["interval"], dtype=float)
         failures.close(interval[:1], [estimate], f"{where}: the estimate mean(a) - mean(b)", 1e-9, 1e-12)
         failures.close(interval[1:], [low, high], f"{where}: Welch's t interval at the given confidence", 1e-9, 1e-12)
-        failures.true(str(got["verdict"]) == verdict(low, high, int(case["direction"])),
-                      f"{where}: the verdict, read in the claim's direction")
+        failures.true(
+            str(got["verdict"]) == verdict(low, high, int(case["direction"])),
+            f"{where}: the verdict, read in the claim's direction",
+        )
     return failures
 
 
@@ -92,10 +110,15 @@ def holm_verdict(inputs: dict, outputs: dict) -> list[str]:
         case, got, where = inputs[key], outputs[key], f"family {key[4:]}"
         want = holm_rejections([float(x) for x in case["p"]], float(case["alpha"]))
         failures.true(got["is_list"], f"{where}: return a list, one entry per p-value")
-        failures.equal(np.asarray(got["rejected"], dtype=float).reshape(-1), np.asarray(want, dtype=float),
-                       f"{where}: the rejections (in the order of p_values)")
+        failures.equal(
+            np.asarray(got["rejected"], dtype=float).reshape(-1),
+            np.asarray(want, dtype=float),
+            f"{where}: the rejections (in the order of p_values)",
+        )
     return failures
 
 
-CHECKS = [Check("ch10_welch_verdict", welch_inputs, welch_probe, welch_verdict),
-          Check("ch10_holm", holm_inputs, holm_probe, holm_verdict)]
+CHECKS = [
+    Check("ch10_welch_verdict", welch_inputs, welch_probe, welch_verdict),
+    Check("ch10_holm", holm_inputs, holm_probe, holm_verdict),
+]
