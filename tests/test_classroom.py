@@ -315,7 +315,8 @@ ATTACKS = {
     # the kernel exits in the answer: nothing after it runs
     "quitter": "import os\nos._exit(0)\n",
     # objects that compare equal to anything: a tensor subclass and an object with __eq__ and __array__
-    "flatterer": "class _Yes(torch.Tensor):\n    def __eq__(self, other):\n        return torch.ones_like(other, dtype=torch.bool)\n"
+    "flatterer": "class _Yes(torch.Tensor):\n    def __eq__(self, other):\n"
+    "        return torch.ones_like(other, dtype=torch.bool)\n"
     "class _Always:\n    def __eq__(self, other):\n        return True\n"
     "    def __array__(self, *args, **kwargs):\n        return np.zeros(1)\n"
     + _FAKE_LAYER

@@ -18,8 +18,8 @@ from packaging.requirements import Requirement
 from packaging.specifiers import SpecifierSet
 
 rattler = pytest.importorskip("rattler")  # the test extra's; CI's Colab leg runs without it
-import yaml
-from rattler.exceptions import SolverError
+import yaml  # noqa: E402 (after the skip: only the test extra brings it)
+from rattler.exceptions import SolverError  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 REFERENCE = ROOT / "tests" / "reference"

@@ -54,9 +54,9 @@ RECORD_ERRORS = f"""(() => {{ window.__errors = [];
         if (args.direction === 'recv' && m.header.msg_type === 'error')
             window.__errors.push(m.content.ename + ': ' + m.content.evalue);
     }}); return true; }})()"""
-RUN_ALL = f"""(() => {{ window.__ranAll = false;
-    jupyterapp.commands.execute('notebook:run-all-cells').then(() => {{ window.__ranAll = true; }});
-    return true; }})()"""
+RUN_ALL = """(() => { window.__ranAll = false;
+    jupyterapp.commands.execute('notebook:run-all-cells').then(() => { window.__ranAll = true; });
+    return true; })()"""
 #: Every slider's readout, the pictures of the widget box it sits in, a digest of each picture's bytes and the
 #: box's caption (its HTML text).
 SLIDERS = """(async () => Promise.all([...document.querySelectorAll('.jp-OutputArea .widget-slider')].map(async s => {

@@ -28,17 +28,6 @@ HISTORY = re.compile(
 )
 #: Another project's issue, cited by its repository: "ray-project/ray issue 123".
 CITED_REPOSITORY = re.compile(r"[\w.-]+/[\w.-]+\s+$")
-#: Modules whose docstrings and comments other work is still cleaning: strike each one once it passes. The list
-#: may only shrink (the second test says when an entry is clean).
-STILL_TO_CLEAN = {
-    "course/sandbox.py",
-    "experiments/beyond.py",
-    "experiments/digits.py",
-    "experiments/free_choices.py",
-    "experiments/pretrain_stop.py",
-    "experiments/reproduce.py",
-    "experiments/runs.py",
-}
 
 
 def docstrings_and_comments(path: Path) -> list[tuple[int, str]]:
@@ -85,12 +74,6 @@ def test_the_pattern_tells_history_from_reference():
 
 def test_no_module_names_an_issue_a_date_or_a_measurement():
     found = offences()
-    telling = {module: lines for module, lines in found.items() if module not in STILL_TO_CLEAN}
-    assert not telling, "history in docstrings or comments (move it to docs/):\n" + "\n".join(
-        f"{module}: {'; '.join(lines)}" for module, lines in sorted(telling.items())
+    assert not found, "history in docstrings or comments (move it to docs/):\n" + "\n".join(
+        f"{module}: {'; '.join(lines)}" for module, lines in sorted(found.items())
     )
-
-
-def test_the_modules_still_to_clean_are_listed_only_while_they_tell_history():
-    cleaned = sorted(STILL_TO_CLEAN - set(offences()))
-    assert not cleaned, f"clean now, so strike them from STILL_TO_CLEAN: {cleaned}"

@@ -39,7 +39,9 @@ OLD_USAGES = {
     r"\\beta\s*(?:=\s*\\sqrt|\\,?\s*[su]\b|F\^)": "TRPO's step scale is eta, not beta",
     r"\\beta_[ik0]|\\beta\^[ik]": "DAgger's mixture is xi, not beta",
     r"\\Sigma_\\alpha|\\alpha\\,\\hat\\Sigma|prior \$\\alpha\$": "DART's total error is bar e, not alpha",
-    r"\\mathcal\{N\}\(\s*\\theta|\\theta_\{ij\}|\\log\\theta\^2|\\theta\s*\\odot": "a weight's mean is bar w, not theta",
+    r"\\mathcal\{N\}\(\s*\\theta|\\theta_\{ij\}|\\log\\theta\^2|\\theta\s*\\odot": (
+        "a weight's mean is bar w, not theta"
+    ),
     r"\\log\s*\\sigma\^2|\\sigma\^2_\{ij\}|\\sigma_\{ij\}": "a weight's variance is omega^2, not sigma^2",
     r"\\lambda\^2\s*I|damping \$\\lambda\$": "the IK damping is zeta, not lambda",
     r"\\lambda\s*\\sum|\\lambda\s*=\s*\\texttt": "the L2 coefficient is kappa, not lambda",

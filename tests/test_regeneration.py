@@ -6,7 +6,8 @@ What determinism covers (docs/results.md, "Regenerable results, and what determi
 (torch, numpy, pybullet, gymnasium as recorded in NAME.json), one torch thread per run (the experiments
 set it; other thread counts change the order of floating-point sums), the AVX2 vector kernels (which
 conftest pins before numpy loads, :mod:`vdtutorial.runner.kernels`, as ``--exact-kernels`` does for a command;
-without the pins an AVX-512 CPU fails this test). Counts are compared exactly, floats to a relative 1e-6 (bit for bit on the
+without the pins an AVX-512 CPU fails this test). Counts are compared exactly, floats to a relative 1e-6 (bit for bit
+on the
 machines measured; the tolerance leaves room for a last bit, far below any change of the code).
 
 The pins are not the whole story: on an Intel Xeon with AVX-512 (measured 2026-12-02, torch 2.13.0+cpu), with
@@ -98,7 +99,8 @@ def _shipped(folder: str, method: str, seed: int):
 
 @dataclass(frozen=True)
 class Tolerance:
-    """How far a regenerated float (``rel``, ``abs``) or tensor (``rel``, ``tensor_abs``) may be from the shipped one."""
+    """How far a regenerated float (``rel``, ``abs``) or tensor (``rel``, ``tensor_abs``) may be from the shipped
+    one."""
 
     rel: float
     abs: float
@@ -298,7 +300,10 @@ def _seeds_of(folder, seeds, dest, methods=None):
     with ``--seeds`` those (and ``--methods``)."""
     record = json.loads((RESULTS / folder / f"{record_name(folder)}.json").read_text())
     rows = read_rows(results_file(RESULTS / folder, record["experiment"]))
-    kept = lambda run: run["seed"] in seeds and (methods is None or run["method"] in methods)
+
+    def kept(run):
+        return run["seed"] in seeds and (methods is None or run["method"] in methods)
+
     dest.mkdir()
     write_csv(results_file(dest, record["experiment"]), [r for r in rows if kept(r)])
     parts = record["command"].split(" --seeds ")

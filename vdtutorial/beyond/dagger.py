@@ -53,7 +53,8 @@ def dagger(
     config: PretrainConfig | None = None,
     progress: bool = False,
 ) -> RoundsResult:
-    """DAgger's rounds (module docstring, "Choices made here") with beta_i = ``beta``^i, cloning with ``reg``; ``samples``
+    """DAgger's rounds (module docstring, "Choices made here") with beta_i = ``beta``^i, cloning with ``reg``;
+    ``samples``
     expert labels in all, split evenly over the rounds."""
     if not 0 <= beta <= 1:
         raise ValueError(f"beta must be in [0, 1], got {beta!r}")

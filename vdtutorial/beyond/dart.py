@@ -8,7 +8,8 @@ demonstrations visit the states the learner will drift into. For Gaussian noise 
 has a closed form (Section 5 of their paper, "optimizing for Gaussian noise"): the covariance of the
 learner's error along the supervisor's trajectories,
 
-    Sigma_hat = (1/T) E_{xi ~ p(xi | pi_exp, Sigma_k)} [ sum_t (pi_theta(x_t) - pi_exp(x_t)) (pi_theta(x_t) - pi_exp(x_t))^T ],
+    Sigma_hat = (1/T) E_{xi ~ p(xi | pi_exp, Sigma_k)} [ sum_t (pi_theta(x_t) - pi_exp(x_t)) (pi_theta(x_t) -
+    pi_exp(x_t))^T ],
 
 i.e. the mean outer product of the error per visited state (not centred: a learner that errs always the
 same way must be disturbed that way too). They also give a scaled variant, Sigma_alpha = alpha /
@@ -41,7 +42,8 @@ def noise_estimate(errors: np.ndarray, alpha: float | None = None, horizon: int 
 
     **The variant implemented here** is the unscaled closed form Sigma_hat (:func:`noise_estimate`; pass
     ``alpha`` and ``horizon`` for Sigma_alpha). The expectation is taken over the *held-out* episodes of the
-    aggregated demonstrations (the whole episodes that pre-training did not fit, :func:`vdtutorial.pretrain.split_by_episode`):
+    aggregated demonstrations (the whole episodes that pre-training did not fit,
+    :func:`vdtutorial.pretrain.split_by_episode`):
     they are supervisor trajectories under the current noise that the policy has not been trained on, which is
     what the expectation asks for; on its own training states the error would be underestimated. The labels
     pi_exp(x_t) are the ones already stored with those states, so the estimate costs no expert query.
@@ -97,7 +99,8 @@ def dart(
     config: PretrainConfig | None = None,
     progress: bool = False,
 ) -> RoundsResult:
-    """DART's rounds (module docstring, "chooses the noise instead") from Sigma_0 = ``start_sigma``^2 I, cloning with ``reg``.
+    """DART's rounds (module docstring, "chooses the noise instead") from Sigma_0 = ``start_sigma``^2 I, cloning with
+    ``reg``.
 
     Each round's record holds the covariance it collected with and its per-joint standard deviation; the
     last one also holds ``next_covariance`` (and ``next_sigma_per_joint``), the estimate from the final

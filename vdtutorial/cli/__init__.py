@@ -4,7 +4,8 @@ paper's experiments, the benchmarks, the chapters written out and the classroom.
 Modules, one idea each: :mod:`~vdtutorial.cli.parser` (the commands and their options),
 :mod:`~vdtutorial.cli.commands` (what each command does), :mod:`~vdtutorial.cli.arguments` (argument types
 and shared options), :mod:`~vdtutorial.cli.bench` (the benchmarks) and :mod:`~vdtutorial.cli.shadowing` (a clone's
-folder taken for the package). Commands import the library when they run, so ``--help`` loads no torch. :func:`main` runs one command and
+folder taken for the package). Commands import the library when they run, so ``--help`` loads no torch. :func:`main`
+runs one command and
 turns an error the user can fix into one line and exit code 2.
 
 Taught in chapter 00.

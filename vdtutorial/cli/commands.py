@@ -332,7 +332,8 @@ def _figure_options(args) -> dict:
         n, sigma = missing[0]
         raise CommandError(
             f"no demonstrations of seed {args.demo_seed} for {n} samples at Sigma {sigma:g}: make them with "
-            f"{demo_command(task, n, sigma, args.demo_seed)} --out {recorded_path(demo_path(task, n, sigma, args.demo_seed))}"
+            f"{demo_command(task, n, sigma, args.demo_seed)} "
+            f"--out {recorded_path(demo_path(task, n, sigma, args.demo_seed))}"
         )
     return options
 

@@ -9,7 +9,8 @@ reads a cell of the student's code and names each of these, in words a teacher c
 * **code reached by a string, or the kernel**: ``exec``, ``eval``, ``compile``, ``__import__``, ``globals()``,
   ``vars()``, ``locals()``, ``getattr``/``setattr``/``delattr`` whose name is not a plain string, ``sys.modules``,
   ``__dict__``, ``__class__``, ``type(obj)``, importing ``importlib``, ``inspect``, ``gc``, ``builtins``, ``ctypes``
-  or the grader's own ``vdtutorial.course``; ``get_ipython``, ``showtraceback``, ``exit``/``quit``/``sys.exit``/``os._exit``/``os.kill``;
+  or the grader's own ``vdtutorial.course``; ``get_ipython``, ``showtraceback``,
+  ``exit``/``quit``/``sys.exit``/``os._exit``/``os.kill``;
 * **changing what it did not create**: assigning to an attribute or an item of a name the cell did not bind to a
   value it made (``torch.testing.assert_close = ...``, ``t = np.testing; t.assert_allclose = ...``, a chapter's
   object, the library), or deleting one;
@@ -248,7 +249,8 @@ def _root(node: ast.AST) -> str | None:
 
 def _forbidden_uses(node: ast.AST, forbidden: set[str], created: set[str]) -> set[str]:
     """The forbidden names a node reaches: a name the cell did not define itself, an attribute of something it did
-    not create, an imported name, or a string that is just the name (``"LinearSVDO"``, ``"vdtutorial.vd.kl_approx"``)."""
+    not create, an imported name, or a string that is just the name (``"LinearSVDO"``,
+    ``"vdtutorial.vd.kl_approx"``)."""
     if isinstance(node, ast.Name) and node.id not in created:
         return {node.id} & forbidden
     if isinstance(node, ast.Attribute) and _root(node) not in created:

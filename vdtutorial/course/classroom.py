@@ -12,7 +12,8 @@ points, visible asserts and hidden tests. This module lays out an nbgrader cours
   its hidden tests only run the student's function on inputs the grader drew for this submission, and the
   grader compares the results with the library's in its own process (:mod:`vdtutorial.course.checks`).
   Submissions are graded several at once, each in a course folder of its own (a process of its own under a
-  wall-clock budget, :mod:`vdtutorial.course.grading_process`, or a Ray task), and their points are written into the one gradebook by the grading process alone. Before anything
+  wall-clock budget, :mod:`vdtutorial.course.grading_process`, or a Ray task), and their points are written into the
+  one gradebook by the grading process alone. Before anything
   runs, the answer cells are read (:func:`refusals`, :mod:`vdtutorial.course.answer_rules`): an answer that
   uses the library's piece its exercise rebuilds scores 0 there; one that could change the tests makes the
   whole notebook score 0. Each student gets a report without the hidden checks (:mod:`vdtutorial.course.feedback`).

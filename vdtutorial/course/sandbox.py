@@ -3,8 +3,9 @@
 A student's notebook runs arbitrary code, so its kernel is given as little as it needs to run a chapter. This
 launcher caps the memory (on Linux ``RLIMIT_DATA``, the private writable mappings: a ``bytearray(30 << 30)``
 raises ``MemoryError`` in that cell instead of taking the machine's memory; not the address space, which PyPI's
-CUDA build of torch fills past 4 GB with its libraries on import) and the CPU time (``RLIMIT_CPU``: the kernel is
-killed when it has used that many CPU seconds), soft and hard, so the kernel cannot raise them again; then it hands
+CUDA build of torch fills with its libraries on import, far past any useful cap) and the CPU time
+(``RLIMIT_CPU``: the kernel is killed when it has used that many CPU seconds), soft and hard, so the kernel cannot
+raise them again; then it hands
 the command to bubblewrap (``bwrap``, a maintained tool made for this, Debian's ``bubblewrap``), which runs it
 
 * in new PID, IPC, UTS, network and mount namespaces (and a new user namespace when the grader is not root):

@@ -1,4 +1,4 @@
-"""Beyond the paper (issue 33): learned demonstration noise (DART) and DAgger beside the hand-set Sigma.
+"""Beyond the paper: learned demonstration noise (DART) and DAgger beside the hand-set Sigma.
 
 The paper's Section VI asks for "techniques for learning appropriate expert noise from the data" and calls
 DAgger "computationally quite expensive". This experiment measures both on reaching, in state mode, at an
@@ -516,7 +516,8 @@ def beyond(
     checkpoint_every: int = CHECKPOINT_EVERY,
     start_sigma: str | None = None,
 ) -> dict:
-    """The experiment (module docstring, "Two stages per data set and seed"); returns its JSON record. The data sets are made here, one after
+    """The experiment (module docstring, "Two stages per data set and seed"); returns its JSON record. The data sets
+    are made here, one after
     the other; the runs are a grid (:func:`~vdtutorial.runner.grid.run_grid`: ``workers``, ``backend``,
     ``address``, ``restart``, ``progress``): per variant and seed a :class:`PreRLJob` and an :class:`RLJob` of
     ``steps`` env steps (default :func:`rl_steps`; RL starts from ``start_sigma``, default the figures' start
@@ -662,7 +663,8 @@ def format_summary(record: dict) -> str:
     the paper's metric (every measure: the record's ``rl.claims``), and what DAgger's work bought, a line each."""
     lines = [
         f"{label:>28}: {band['successes']['mean']:.2f} successes per 200 steps before RL "
-        f"(95% interval {band['successes']['low']:.2f} to {band['successes']['high']:.2f}, {band['successes']['n']} seeds); "
+        f"(95% interval {band['successes']['low']:.2f} to {band['successes']['high']:.2f}, "
+        f"{band['successes']['n']} seeds); "
         f"{record['cost'][label]['clonings']} cloning(s), {record['cost'][label]['expert_queries']} expert labels"
         for label, band in record["pre_rl"].items()
     ]

@@ -63,7 +63,8 @@ def pretrain_command(reg: str, demos_path, seed: int, obs_mode: str, initial_sig
     """The command line that makes a checkpoint, as its meta records it (the data set's path relative to the
     folder holding data/, so that a shipped checkpoint names no machine)."""
     sigma = "" if initial_sigma == PAPER_SIGMA_OPTION else f" --sigma {initial_sigma}"
-    return f"python -m vdtutorial pretrain --reg {reg} --demos {recorded_path(demos_path)} --seed {seed} --obs {obs_mode}{sigma}"
+    demos = recorded_path(demos_path)
+    return f"python -m vdtutorial pretrain --reg {reg} --demos {demos} --seed {seed} --obs {obs_mode}{sigma}"
 
 
 #: Fields of ``PretrainConfig`` renamed since files were written: old name -> current name.

@@ -1,4 +1,5 @@
-"""Curves over seeds: trailing smoothing, Student-t bands, and the "steps to reach a level" summary. Taught in chapter 07."""
+"""Curves over seeds: trailing smoothing, Student-t bands, and the "steps to reach a level" summary. Taught in
+chapter 07."""
 
 from __future__ import annotations
 

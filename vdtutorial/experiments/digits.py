@@ -88,12 +88,7 @@ def digits_validation(
     hence how fast weights get pruned); ``warmup``: fraction of training over which beta goes 0 -> 1.
     The VD accuracy is that of the deterministic eval-mode network with log alpha > 3 weights removed.
 
-    Measured with the defaults (200 epochs, ~16-20 s on one thread of the shared machine): dense / VD
-    test accuracy 97.2 / 95.8 % (seed 0), 96.9 / 95.8 % (seed 1), 98.1 / 95.6 % (seed 2), with 99.3 % of
-    the weights and 83-85 % of the hidden neurons pruned. The goal "VD within 1.5 points of dense at
-    >= 90 % pruned" holds for seeds 0 and 1 and is missed by 1 point for seed 2: with only 1437 training
-    images the prior (KL / N) is strong and prunes far beyond 90 %. The quick budget (30 epochs, ~2 s)
-    gives 96.9 / 88.3 % at 98.5 % pruned.
+    What the defaults give on seeds 0-2 is in docs/results.md ("Sparse variational dropout and the policy").
     """
     epochs = epochs if epochs is not None else budget(200, 30)
     threads = torch.get_num_threads()

@@ -464,7 +464,8 @@ def _plain_claim_effect(claim: Claim, a: dict, b: dict, measure: str, window: in
         material = MATERIALITY * abs(float(sb.mean()))
         result_verdict = verdict(low, high, claim.direction * better, material=material)
         p_value = welch_p_value(sa, sb)
-        unit = f"{measure} per iteration ({'last %d iterations' % window if claim.measure == 'final' else 'mean over the run'})"
+        over = f"last {window} iterations" if claim.measure == "final" else "mean over the run"
+        unit = f"{measure} per iteration ({over})"
         _, standard_error, dof = _welch(sa, sb)
         extra = {
             "mean_a": float(sa.mean()),

@@ -7,7 +7,8 @@ way). A run lasts ``total_steps / steps_per_s`` seconds, plus ``pretrain_s[metho
 checkpoint is not shipped and must be made first, plus ``sigma_fit_s`` for every VD and L2 run, which
 fits its start sigma before RL (``initial_sigma="spread"``, once per run; an L2 run's fit needs the VD
 checkpoint, see :func:`run_seconds`). The expert's reference runs
-take seconds and are left out. The rate is a parameter, to be measured (``python -m vdtutorial bench finetune`` gives the rate of
+take seconds and are left out. The rate is a parameter, to be measured (``python -m vdtutorial bench finetune`` gives
+the rate of
 one process on one core); it is the rate of one run *per core*, so on a machine whose cores slow each
 other down (shared memory bandwidth) use the rate measured with all cores busy.
 

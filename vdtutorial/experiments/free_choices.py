@@ -1,4 +1,4 @@
-"""Our free choices, measured (issue 32): values the paper does not give, each changed alone, and whether the
+"""Our free choices, each tried: values the paper does not give, each changed alone, and whether the
 VD-vs-L2 verdict moves.
 
 The rows (:data:`CHOICES`): L2's coefficient (``PretrainConfig.l2``, 1e-4); the KL term's weight in VD's ELBO

@@ -292,7 +292,8 @@ def apply_initial_sigma(
 def set_initial_sigma(
     policy: GaussianPolicy, demos: Demos, config: PretrainConfig, seed: int, observations=None, spread_net=None
 ) -> dict:
-    """Set the sigma that RL starts from by ``config.initial_sigma`` (:class:`InitialSigma`), fitting on the training split of pre-training with ``seed`` (options b and c). Also applies to a
+    """Set the sigma that RL starts from by ``config.initial_sigma`` (:class:`InitialSigma`), fitting on the training
+    split of pre-training with ``seed`` (options b and c). Also applies to a
     policy read back from a checkpoint made with another option: mu is the same whatever the option.
     Returns what was done (kind, and for a fit its losses and the resulting sigma)."""
     spec = InitialSigma.parse(config.initial_sigma)

@@ -218,7 +218,8 @@ def bench_trpo_pendulum(
     the training episodes that ended in the last 10% of the steps; eval_return: mean return of 10
     episodes with the mean action (no exploration), from the same starting states for every variant
     (higher returns are better; a random policy gets about -1200); seconds: wall time of the training;
-    cpu_seconds: the CPU time this process spent on it, which a busy machine inflates less. Defaults: seeds 11, 12, 13 x 1e5
+    cpu_seconds: the CPU time this process spent on it, which a busy machine inflates less. Defaults: seeds 11, 12,
+    13 x 1e5
     steps (quick mode: seed 11 x 4096 steps)."""
     seeds = tuple(seeds) if seeds is not None else budget((11, 12, 13), (11,))
     total_steps = total_steps if total_steps is not None else budget(100_000, 4_096)

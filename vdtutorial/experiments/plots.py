@@ -1,4 +1,5 @@
-"""The learning-curve figure of Figs. 4-7: one panel per measure, each seed thin behind the mean. Taught in chapter 07."""
+"""The learning-curve figure of Figs. 4-7: one panel per measure, each seed thin behind the mean. Taught in chapter
+07."""
 
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def figure_title(
     base: str, obs_mode: str, total_steps: int, seeds: int | str, fvp_subsample: float = 1.0, demo_seed: int = 0
 ) -> str:
     """A figure's title that tells its variants apart: the paper's figure (``base``), the observation, the
-    budget, the seeds (a range, "10 to 23", when the curves have different numbers), a draw of the demonstrations other than the shipped seed 0, and, for the control with the
+    budget, the seeds (a range, "10 to 23", when the curves have different numbers), a draw of the demonstrations
+    other than the shipped seed 0, and, for the control with the
     subsampled Fisher, that it is that control."""
     observation = {"state": "state input", "rgbd": "RGBD images"}[obs_mode]
     control = "" if fvp_subsample == 1.0 else f"\ncontrol: Fisher-vector products on {fvp_subsample:.0%} of each batch"

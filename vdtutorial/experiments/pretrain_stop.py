@@ -1,11 +1,12 @@
-"""Image pre-training stopped on the held-out loss against our fixed 40 epochs (issue 32).
+"""Image pre-training stopped on the held-out loss against our fixed 40 epochs.
 
 The image checkpoints behind ``fig4_rgbd`` clone for 40 epochs, a budget of ours (the paper gives none), and VD's
 seed 2 was still improving at the end. Here each image checkpoint (reaching, 8000 demonstrations, Sigma 0.5;
 VD and L2; seeds 0-2) is made again with ``PretrainConfig.patience`` (:func:`stop_config`: the same 40 epochs of
 KL warm-up, then on until the held-out MSE has not improved for :data:`PATIENCE` epochs, at most :data:`CAP`),
 and both kinds of checkpoint are measured the same way: the mean action's successes before RL
-(:func:`~vdtutorial.experiments.evaluation.mean_action_successes`) and the first :func:`rl_steps` env steps of TRPO with the
+(:func:`~vdtutorial.experiments.evaluation.mean_action_successes`) and the first :func:`rl_steps` env steps of TRPO
+with the
 figures' settings (the fixed checkpoints' runs are then the first iterations of ``fig4_rgbd``'s). Per method,
 the difference stopped - fixed at the pre-RL level and over the early RL curve, 95% Welch intervals over seeds.
 If it is material (:func:`is_material`), ``fig4_rgbd`` is to be made again from the stopped checkpoints; if not,

@@ -31,7 +31,7 @@ def reproduce_quick(
 ) -> ExperimentResult:
     """The paper's pipeline end to end at a small scale, in a few minutes on 2 cores: generate a small
     reaching data set, pre-train VD and L2 on it, fine-tune VD, L2 and no pre-training with TRPO, and
-    draw the Fig. 4-style curves. There is no expert line: it would cost a worker ~40 s, and at ~75
+    draw the Fig. 4-style curves. There is no expert line: it would cost a worker as much as a short run, and at ~75
     successes per episode it would flatten curves that are still in single digits at this budget. The
     VD policy's sparsity (``sparsity_report(policy.mu)``, seed ``seeds[0]``) is printed and written to
     ``sparsity.txt``; ``result.summary`` carries it and the fig4-style "steps to reach L2's final level".

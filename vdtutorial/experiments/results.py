@@ -1,4 +1,5 @@
-"""An experiment's files: run a grid, then write the combined CSV, the figure and the JSON record. Taught in chapter 07."""
+"""An experiment's files: run a grid, then write the combined CSV, the figure and the JSON record. Taught in chapter
+07."""
 
 from __future__ import annotations
 
@@ -349,7 +350,8 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     ``wall_time`` column aside; the
     record's ``command`` is that one command (never run as such; when the parts ran different curves, e.g. more seeds
     of one data set, no single command makes the rows and the first part's command stays), and ``merged`` lists, in
-    order, each command that ran with its seeds and kernels, then each merge (this function's own command line). Refuses records that differ
+    order, each command that ran with its seeds and kernels, then each merge (this function's own command line).
+    Refuses records that differ
     in anything but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed;
     ``other`` may hold only some of the methods (more seeds of the curves that need them).
 

@@ -49,7 +49,7 @@ METRIC = {"reach": "successes", "grasp": "mean_return"}
 #: rllab's first optimiser, later changed to the whole batch (``TRPOConfig.fvp_subsample``). Not a default.
 SUBSAMPLED_FISHER_CONFIG = TRPOConfig(fvp_subsample=0.1)
 #: TRPO iterations between two saved states of a resumable run (2000 env steps at 200 per iteration:
-#: seconds in state mode, about 40 s for an image policy with the whole-batch Fisher).
+#: a short wait in state mode, a longer one for an image policy with the whole-batch Fisher).
 CHECKPOINT_EVERY = 10
 #: The meta entries that say which data set a checkpoint was cloned on: (task, samples, Sigma, demonstration
 #: seed) for a one-shot set; a set made in rounds (DART's, DAgger's) has no Sigma but a method and its rounds.

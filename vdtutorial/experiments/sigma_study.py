@@ -183,7 +183,8 @@ def run_study(
     window: int = 10,
     none_options=None,
 ) -> dict:
-    """All runs of the study (in parallel, one torch thread each), then the files (module docstring, "Writes ``sigma_study.csv.gz``").
+    """All runs of the study (in parallel, one torch thread each), then the files
+    (module docstring, "Writes ``sigma_study.csv.gz``").
     ``none_options``: the options under which "no pre-training" is run (default: all; an option with
     the same starting sigma as a run one shares its rows; the others get no "none" curve)."""
     none_options = options if none_options is None else none_options

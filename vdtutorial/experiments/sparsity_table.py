@@ -38,7 +38,8 @@ TABLE1 = (
 )
 
 
-#: The KL weightings of Table I: the ``PretrainConfig.kl_divisor`` each one sets (module docstring, "Why two weightings").
+#: The KL weightings of Table I: the ``PretrainConfig.kl_divisor`` each one sets
+#: (module docstring, "Why two weightings").
 #: "fixed" divides by the 8000-sample set's nominal training split, 8000 x (1 - 0.1 held out).
 KL_WEIGHTINGS = {"per-set": None, "fixed": round(8000 * (1 - PretrainConfig.val_fraction))}
 
@@ -89,7 +90,10 @@ def sparsity_trends(rows: list[dict], column: str = "neuron_fraction") -> dict[s
     :func:`table_means`): sparsity grows strictly with the number of demonstrations (2000 < 4000 < 8000
     at Sigma = 0.5) and as the expert noise falls (Sigma 0.5 < 0.25 < 0.05 at 8000 demonstrations)."""
     value = {(r["samples"], r["noise"]): r[column] for r in rows if r["task"] == "reach"}
-    increasing = lambda keys: all(value[a] < value[b] for a, b in zip(keys, keys[1:]))
+
+    def increasing(keys):
+        return all(value[a] < value[b] for a, b in zip(keys, keys[1:]))
+
     return {
         "more demonstrations -> sparser": increasing([(2000, 0.5), (4000, 0.5), (8000, 0.5)]),
         "less noise -> sparser": increasing([(8000, 0.5), (8000, 0.25), (8000, 0.05)]),

@@ -68,7 +68,8 @@ def run_jobs(
     fn, jobs: list, workers: int = 2, backend: str = "local", address: str | None = None, listener=None
 ) -> list:
     """``[result of fn(job) for job in jobs]`` on ``backend``
-    (module docstring, "Where the runs of a grid execute"); ``fn`` must be a module-level function. ``listener`` receives the reports (see below).
+    (module docstring, "Where the runs of a grid execute"); ``fn`` must be a module-level function. ``listener``
+    receives the reports (see below).
 
     A job function is a generator function: it yields progress reports (any picklable value) and its
     ``return`` value is the run's result. :func:`run_jobs` hands each report to ``listener.report(index,
