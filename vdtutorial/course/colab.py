@@ -46,7 +46,8 @@ if "google.colab" in sys.modules and not os.path.isfile(f"{{BOOK}}/vdtutorial-bo
     pip("install", "numpy>=2.1", "setuptools", "wheel", check=True)
     wheels = os.environ.get("VDTUTORIAL_WHEELS") or (f"{{DRIVE}}/vdtutorial-wheels" if os.path.isdir(DRIVE) else "")
     kept = ["--no-index", "--find-links", wheels or "/tmp/vdtutorial-wheels", "pybullet>=3.2.5"]
-    if wheels and pip("install", *kept, capture_output=True).returncode == 0:
+    kept_wheel = wheels and glob.glob(f"{{wheels}}/pybullet-*.whl")  # a wheel of an earlier runtime, if any
+    if kept_wheel and pip("install", *kept, capture_output=True).returncode == 0:
         print(f"pybullet: installed the wheel kept in {{wheels}} (no build)")
     else:
         print("pybullet: building it with numpy support, about 5 minutes on Colab's 2 cores; " + (
