@@ -269,3 +269,10 @@ def test_a_students_error_message_is_text_not_markup_in_the_feedback_page(tmp_pa
     assert "<script>" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
     assert "[prize](" not in page and r"\[prize\](http://example.com)" in page
     assert r"\*\*bold\*\* \`code\` \| table \|" in page and r"\[x\](y)" in page
+
+
+def test_the_kernel_keeps_the_graders_vector_kernel_pins():
+    """A check compares the sandboxed kernel's numbers with the grader's: both must use the same CPU kernels."""
+    from vdtutorial.runner.kernels import PINNED
+
+    assert set(PINNED) <= set(sandbox.KEPT_ENV)

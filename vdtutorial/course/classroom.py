@@ -245,9 +245,10 @@ def _bounded_kernels(scratch: Path, limits: Limits, writable: list[Path] = ()) -
         given=["{connection_file}"],
         sandboxed=limits.sandbox,
     )
-    (spec / "kernel.json").write_text(
-        json.dumps({"argv": argv, "display_name": "Python 3 (bounded grading)", "language": "python"})
-    )
+    # A timed-out cell is interrupted by a message the kernel answers itself: a signal sent from outside reaches
+    # only the launcher, since the sandbox runs the kernel in a session and PID namespace of its own.
+    spec_json = {"argv": argv, "display_name": "Python 3 (bounded grading)", "language": "python"}
+    (spec / "kernel.json").write_text(json.dumps({**spec_json, "interrupt_mode": "message"}))
     search = [str(scratch)] + [p for p in os.environ.get("JUPYTER_PATH", "").split(os.pathsep) if p]
     return {"JUPYTER_PATH": os.pathsep.join(search), "JUPYTER_RUNTIME_DIR": str(runtime)}
 
