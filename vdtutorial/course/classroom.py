@@ -131,19 +131,49 @@ def _api(course: Path, timeout: int, sockets: Path | None = None):
     return NbGraderAPI(config=config)
 
 
-def _generate(course: Path, source: Path, names: list[str], timeout: int = CELL_TIMEOUT, sockets: Path | None = None):
-    """Copy the teacher's chapters ``names`` into ``course/source`` and run nbgrader's generate_assignment."""
+def _generate(
+    course: Path,
+    source: Path,
+    names: list[str],
+    timeout: int = CELL_TIMEOUT,
+    sockets: Path | None = None,
+    grading: bool = False,
+):
+    """Copy the teacher's chapters ``names`` into ``course/source`` and run nbgrader's generate_assignment; for
+    ``grading``, with each tests cell's hidden tests moved first (:func:`hidden_tests_first`)."""
     found = chapters(source)
     src = course / "source" / ASSIGNMENT
     src.mkdir(parents=True, exist_ok=True)
     for name in names:
         shutil.copy(found[name], src / f"{name}.ipynb")
+        if grading:
+            hidden_tests_first(src / f"{name}.ipynb")
     api = _api(course, timeout, sockets)
     with _environment(PATH=_path_with_our_scripts()):
         result = api.generate_assignment(ASSIGNMENT)
     if not result["success"]:
         raise ClassroomError(f"nbgrader could not generate the assignment:\n{result.get('error') or result['log']}")
     return api
+
+
+_HIDDEN = re.compile(r"^### BEGIN HIDDEN TESTS\n.*?^### END HIDDEN TESTS\n?", re.M | re.S)
+
+
+def hidden_tests_first(path: Path) -> None:
+    """Rewrite the notebook at ``path`` so that each tests cell runs its hidden tests (the trusted check's probe)
+    before its visible ones. The visible tests compare with the library's piece, which the grading kernel has as a
+    stub (:mod:`vdtutorial.course.stubs`): they raise there, and would stop the cell before its check ran. The
+    points never came from them (:mod:`vdtutorial.course.checks`)."""
+    import nbformat
+
+    nb = nbformat.read(path, as_version=4)
+    for cell in nb.cells:
+        grading = cell.metadata.get("nbgrader", {})
+        if cell.cell_type == "code" and grading.get("grade") and not grading.get("solution"):
+            text = cell.source if cell.source.endswith("\n") else cell.source + "\n"
+            if hidden := _HIDDEN.search(text):
+                cell.source = (hidden.group(0).rstrip("\n") + "\n" + _HIDDEN.sub("", text, count=1)).rstrip("\n")
+    nbformat.write(nb, path)
 
 
 def release(out, source: Path | None = None, force: bool = False) -> list[Path]:
@@ -219,28 +249,31 @@ def collect(paths, source: Path | None = None) -> list[Submission]:
     return subs
 
 
-def _bounded_kernels(scratch: Path, limits: Limits, writable: list[Path] = ()) -> dict[str, str]:
+def _bounded_kernels(scratch: Path, limits: Limits, writable: list[Path] = (), exercises=()) -> dict[str, str]:
     """Make the ``python3`` kernel that nbgrader starts a bounded one: a kernelspec in ``scratch`` whose
     command is the :mod:`vdtutorial.course.sandbox` launcher in front of ipykernel, each kernel in its own folder
     under ``scratch/homes``; ``writable``: more folders it may write. The sandbox shows the kernel this Python's
     environment and the course package (:func:`_library_mounts`), read-only, and nothing else of this machine's
-    files. Returns the environment that makes Jupyter find the kernelspec first and keep its connection files
-    and sockets in ``scratch/runtime`` (which the kernels may write, to make their sockets). Windows has no
-    ``setrlimit``: there the kernels run unbounded (``classroom grade`` refuses unless told ``--no-sandbox``)."""
-    from vdtutorial.course import sandbox
+    files; the package is a copy in which the pieces that ``exercises`` rebuild are stubs
+    (:func:`vdtutorial.course.stubs.stubbed_copy`), shown at the package's own path. Returns the environment that
+    makes Jupyter find the kernelspec first and keep its connection files and sockets in ``scratch/runtime`` (which
+    the kernels may write, to make their sockets). Windows has no ``setrlimit``: there the kernels run unbounded
+    (``classroom grade`` refuses unless told ``--no-sandbox``)."""
+    from vdtutorial.course import sandbox, stubs
 
     if os.name != "posix":
         return {}
     homes, runtime, spec = scratch / "homes", scratch / "runtime", scratch / "kernels" / "python3"
     for folder in (homes, runtime, spec, scratch / "empty"):
         folder.mkdir(parents=True)
+    library = stubs.stubbed_copy(scratch / "library" / "vdtutorial", exercises)
     kernel = [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"]
     argv = sandbox.command(
         kernel,
         max(1, int(limits.memory_gb * 2**30)),
         max(1, int(limits.cpu_minutes * 60)),
         home_under=homes,
-        read_only=[*sandbox.python_paths(), *_library_mounts(scratch / "empty")],
+        read_only=[*sandbox.python_paths(), *_library_mounts(scratch / "empty", library)],
         writable=[runtime, *writable],
         given=["{connection_file}"],
         sandboxed=limits.sandbox,
@@ -250,20 +283,25 @@ def _bounded_kernels(scratch: Path, limits: Limits, writable: list[Path] = ()) -
     spec_json = {"argv": argv, "display_name": "Python 3 (bounded grading)", "language": "python"}
     (spec / "kernel.json").write_text(json.dumps({**spec_json, "interrupt_mode": "message"}))
     search = [str(scratch)] + [p for p in os.environ.get("JUPYTER_PATH", "").split(os.pathsep) if p]
-    return {"JUPYTER_PATH": os.pathsep.join(search), "JUPYTER_RUNTIME_DIR": str(runtime)}
+    found = {"JUPYTER_PATH": os.pathsep.join(search), "JUPYTER_RUNTIME_DIR": str(runtime)}
+    if not limits.sandbox:  # no mount to hide the original behind: the copy comes first on the kernel's path
+        found["PYTHONPATH"] = os.pathsep.join(
+            [str(library.parent), *os.environ.get("PYTHONPATH", "").split(os.pathsep)]
+        )
+    return found
 
 
-def _library_mounts(empty: Path) -> list[tuple[Path, Path]]:
+def _library_mounts(empty: Path, library: Path | None = None) -> list[tuple[Path, Path]]:
     """What a kernel sees of the course package, as (source, destination) pairs for the sandbox: the package
-    folder at its own path, and the shipped data the chapters read (a clone's ``data/`` with the
-    ``pyproject.toml`` that marks the clone); never the teacher's notebooks (a clone's ``notebooks/`` is not
-    shown, an installed copy's ``book/notebooks`` is covered by the empty folder ``empty``), nor anything else
-    of the clone."""
+    folder at its own path (``library`` there instead when given: the stubbed copy), and the shipped data the
+    chapters read (a clone's ``data/`` with the ``pyproject.toml`` that marks the clone); never the teacher's
+    notebooks (a clone's ``notebooks/`` is not shown, an installed copy's ``book/notebooks`` is covered by the
+    empty folder ``empty``), nor anything else of the clone."""
     import vdtutorial
     from vdtutorial.settings import INSTALLED_COPY
 
     package = Path(vdtutorial.__file__).resolve().parent
-    mounts = [(package, package)]
+    mounts = [(library or package, package)]
     if shipped_dir() == package.parent:
         mounts += [
             (package.parent / "data", package.parent / "data"),
@@ -362,7 +400,7 @@ def grade(
         if whole and log:
             log(f"refused {sub.student} {sub.chapter} without running it: {whole}")
     with tempfile.TemporaryDirectory(prefix="vdtutorial_grade_") as scratch, _quiet():
-        api = _generate(out, source, sorted({s.chapter for s in subs}), timeout, sockets=Path(scratch))
+        api = _generate(out, source, sorted({s.chapter for s in subs}), timeout, sockets=Path(scratch), grading=True)
         gradebook = (out / "gradebook.db").read_bytes()
         run = [k for k, (whole, _) in enumerate(refused) if whole is None]
         jobs = [
@@ -505,7 +543,8 @@ def grade_one(job: GradingJob) -> Graded:
         (course / "gradebook.db").write_bytes(job.gradebook)
         exchange.mkdir()
         inputs = {}
-        for k, exercise in enumerate(_exercises(course / "source" / ASSIGNMENT / f"{job.chapter}.ipynb")):
+        exercises = _exercises(course / "source" / ASSIGNMENT / f"{job.chapter}.ipynb")
+        for k, exercise in enumerate(exercises):
             inputs[exercise] = checks.plain(checks.check(exercise).inputs(np.random.default_rng([job.seed, k])))
             checks.save(checks.inputs_path(exchange, exercise), inputs[exercise])
         kernel_env = {
@@ -514,7 +553,7 @@ def grade_one(job: GradingJob) -> Graded:
             "PATH": _path_with_our_scripts(),
             "VDTUTORIAL_RUNS": "runs",
             checks.EXCHANGE_ENV: str(exchange),
-            **_bounded_kernels(scratch, job.limits, writable=[exchange]),
+            **_bounded_kernels(scratch, job.limits, writable=[exchange], exercises=exercises),
         }
         api = _api(course, job.timeout, sockets=scratch / "runtime")
         with _environment(**kernel_env):
@@ -602,7 +641,10 @@ def _record(
 ) -> list[Score]:
     """Write every submission's points into the gradebook and into ``out/grades.csv``; returns them. An exercise
     scores its points when its trusted check passed and :func:`refusals` did not refuse it, else 0; the reason (the
-    refusal, or the checks that failed) becomes the answer cell's comment, which nbgrader's formgrader shows."""
+    refusal, or the checks that failed) becomes the answer cell's comment, which nbgrader's formgrader shows. An
+    answer that called a library stub (:mod:`vdtutorial.course.stubs`) is refused, with the stub's line as why."""
+    from vdtutorial.course import checks
+
     scores = []
     with _environment(PATH=_path_with_our_scripts()), api.gradebook as gb:
         for sub, result, (whole, each) in zip(subs, results, refused):
@@ -616,6 +658,8 @@ def _record(
                     or (f"grading did not finish: {result.unfinished}" if result.unfinished else "")
                 )
                 failed = result.failures.get(exercise, ("the notebook was not run",))
+                stub = next((line for text in failed if (line := checks.stubbed(text))), None)
+                why = why or (f"{exercise} called a stub: {stub}" if stub else "")
                 score = 0.0 if why or failed else top
                 cell = gb.find_grade(name, sub.chapter, ASSIGNMENT, sub.student)
                 cell.auto_score, cell.needs_manual_grade = score, False

@@ -43,6 +43,9 @@ SELF_CHECK_SEED = 0
 MAX_OUTPUTS_BYTES = 256 << 20
 #: The key under which a probe's outputs say that the student's code raised (the exception's type name).
 RAISED = "__raised__"
+#: The key under which a probe's outputs carry the line of a library stub the student's code called
+#: (:mod:`vdtutorial.course.stubs`): the grader believes it only if its own table would write that line.
+STUBBED = "__stubbed__"
 #: The failure of a check whose tests cell sent nothing back: the cell raised before the hidden check ran.
 NO_ANSWER = "the hidden check got no answer from your code (a cell before it failed, or the kernel stopped)"
 _CHAPTERS = ("ch01", "ch02", "ch03", "ch04", "ch05", "ch06", "ch07", "ch08", "ch09", "ch10")
@@ -127,11 +130,29 @@ def outputs_path(folder: Path, exercise: str) -> Path:
     return Path(folder) / f"{exercise}.outputs.npz"
 
 
+def _stub_line(exc: BaseException) -> str | None:
+    """The line of a library stub (:mod:`vdtutorial.course.stubs`) that raised ``exc`` or an exception it was
+    raised while handling, or ``None``."""
+    from vdtutorial.course import stubs
+
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        line = stubs.called(str(exc), stubs.STUBS)
+        if line:
+            return line
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
 def _probe(item: Check, namespace: dict, inputs: dict) -> dict:
     try:
         return plain(item.probe(namespace, nested(inputs)))
     except Exception as exc:  # the student's code may raise anything: the verdict says it did, nothing more
-        return {RAISED: np.array(type(exc).__name__)}
+        found = {RAISED: np.array(type(exc).__name__)}
+        if line := _stub_line(exc):
+            found[STUBBED] = np.array(line)
+        return found
 
 
 def run_check(exercise: str, namespace: dict) -> None:
@@ -150,12 +171,23 @@ def judge(item: Check, inputs: dict, outputs: dict | None) -> list[str]:
     """The failures of ``outputs`` (``None``: none arrived) against ``inputs``, in words for the student."""
     if outputs is None:
         return [NO_ANSWER]
+    if STUBBED in outputs and (line := stubbed(str(outputs[STUBBED]))):
+        return [f"your code called a stub: {line}"]
     if RAISED in outputs:
         return [f"your code raised {outputs[RAISED]} on the hidden check's inputs"]
     try:
         return list(item.verdict(nested(inputs), nested(outputs)))
     except Exception as exc:  # outputs of the wrong kind or shape: the verdict cannot read them
         return [f"your code's results could not be checked ({type(exc).__name__}: missing or of the wrong kind)"]
+
+
+def stubbed(text: str) -> str | None:
+    """The stub's line in ``text`` (a probe's report, or a failure of :func:`judge`) when the grader's own table
+    (:data:`vdtutorial.course.stubs.STUBS`) would write it, else ``None``: why an exercise scored nothing that the
+    teacher's table names."""
+    from vdtutorial.course import stubs
+
+    return stubs.called(text, stubs.STUBS)
 
 
 class Failures(list):

@@ -1,0 +1,167 @@
+"""The library as a graded kernel sees it: the pieces a chapter's exercises rebuild replaced by stubs.
+
+A student's answer must not score by handing the library's implementation back as their own. Reading the answer's
+code for the names it uses (:mod:`vdtutorial.course.answer_rules`) catches the honest mistake early, but code can
+reach an object by routes no reading sees: a name built from strings (``pkgutil.resolve_name``), ``sys.modules``,
+``importlib``, ``runpy``, ``pickle`` of a global reference, code decoded at run time, an import in another
+exercise's cell. Each of these only looks the object up; so the grader removes the object instead. The kernel
+that runs a chapter imports a copy of the package (:func:`stubbed_copy`) in which every piece of :data:`STUBS`
+for the chapter's exercises keeps its name and signature, but its body is one ``raise`` of
+:class:`NotImplementedError` saying which exercise asks for it (:func:`message`). The copy is shown to the kernel
+at the package's own path, so that every route to the package ends there; the original source never enters the
+sandbox, and the stubbed code never ran, so no object holding it exists to be found.
+
+A piece that a later exercise of the same chapter is given (4.3 compacts a network of the library's
+``LinearSVDO`` layers, and so needs their parameters, ``log_alpha``, ``keep_mask`` and eval mode's forward pass)
+keeps those parts (:data:`KEPT`): only what scores the earlier exercise is stubbed (training mode's sampling and
+the KL). A stub that an answer called is named
+in the grader's table (:func:`called`), so that the teacher sees why the exercise scored nothing.
+
+The trusted checks' probes run in the kernel next to the student's code and can reach only what it can: they call
+the student's functions on the grader's inputs, and every reference answer is computed in the grader's own
+process, from the unstubbed library (:mod:`vdtutorial.course.checks`).
+
+Not taught in a chapter: part of the teacher's grading (vdtutorial/course/classroom.py, notebooks/TEACHING.md).
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import re
+import shutil
+from pathlib import Path
+
+#: Per exercise (its answer cell's ``grade_id``): the library's pieces the grading kernel's copy stubs, as
+#: ``module:qualname`` (a method as ``module:Class.method``, a class as a whole by its name). The pieces are those
+#: of :data:`vdtutorial.course.answer_rules.FORBIDDEN` that compute what the exercise's check compares, and every
+#: other implementation of the same computation in the package; not the helpers the teacher's solution calls
+#: (``flat_grad``, ``mean_kl``, ``set_flat_params``), which compute nothing the check compares.
+STUBS: dict[str, tuple[str, ...]] = {
+    # 04: eq. 4's noisy forward pass (the sparse VD layers' shared forward)
+    "ch04_gaussian_dropout": ("vdtutorial.vd:SVDOLayer.forward",),
+    # 04: the layer: its forward pass and its KL (log alpha and keep_mask stay: 4.3 is given library layers)
+    "ch04_svdo_layer": ("vdtutorial.vd:SVDOLayer.forward", "vdtutorial.vd:SVDOLayer.kl", "vdtutorial.vd:kl_approx"),
+    # 04: compaction and the dead-unit finder it rests on
+    "ch04_compact": (
+        "vdtutorial.analysis.compact:compact",
+        "vdtutorial.analysis.compact:compact_layers",
+        "vdtutorial.analysis.compact:rebuild_sequential",
+        "vdtutorial.analysis.sparsity:dead_units",
+    ),
+    # 06a: the surrogate is computed inside TRPO's step
+    "ch06_surrogate": ("vdtutorial.trpo:TRPO._trpo_step",),
+    "ch06_conjugate_gradient": ("vdtutorial.trust_region:conjugate_gradient",),
+    # 06a: every Fisher-vector product of the package: double backward, its inner product, the Gauss-Newton form
+    "ch06_fisher_vector_product": (
+        "vdtutorial.trust_region:double_backward_fvp",
+        "vdtutorial.trust_region:fisher_vector_product",
+        "vdtutorial.fast.fisher:GaussNewtonFisher",
+        "vdtutorial.fast.fisher:gauss_newton_fvp",
+    ),
+    "ch06_gae": ("vdtutorial.trpo:gae", "vdtutorial.trpo:advantages_and_returns"),
+    # 06b
+    "ch06_linear_baseline": ("vdtutorial.baselines:LinearFeatureBaseline",),
+    "ch06_line_search": ("vdtutorial.trust_region:line_search",),
+    "ch06_trpo_update": ("vdtutorial.trpo:TRPO._trpo_step",),
+}
+
+#: What a stub still does before it raises, where a later exercise or the chapter is given part of the piece: the
+#: sparse VD layers' deterministic forward pass (eval mode, or a pruned layer) stays, since 4.3 compacts networks of
+#: library layers and may run them; the sampling of training mode is what 4.1 and 4.2 build.
+KEPT: dict[str, str] = {
+    "vdtutorial.vd:SVDOLayer.forward": (
+        "if self.pruned or not self.training:\n    return self._op(x, self.weight * self.keep_mask(), self.bias)"
+    ),
+}
+
+#: The stub's words; :func:`called` reads them back.
+_MESSAGE = "the library's {name} is stubbed in grading: it is what exercise {exercise} asks you to build"
+_CALLED = re.compile(r"the library's ([\w.]+) is stubbed in grading: it is what exercise (\w+) asks you to build")
+
+
+def message(name: str, exercise: str) -> str:
+    """What the stub of ``name`` (``module:qualname``) raises: one line naming the exercise that rebuilds it."""
+    return _MESSAGE.format(name=name.replace(":", "."), exercise=exercise)
+
+
+def called(text: str, exercises) -> str | None:
+    """The stub's line in ``text`` (an exception's message), when it names a stub of one of ``exercises``: the
+    kernel can write any text, so a line is believed only if it is one the grader's own table would write."""
+    match = _CALLED.search(text or "")
+    if match is None:
+        return None
+    known = {message(name, exercise) for exercise in exercises for name in STUBS.get(exercise, ())}
+    return match.group(0) if match.group(0) in known else None
+
+
+def targets(exercises) -> dict[str, dict[str, str]]:
+    """The stubs of ``exercises``, by module: ``{module: {qualname: exercise}}`` (the first exercise that names a
+    piece is the one its message names)."""
+    found: dict[str, dict[str, str]] = {}
+    for exercise in exercises:
+        for name in STUBS.get(exercise, ()):
+            module, qualname = name.split(":")
+            found.setdefault(module, {}).setdefault(qualname, exercise)
+    return found
+
+
+def _raise(name: str, exercise: str) -> list[ast.stmt]:
+    kept = ast.parse(KEPT.get(name, "")).body
+    return kept + [ast.parse(f"raise NotImplementedError({message(name, exercise)!r})").body[0]]
+
+
+def stub_source(source: str, module: str, pieces: dict[str, str]) -> str:
+    """``source`` (the module ``module``) with each piece of ``pieces`` (``{qualname: exercise}``) stubbed: a
+    function's or method's body becomes the stub's ``raise``, after what :data:`KEPT` keeps of it (its signature
+    and decorators stay); a class keeps its
+    name and bases, and its body becomes an ``__init__`` that raises. ``KeyError`` for a piece not found, so that
+    a renamed piece fails the table's test instead of going unstubbed."""
+    tree = ast.parse(source)
+    left = dict(pieces)
+
+    def visit(body: list[ast.stmt], prefix: str) -> None:
+        for node in body:
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                continue
+            qualname = prefix + node.name
+            if qualname in left:
+                name, exercise = f"{module}:{qualname}", left.pop(qualname)
+                if isinstance(node, ast.ClassDef):
+                    init = ast.parse("def __init__(self, *args, **kwargs):\n    pass").body[0]
+                    init.body = _raise(name, exercise)
+                    node.body, node.decorator_list, node.keywords = [init], [], []
+                else:
+                    node.body = _raise(name, exercise)
+            elif isinstance(node, ast.ClassDef):
+                visit(node.body, qualname + ".")
+
+    visit(tree.body, "")
+    if left:
+        raise KeyError(f"{module} has no {', '.join(sorted(left))} to stub")
+    return ast.unparse(ast.fix_missing_locations(tree)) + "\n"
+
+
+def package_dir() -> Path:
+    """The folder of the installed ``vdtutorial`` package (a clone's, or site-packages')."""
+    return Path(importlib.util.find_spec("vdtutorial").origin).resolve().parent
+
+
+def module_file(package: Path, module: str) -> Path:
+    """The source file of ``module`` (``vdtutorial.x.y``) in the package folder ``package``."""
+    parts = module.split(".")[1:]
+    path = package.joinpath(*parts)
+    return path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+
+
+def stubbed_copy(destination: Path, exercises, package: Path | None = None) -> Path:
+    """A copy of the package folder ``package`` (default: the installed one) at ``destination``, with the stubs of
+    ``exercises`` written into its sources and no compiled bytecode (a ``.pyc`` would hold the original code).
+    Returns ``destination``."""
+    package = Path(package) if package is not None else package_dir()
+    destination = Path(destination)
+    shutil.copytree(package, destination, ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.pyo"))
+    for module, pieces in targets(exercises).items():
+        path = module_file(destination, module)
+        path.write_text(stub_source(path.read_text(), module, pieces))
+    return destination
