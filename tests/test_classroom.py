@@ -137,7 +137,13 @@ def test_grading_a_chapter(chapter, released, tmp_path):
     ran = cells(tmp_path / "course" / "autograded" / "unsolved" / classroom.ASSIGNMENT / f"{chapter}.ipynb")
     failed = {c.id for c in ran if c.cell_type == "code" and any(o.output_type == "error" for o in c.outputs)}
     exercise_cells = {c.id for c in ran if nbgrader(c).get("grade") or nbgrader(c).get("solution")}
-    assert failed and failed <= exercise_cells, failed - exercise_cells
+    # a chapter cell that runs a library piece the chapter's exercises rebuild meets its stub (course/stubs.py)
+    stubbed = {
+        c.id
+        for c in ran
+        if c.cell_type == "code" and any("is stubbed in grading" in o.get("evalue", "") for o in c.outputs)
+    }
+    assert failed and failed - stubbed <= exercise_cells, failed - stubbed - exercise_cells
     assert (tmp_path / "course" / "gradebook.db").is_file() and (tmp_path / "course" / "grades.csv").is_file()
 
 

@@ -276,3 +276,81 @@ def test_the_kernel_keeps_the_graders_vector_kernel_pins():
     from vdtutorial.runner.kernels import PINNED
 
     assert set(PINNED) <= set(sandbox.KEPT_ENV)
+
+
+def _chapter_answering(chapter: str, answers: dict[str, str], before: dict[str, str] = ()):
+    """The teacher's ``chapter`` (solved), with some answer cells replaced by ``answers`` (by exercise) and code put
+    in front of others (``before``)."""
+    nb = _chapter_with(chapter, before)
+    for cell in nb.cells:
+        grading = cell.metadata.get("nbgrader", {})
+        if grading.get("solution") and grading.get("grade_id") in answers:
+            cell.source = answers[grading["grade_id"]]
+    return nb
+
+
+_STOLEN_COMPACT = "from vdtutorial.analysis.compact import compact\ndef my_compact(net):\n    return compact(net)\n"
+#: Chapter 04 handed in by students who solve 4.1 themselves and take the library's layer (4.2) and compaction (4.3),
+#: each by two routes that no reading of the answer's names sees: (answers by exercise, code put before answers).
+STEALERS = {
+    "crosscell_pkgutil": (
+        {
+            "ch04_svdo_layer": "import pkgutil\n"
+            "MyLinearSVDO = pkgutil.resolve_name('vdtutorial.vd:' + 'Linear' + 'SVDO')\n",
+            "ch04_compact": "def my_compact(net):\n    return _library_compact(net)\n",
+        },
+        {"ch04_gaussian_dropout": "from vdtutorial.analysis.compact import compact as _library_compact"},
+    ),
+    "pickle_sysmodules": (
+        {
+            "ch04_svdo_layer": "from sys import modules as M\nimport vdtutorial.vd\n"
+            "MyLinearSVDO = getattr(M['vdtutorial.vd'], 'Linear' + 'SVDO')\n",
+            "ch04_compact": "import pickle\nmy_compact = pickle.loads(b'cvdtutorial.analysis.compact\\ncompact\\n.')\n",
+        },
+        {},
+    ),
+    "encoded_alias": (
+        {
+            "ch04_svdo_layer": "LinearSVDO = LinearSVDO if True else None\nMyLinearSVDO = LinearSVDO\n",
+            "ch04_compact": "import base64\nexec(base64.b64decode({!r}).decode())\n".format(
+                __import__("base64").b64encode(_STOLEN_COMPACT.encode())
+            ),
+        },
+        {},
+    ),
+    "importlib_runpy": (
+        {
+            "ch04_svdo_layer": "import runpy\nMyLinearSVDO = runpy.run_module('vdtutorial.vd')['LinearSVDO']\n",
+            "ch04_compact": "import importlib\n"
+            "my_compact = getattr(importlib.import_module('vdtutorial.analysis.' + 'compact'), 'compact')\n",
+        },
+        {},
+    ),
+}
+
+
+@needs_sandbox
+@pytest.mark.pipeline
+def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path):
+    """Graded without the static check (the stubs alone), each of these students scores 4.1, which they solved, and 0
+    for the library's layer and compaction they took: by an import in another exercise's cell, a name built from
+    strings (pkgutil), sys.modules, pickle of a global reference, code decoded and run, an alias of the library's
+    class, importlib and runpy. The table and grades.csv say that the answer called a stub."""
+    chapter = "04_sparse_variational_dropout"
+    for student, (answers, before) in STEALERS.items():
+        _hand_in(tmp_path / "in", student, chapter, _chapter_answering(chapter, answers, before))
+    scores = classroom.grade(
+        sorted((tmp_path / "in").iterdir()), tmp_path / "course", timeout=600, workers=2, static_check=False
+    )
+    got = {(s.student, s.exercise): s for s in scores}
+    for student in STEALERS:
+        own = got[student, "ch04_gaussian_dropout_tests"]
+        assert own.score == own.max_score > 0, own
+        for exercise, stub in (("ch04_svdo_layer", "SVDOLayer"), ("ch04_compact", "compact")):
+            taken = got[student, f"{exercise}_tests"]
+            assert taken.score == 0, taken
+            assert "called a stub: the library's vdtutorial." in taken.refused and stub in taken.refused, taken
+    with open(tmp_path / "course" / "grades.csv") as fh:
+        rows = [r for r in csv.DictReader(fh) if "called a stub" in r["refused"]]
+    assert {r["student"] for r in rows} == set(STEALERS) and len(rows) == 2 * len(STEALERS)
+    assert "is stubbed in grading" in classroom.table(scores)

@@ -1,0 +1,101 @@
+"""The library as the grading kernel sees it (vdtutorial/course/stubs.py): every piece an exercise rebuilds is a
+stub in the copy, whatever the route to it, and nothing else of the package changes."""
+
+import pkgutil
+import subprocess
+import sys
+
+import nbformat
+import pytest
+
+from vdtutorial.course import answer_rules, checks, classroom, stubs
+
+
+@pytest.fixture(scope="module")
+def stubbed(tmp_path_factory):
+    return stubs.stubbed_copy(tmp_path_factory.mktemp("library") / "vdtutorial", list(stubs.STUBS))
+
+
+def _in_copy(stubbed, code: str) -> subprocess.CompletedProcess:
+    """``code`` run by a Python that imports the stubbed copy (its folder first on the path)."""
+    return subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+        env={"PYTHONPATH": str(stubbed.parent), "PATH": "/usr/bin:/bin", "PYTHONDONTWRITEBYTECODE": "1"},
+        cwd=stubbed.parent,
+    )
+
+
+def test_every_stub_names_a_piece_an_exercise_rebuilds_and_exists():
+    for exercise, names in stubs.STUBS.items():
+        assert exercise in answer_rules.FORBIDDEN, exercise
+        checks.check(exercise)  # KeyError if the exercise has no trusted check
+        for name in names:
+            module, qualname = name.split(":")
+            obj = pkgutil.resolve_name(name)  # the real one, here
+            assert obj.__qualname__ == qualname and module.startswith("vdtutorial.")
+
+
+def test_each_route_to_a_stubbed_piece_reaches_the_stub(stubbed):
+    """Import, a string-built name, sys.modules, pickle of a global reference, importlib and runpy all give the
+    stub; the original source is nowhere in the copy; the untouched pieces still work."""
+    assert "r_dot_r" not in (stubbed / "trust_region.py").read_text() and not list(stubbed.rglob("*.pyc"))
+    code = """
+import importlib, pickle, pkgutil, runpy, sys, torch
+import vdtutorial.vd
+from vdtutorial.vd import LinearSVDO
+routes = {
+    "import": lambda: __import__("vdtutorial.trust_region", fromlist=["x"]).conjugate_gradient,
+    "pkgutil": lambda: pkgutil.resolve_name("vdtutorial.trust_region:" + "conjugate_gradient"),
+    "sys.modules": lambda: getattr(sys.modules["vdtutorial.trust_region"], "conjugate_gradient"),
+    "pickle": lambda: pickle.loads(b"cvdtutorial.trust_region\\nconjugate_gradient\\n."),
+    "importlib": lambda: importlib.import_module("vdtutorial.trust_region").conjugate_gradient,
+    "runpy": lambda: runpy.run_module("vdtutorial.trust_region")["conjugate_gradient"],
+}
+for route, get in routes.items():
+    try:
+        get()(lambda v: v, torch.ones(2), 3)
+        print(route, "REAL")
+    except NotImplementedError as exc:
+        print(route, "STUB", exc)
+layer = LinearSVDO(3, 2).eval()
+print("eval", tuple(layer(torch.ones(1, 3)).shape), "keep", tuple(layer.keep_mask().shape))
+try:
+    layer.train()(torch.ones(1, 3))
+except NotImplementedError as exc:
+    print("train STUB", exc)
+"""
+    run = _in_copy(stubbed, code)
+    assert run.returncode == 0, run.stderr
+    lines = run.stdout.splitlines()
+    want = stubs.message("vdtutorial.trust_region:conjugate_gradient", "ch06_conjugate_gradient")
+    for route in ("import", "pkgutil", "sys.modules", "pickle", "importlib", "runpy"):
+        assert f"{route} STUB {want}" in lines, (route, lines)
+    assert "eval (1, 2) keep (2, 3)" in lines
+    assert any(line.startswith("train STUB") and "ch04_gaussian_dropout" in line for line in lines), lines
+
+
+def test_only_the_graders_own_stub_lines_are_believed():
+    line = stubs.message("vdtutorial.analysis.compact:compact", "ch04_compact")
+    assert checks.stubbed(f"NotImplementedError: {line}") == line
+    forged = line.replace("compact:compact", "compact:anything").replace("ch04_compact", "ch04_x")
+    assert checks.stubbed(forged) is None and checks.stubbed("your code raised KeyError") is None
+
+
+def test_grading_runs_the_hidden_tests_first(tmp_path):
+    path = tmp_path / "06b.ipynb"
+    path.write_bytes(classroom.chapters()["06b_trpo_assembled"].read_bytes())
+    classroom.hidden_tests_first(path)
+    before = nbformat.read(classroom.chapters()["06b_trpo_assembled"], as_version=4).cells
+    after = nbformat.read(path, as_version=4).cells
+    tests = [k for k, c in enumerate(before) if c.metadata.get("nbgrader", {}).get("grade")]
+    assert tests
+    for k in tests:
+        assert after[k].source.startswith("### BEGIN HIDDEN TESTS\n")
+        assert sorted(after[k].source.splitlines()) == sorted(before[k].source.splitlines())
+    assert [c.source for k, c in enumerate(after) if k not in tests] == [
+        c.source for k, c in enumerate(before) if k not in tests
+    ]
