@@ -4,6 +4,7 @@ grading, the options of ``classroom grade``. The commands that grade whole noteb
 import csv
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -354,3 +355,42 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
         rows = [r for r in csv.DictReader(fh) if "called a stub" in r["refused"]]
     assert {r["student"] for r in rows} == set(STEALERS) and len(rows) == 2 * len(STEALERS)
     assert "is stubbed in grading" in classroom.table(scores)
+
+
+@needs_sandbox
+@pytest.mark.pipeline
+def test_an_interrupted_grading_resumes_where_it_stopped(tmp_path):
+    """``classroom grade`` keeps each submission's result as it finishes: interrupted (Ctrl-C) after the first, and
+    run again, it grades only the others, and every student gets the points; a submission changed since is graded
+    again."""
+    chapter, students = "10_what_reproduced", ("ann", "bob", "cid")
+    for student in students:
+        _hand_in(tmp_path / "in", student, chapter, _chapter_with(chapter))
+    course = tmp_path / "course"
+    argv = [sys.executable, "-m", "vdtutorial", "classroom", "grade", *(str(tmp_path / "in" / s) for s in students)]
+    argv += ["--out", str(course), "--workers", "1"]
+    deadline = time.monotonic() + 900
+    with open(tmp_path / "first.log", "w") as out:
+        first = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
+        while not list(course.glob("results/*/*.json")) and first.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.5)
+        first.send_signal(signal.SIGINT)
+        first.wait(timeout=120)
+    kept = {path: path.stat().st_mtime_ns for path in course.glob("results/*/*.json")}
+    assert first.returncode != 0 and 1 <= len(kept) < len(students), (first.returncode, kept)
+    assert not (course / "grades.csv").exists()
+
+    again = subprocess.run(argv, capture_output=True, text=True, timeout=1800, check=False)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert f"resuming: {len(kept)} submissions were graded by an earlier run" in again.stderr
+    assert {path: path.stat().st_mtime_ns for path in kept} == kept, "a kept result was graded again"
+    with open(course / "grades.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["student"] for r in rows} == set(students)
+    assert all(float(r["score"]) == float(r["max_score"]) > 0 for r in rows), rows
+
+    changed = next(iter(kept)).parent.name  # a student who hands in again is graded again
+    nb = _chapter_with(chapter, extra_cell="print('handed in again')")
+    nbformat.write(nb, tmp_path / "in" / changed / f"{chapter}.ipynb")
+    third = subprocess.run(argv, capture_output=True, text=True, timeout=1800, check=False)
+    assert third.returncode == 0 and f"resuming: {len(students) - 1} submissions" in third.stderr, third.stderr[-2000:]

@@ -385,6 +385,10 @@ def grade(
     many run at once. ``log`` gets one line per graded submission. ``static_check=False`` skips
     :func:`refusals` (the points still come from the trusted checks alone). Each student's report goes to
     ``out/feedback/STUDENT/CHAPTER.md`` (:func:`vdtutorial.course.feedback.write_reports`).
+
+    Each submission's result is kept in ``out/results`` as soon as its grading finished (:func:`_save_result`):
+    run again on the same folder after an interruption, ``grade`` grades only the submissions without one, or
+    whose notebook, chapter, mode or limits changed since, and writes the gradebook and ``grades.csv`` for all.
     """
     from vdtutorial.course.feedback import write_reports
     from vdtutorial.course.grading_process import run_each
@@ -402,7 +406,15 @@ def grade(
     with tempfile.TemporaryDirectory(prefix="vdtutorial_grade_") as scratch, _quiet():
         api = _generate(out, source, sorted({s.chapter for s in subs}), timeout, sockets=Path(scratch), grading=True)
         gradebook = (out / "gradebook.db").read_bytes()
-        run = [k for k, (whole, _) in enumerate(refused) if whole is None]
+        marks = {k: _fingerprint(sub, out, quick, limits) for k, sub in enumerate(subs)}
+        stored = {
+            k: found
+            for k, (whole, _) in enumerate(refused)
+            if whole is None and (found := _stored_result(out, subs[k], marks[k])) is not None
+        }
+        if stored and log:
+            log(f"resuming: {len(stored)} submissions were graded by an earlier run of this command, unchanged")
+        run = [k for k, (whole, _) in enumerate(refused) if whole is None and k not in stored]
         jobs = [
             GradingJob(
                 subs[k].student,
@@ -417,14 +429,12 @@ def grade(
             )
             for k in run
         ]
-        listener = _GradingLog(jobs, log) if log else None
+        listener = _GradingLog(jobs, log, lambda i, result: _save_result(out, subs[run[i]], marks[run[i]], result))
         if backend == "local":
-            done = run_each(
-                jobs, workers, limits.wall_minutes * 60, did_not_finish, listener.finished if listener else None
-            )
+            done = run_each(jobs, workers, limits.wall_minutes * 60, did_not_finish, listener.finished)
         else:
             done = run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address, listener=listener)
-        graded = dict(zip(run, done))
+        graded = {**dict(zip(run, done)), **stored}
         results = [graded.get(k, Graded({}, None, None)) for k in range(len(subs))]
         for sub, result in zip(subs, results):
             for folder, data in (("submitted", sub.path.read_bytes()), ("autograded", result.autograded)):
@@ -614,11 +624,69 @@ def _check_npz_sizes(path: Path, limit: int) -> None:
                 raise ValueError(f"{member.filename} declares more data than it holds, or objects")
 
 
-class _GradingLog:
-    """The listener of :func:`grade`'s jobs: one line per graded submission."""
+#: The folder of a course (``--out``) that keeps each graded submission's result as it finishes
+#: (:func:`_save_result`), so that a rerun after an interruption grades only the rest.
+RESULTS = "results"
 
-    def __init__(self, jobs: list[GradingJob], log):
-        self.jobs, self.log, self.done = jobs, log, 0
+
+def _fingerprint(sub: Submission, out: Path, quick: bool, limits: Limits) -> str:
+    """What a stored result was graded from: the submission's bytes, the chapter as graded (``out/source``), the
+    mode and the limits; a result whose fingerprint differs is graded again."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for part in (sub.path.read_bytes(), (out / "source" / ASSIGNMENT / f"{sub.chapter}.ipynb").read_bytes()):
+        digest.update(hashlib.sha256(part).digest())
+    digest.update(repr((quick, limits)).encode())
+    return digest.hexdigest()
+
+
+def _replace(path: Path, data: bytes) -> None:
+    """``path`` holds ``data``, whole or not at all: written beside it, then renamed over it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + ".partial")
+    partial.write_bytes(data)
+    os.replace(partial, path)
+
+
+def _autograded_path(out: Path, sub: Submission) -> Path:
+    return out / "autograded" / sub.student / ASSIGNMENT / f"{sub.chapter}.ipynb"
+
+
+def _save_result(out: Path, sub: Submission, fingerprint: str, result: Graded) -> None:
+    """Keep ``result`` of ``sub`` in ``out/results`` as soon as its grading finished (its autograded notebook first,
+    then the record that names it: a record is never written before what it names)."""
+    if result.autograded is not None:
+        _replace(_autograded_path(out, sub), result.autograded)
+    record = {
+        "fingerprint": fingerprint,
+        "failures": {exercise: list(failed) for exercise, failed in result.failures.items()},
+        "error": result.error,
+        "unfinished": result.unfinished,
+        "autograded": result.autograded is not None,
+    }
+    _replace(out / RESULTS / sub.student / f"{sub.chapter}.json", json.dumps(record).encode())
+
+
+def _stored_result(out: Path, sub: Submission, fingerprint: str) -> Graded | None:
+    """The result :func:`_save_result` kept for ``sub``, if it was graded from the same ``fingerprint``."""
+    try:
+        record = json.loads((out / RESULTS / sub.student / f"{sub.chapter}.json").read_text())
+        if record["fingerprint"] != fingerprint:
+            return None
+        autograded = _autograded_path(out, sub).read_bytes() if record["autograded"] else None
+        failures = {exercise: tuple(failed) for exercise, failed in record["failures"].items()}
+        return Graded(failures, autograded, record["error"], record["unfinished"])
+    except (OSError, ValueError, KeyError, TypeError):  # none kept, or not whole: grade it again
+        return None
+
+
+class _GradingLog:
+    """The listener of :func:`grade`'s jobs: ``keep(index, result)`` for each graded submission as it finishes,
+    and one line for it to ``log`` (if any)."""
+
+    def __init__(self, jobs: list[GradingJob], log, keep=None):
+        self.jobs, self.log, self.keep, self.done = jobs, log, keep, 0
 
     def report(self, index, report) -> None:
         pass
@@ -627,6 +695,10 @@ class _GradingLog:
         pass
 
     def finished(self, index, result: Graded) -> None:
+        if self.keep is not None:
+            self.keep(index, result)
+        if self.log is None:
+            return
         self.done += 1
         job = self.jobs[index]
         passed = sum(not failed for failed in result.failures.values())
