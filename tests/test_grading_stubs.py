@@ -78,6 +78,19 @@ except NotImplementedError as exc:
     assert any(line.startswith("train STUB") and "ch04_gaussian_dropout" in line for line in lines), lines
 
 
+def test_the_checks_verdicts_are_stubs_in_the_kernel_and_their_probes_are_not(stubbed):
+    """A verdict recomputes the answer (4.1's eq. 4 inline): in the kernel it would be a reference to call."""
+    source = (stubbed / "course" / "checks" / "ch04.py").read_text()
+    assert "einsum" not in source and "def dropout_probe" in source
+    assert stubs.verdicts("ch04") == {
+        "ch04_gaussian_dropout": "dropout_verdict",
+        "ch04_svdo_layer": "layer_verdict",
+        "ch04_compact": "compact_verdict",
+    }
+    run = _in_copy(stubbed, "from vdtutorial.course.checks import ch04\nch04.dropout_verdict({}, {})\n")
+    assert stubs.message("vdtutorial.course.checks.ch04:dropout_verdict", "ch04_gaussian_dropout") in run.stderr
+
+
 def test_only_the_graders_own_stub_lines_are_believed():
     line = stubs.message("vdtutorial.analysis.compact:compact", "ch04_compact")
     assert checks.stubbed(f"NotImplementedError: {line}") == line

@@ -85,24 +85,46 @@ def message(name: str, exercise: str) -> str:
     return _MESSAGE.format(name=name.replace(":", "."), exercise=exercise)
 
 
-def called(text: str, exercises) -> str | None:
-    """The stub's line in ``text`` (an exception's message), when it names a stub of one of ``exercises``: the
-    kernel can write any text, so a line is believed only if it is one the grader's own table would write."""
+def called(text: str) -> str | None:
+    """The stub's line in ``text`` (an exception's message): the kernel can write any text, so a line is believed
+    only if it is one the grader's own table would write for the exercise it names."""
     match = _CALLED.search(text or "")
     if match is None:
         return None
-    known = {message(name, exercise) for exercise in exercises for name in STUBS.get(exercise, ())}
+    try:
+        pieces = targets([match.group(2)])
+    except (OSError, SyntaxError):  # no such chapter: a line the grader never wrote
+        return None
+    known = {
+        message(f"{module}:{name}", exercise) for module, named in pieces.items() for name, exercise in named.items()
+    }
     return match.group(0) if match.group(0) in known else None
+
+
+def verdicts(chapter: str, package: Path | None = None) -> dict[str, str]:
+    """The verdict functions of the trusted checks of ``chapter`` (``"ch04"``), by exercise, read from the list
+    ``CHECKS`` of its module without importing it. A verdict recomputes the answer in the grader's process: in the
+    kernel, where only the probes run, it would be one more reference implementation to call, so it is stubbed too."""
+    path = module_file(package or package_dir(), f"vdtutorial.course.checks.{chapter}")
+    found = {}
+    for node in ast.walk(ast.parse(path.read_text())):
+        is_check = isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "Check"
+        if is_check and len(node.args) == 4 and isinstance(node.args[0], ast.Constant):
+            found[node.args[0].value] = node.args[3].id
+    return found
 
 
 def targets(exercises) -> dict[str, dict[str, str]]:
     """The stubs of ``exercises``, by module: ``{module: {qualname: exercise}}`` (the first exercise that names a
-    piece is the one its message names)."""
+    piece is the one its message names): their pieces of :data:`STUBS`, and their checks' verdicts."""
     found: dict[str, dict[str, str]] = {}
     for exercise in exercises:
         for name in STUBS.get(exercise, ()):
             module, qualname = name.split(":")
             found.setdefault(module, {}).setdefault(qualname, exercise)
+        chapter = exercise.split("_")[0]
+        if exercise in (judged := verdicts(chapter)):
+            found.setdefault(f"vdtutorial.course.checks.{chapter}", {})[judged[exercise]] = exercise
     return found
 
 

@@ -138,7 +138,7 @@ def _stub_line(exc: BaseException) -> str | None:
     seen = set()
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
-        line = stubs.called(str(exc), stubs.STUBS)
+        line = stubs.called(str(exc))
         if line:
             return line
         exc = exc.__cause__ or exc.__context__
@@ -183,11 +183,11 @@ def judge(item: Check, inputs: dict, outputs: dict | None) -> list[str]:
 
 def stubbed(text: str) -> str | None:
     """The stub's line in ``text`` (a probe's report, or a failure of :func:`judge`) when the grader's own table
-    (:data:`vdtutorial.course.stubs.STUBS`) would write it, else ``None``: why an exercise scored nothing that the
+    (:func:`vdtutorial.course.stubs.targets`) would write it, else ``None``: why an exercise scored nothing that the
     teacher's table names."""
     from vdtutorial.course import stubs
 
-    return stubs.called(text, stubs.STUBS)
+    return stubs.called(text)
 
 
 class Failures(list):
