@@ -134,7 +134,7 @@ def test_a_wrong_line_search_costs_its_own_exercise_only():
     for seed in (21, 29, 30, 42, 77, 80):
         assert failures("ch06_trpo_update", wrong, seed) == [], seed
     assert failures("ch06_line_search", wrong, 0)
-    assert wrong["my_line_search"] is not ch06._reference_line_search  # the student's search is put back
+    assert wrong["my_line_search"].__name__ == "my_line_search"  # the student's search is put back
 
 
 @pytest.mark.parametrize("exercise", list(EXERCISES))
@@ -208,4 +208,5 @@ def test_a_right_update_is_named_no_slip():
     assert [
         ch06._named_slip(cases[key], outputs[key], ch06._library_update(cases[key], ch06._update_config(cases[key]))[1])
         for key in sorted(cases)
+        if key.startswith("case")
     ] == [None] * 5

@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import nbformat
+import numpy as np
 import pytest
 
 from vdtutorial.course import answer_rules, checks, classroom, stubs
@@ -112,3 +113,32 @@ def test_grading_runs_the_hidden_tests_first(tmp_path):
     assert [c.source for k, c in enumerate(after) if k not in tests] == [
         c.source for k, c in enumerate(before) if k not in tests
     ]
+
+
+def test_each_exercise_gets_its_inputs_in_its_turn_and_its_outputs_are_sealed_after(tmp_path):
+    """An exercise's inputs appear as its tests cell starts, in the chapter's order; its outputs leave the
+    kernel's folder when the cell ends (a later cell cannot rewrite them); a tests cell out of turn (a copy of a
+    later exercise's, moved up) gets nothing."""
+    exchange, sealed = tmp_path / "exchange", tmp_path / "sealed"
+    exchange.mkdir()
+    sealed.mkdir()
+    drawn = {name: {"x": np.arange(3.0) + k} for k, name in enumerate(("ch04_gaussian_dropout", "ch04_compact"))}
+    turns = classroom._Exchange(exchange, sealed, drawn)
+
+    def cell(grade_id):
+        return nbformat.v4.new_code_cell("", metadata={"nbgrader": {"grade_id": grade_id}})
+
+    turns.before(cell=cell("ch04_compact_tests"))  # out of turn
+    assert not list(exchange.iterdir())
+    turns.after(cell=cell("ch04_compact_tests"))
+    turns.before(cell=cell("ch04_gaussian_dropout_tests"))
+    assert [p.name for p in exchange.iterdir()] == ["ch04_gaussian_dropout.inputs.npz"]
+    checks.save(checks.outputs_path(exchange, "ch04_gaussian_dropout"), {"y": np.ones(2)})
+    turns.after(cell=cell("ch04_gaussian_dropout_tests"))
+    assert not list(exchange.iterdir())
+    checks.save(checks.outputs_path(exchange, "ch04_gaussian_dropout"), {"y": np.zeros(2)})  # a later rewrite
+    assert np.array_equal(turns.outputs("ch04_gaussian_dropout")["y"], np.ones(2))
+    turns.before(cell=cell("ch04_compact_tests"))
+    assert np.array_equal(checks.load(checks.inputs_path(exchange, "ch04_compact"))["x"], drawn["ch04_compact"]["x"])
+    turns.after(cell=cell("ch04_compact_tests"))  # no outputs came back
+    assert turns.outputs("ch04_compact") is None

@@ -113,10 +113,11 @@ def grade_ids(path: Path) -> list[str]:
     return [c.metadata["nbgrader"]["grade_id"] for c in nb.cells if "grade_id" in c.metadata.get("nbgrader", {})]
 
 
-def _api(course: Path, timeout: int, sockets: Path | None = None):
+def _api(course: Path, timeout: int, sockets: Path | None = None, exchange=None):
     """An nbgrader API object for the course directory ``course`` (gradebook ``course/gradebook.db``).
     With ``sockets`` (a folder), kernels talk over Unix sockets made there, where the system has them: no
-    TCP port, and no "running over TCP without encryption" warning from each kernel."""
+    TCP port, and no "running over TCP without encryption" warning from each kernel. ``exchange``: a
+    :class:`_Exchange` whose hooks run before and after each cell the kernel executes."""
     from nbgrader.apps import NbGraderAPI
     from traitlets.config import Config
 
@@ -128,7 +129,53 @@ def _api(course: Path, timeout: int, sockets: Path | None = None):
     if sockets is not None and os.name == "posix":
         config.KernelManager.transport = "ipc"
         config.KernelManager.ip = str(sockets / "kernel")
+    if exchange is not None:
+        config.Execute.on_cell_execute = exchange.before
+        config.Execute.on_cell_executed = exchange.after
     return NbGraderAPI(config=config)
+
+
+class _Exchange:
+    """What the kernel and the grader pass each other, one exercise at a time, in the order of the chapter: an
+    exercise's inputs appear in the exchange folder just before its tests cell runs, and its outputs leave it for a
+    folder of the grader's (``sealed``) just after, with its inputs. So nothing a later exercise's check hands the
+    kernel (6.8's stand-in line search) exists while an earlier one is judged, and no later cell can rewrite an
+    earlier exercise's outputs. A tests cell out of order (a copy of a later one, moved up) gets no inputs."""
+
+    def __init__(self, exchange: Path, sealed: Path, inputs: dict[str, dict]):
+        from vdtutorial.course import checks
+
+        self.checks, self.exchange, self.sealed = checks, exchange, sealed
+        self.order, self.inputs, self.open = list(inputs), inputs, None
+
+    def _exercise(self, cell) -> str | None:
+        """The exercise whose turn it is, if ``cell`` is its tests cell."""
+        done = len(list(self.sealed.iterdir()))
+        grading = cell.get("metadata", {}).get("nbgrader", {})
+        if done < len(self.order) and grading.get("grade_id") == f"{self.order[done]}_tests":
+            return self.order[done]
+        return None
+
+    def before(self, cell, **_) -> None:
+        exercise = self._exercise(cell)
+        if exercise is not None:
+            self.checks.outputs_path(self.exchange, exercise).unlink(missing_ok=True)
+            self.checks.save(self.checks.inputs_path(self.exchange, exercise), self.inputs[exercise])
+            self.open = exercise
+
+    def after(self, cell, **_) -> None:
+        exercise, self.open = self.open, None
+        if exercise is None:
+            return
+        self.checks.inputs_path(self.exchange, exercise).unlink(missing_ok=True)
+        outputs = self.checks.outputs_path(self.exchange, exercise)
+        folder = self.sealed / exercise
+        folder.mkdir()  # the exercise's turn is over, whatever came back
+        if outputs.is_file() or outputs.is_symlink():
+            os.replace(outputs, folder / outputs.name)
+
+    def outputs(self, exercise: str) -> dict | None:
+        return _outputs(self.sealed / exercise, exercise)
 
 
 def _generate(
@@ -538,8 +585,9 @@ def did_not_finish(why: str) -> Graded:
 
 def grade_one(job: GradingJob) -> Graded:
     """nbgrader's autograde of one submission, in a course folder of its own made in a throwaway folder, with each
-    exercise's trusted check around it: the inputs written before the kernel starts, the outputs judged after it
-    stopped, here in the worker's process (the worker's part of :func:`grade`)."""
+    exercise's trusted check around it: the inputs drawn before the kernel starts and handed over as its tests
+    cell runs (:class:`_Exchange`), the outputs judged after it stopped, here in the worker's process (the worker's
+    part of :func:`grade`)."""
     import numpy as np
 
     from vdtutorial.course import checks
@@ -552,11 +600,12 @@ def grade_one(job: GradingJob) -> Graded:
             (course / folder / ASSIGNMENT / f"{job.chapter}.ipynb").write_bytes(data)
         (course / "gradebook.db").write_bytes(job.gradebook)
         exchange.mkdir()
+        (scratch / "sealed").mkdir()
         inputs = {}
         exercises = _exercises(course / "source" / ASSIGNMENT / f"{job.chapter}.ipynb")
         for k, exercise in enumerate(exercises):
             inputs[exercise] = checks.plain(checks.check(exercise).inputs(np.random.default_rng([job.seed, k])))
-            checks.save(checks.inputs_path(exchange, exercise), inputs[exercise])
+        turns = _Exchange(exchange, scratch / "sealed", inputs)
         kernel_env = {
             QUICK_ENV: "1" if job.quick else "0",
             "MPLBACKEND": "Agg",
@@ -565,12 +614,12 @@ def grade_one(job: GradingJob) -> Graded:
             checks.EXCHANGE_ENV: str(exchange),
             **_bounded_kernels(scratch, job.limits, writable=[exchange], exercises=exercises),
         }
-        api = _api(course, job.timeout, sockets=scratch / "runtime")
+        api = _api(course, job.timeout, sockets=scratch / "runtime", exchange=turns)
         with _environment(**kernel_env):
             result = api.autograde(ASSIGNMENT, job.student)
         error = None if result["success"] else (result.get("error") or "").strip()[-300:]
         failures = {
-            exercise: tuple(checks.judge(checks.check(exercise), given, _outputs(exchange, exercise)))
+            exercise: tuple(checks.judge(checks.check(exercise), given, turns.outputs(exercise)))
             for exercise, given in inputs.items()
         }
         autograded = course / "autograded" / job.student / ASSIGNMENT / f"{job.chapter}.ipynb"

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 import math
 
 import gymnasium as gym
@@ -516,7 +517,7 @@ def update_inputs(rng: np.random.Generator) -> dict:
             config=config,
         )
         cases[f"case{k}"] = case
-    return cases
+    return {**cases, "stand_in": _stand_in_source()}
 
 
 def _update_config(case: dict) -> TRPOConfig:
@@ -532,11 +533,40 @@ def _reference_line_search(params, direction, fvp, surrogate_and_kl, config):
     )
 
 
+def _stand_in_source() -> str:
+    """The source of the line search that 6.8's check runs in place of the student's: the library's
+    :func:`~vdtutorial.trust_region.line_search`, read where the library is whole (the grader's process, or a
+    notebook checking itself), and :func:`_reference_line_search` around it. It travels as text in 6.8's inputs:
+    in the grading kernel the library's line search is a stub (:mod:`vdtutorial.course.stubs`), and 6.8's inputs
+    reach the kernel only after 6.7's outputs left it (``vdtutorial.course.classroom._Exchange``), so it cannot
+    serve as a 6.7 answer."""
+    head = "\n".join(
+        [
+            "from __future__ import annotations",
+            "import math",
+            "import torch",
+            "from vdtutorial.trust_region import set_flat_params",
+        ]
+    )
+    return "\n\n".join([head, inspect.getsource(line_search), inspect.getsource(_reference_line_search)])
+
+
 def update_probe(namespace: dict, inputs: dict) -> dict:
-    """The student's update, which calls their own line search (6.7): the library's is a stub in the grading kernel
-    (:mod:`vdtutorial.course.stubs`), and a stand-in written here would be a line search any answer could import.
-    A wrong 6.7 may therefore cost 6.8 too, whether it does depending on the drawn batch."""
-    return _update_outcomes(namespace, inputs)
+    """The student's update, with the library's line search in place of theirs while it runs: each exercise is
+    judged on its own, so a wrong 6.7 costs 6.7's points only (whether it also spoils an update depends on the
+    drawn batch). The line search comes as text with the inputs (:func:`_stand_in_source`)."""
+    code = {}
+    exec(compile(str(inputs["stand_in"]), "<6.8's stand-in line search>", "exec"), code)  # the grader's own text
+    missing = object()
+    own = namespace.get("my_line_search", missing)
+    namespace["my_line_search"] = code["_reference_line_search"]
+    try:
+        return _update_outcomes(namespace, {key: case for key, case in inputs.items() if key.startswith("case")})
+    finally:
+        if own is missing:
+            del namespace["my_line_search"]
+        else:
+            namespace["my_line_search"] = own
 
 
 def _update_outcomes(namespace: dict, inputs: dict) -> dict:
