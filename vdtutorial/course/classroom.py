@@ -129,18 +129,18 @@ def _api(course: Path, timeout: int, sockets: Path | None = None, exchange=None)
     if sockets is not None and os.name == "posix":
         config.KernelManager.transport = "ipc"
         config.KernelManager.ip = str(sockets / "kernel")
-    if exchange is not None:
+    if exchange is not None:  # nbgrader's Execute takes nbclient's on_cell_executed for itself: one hook does both
         config.Execute.on_cell_execute = exchange.before
-        config.Execute.on_cell_executed = exchange.after
     return NbGraderAPI(config=config)
 
 
 class _Exchange:
     """What the kernel and the grader pass each other, one exercise at a time, in the order of the chapter: an
     exercise's inputs appear in the exchange folder just before its tests cell runs, and its outputs leave it for a
-    folder of the grader's (``sealed``) just after, with its inputs. So nothing a later exercise's check hands the
-    kernel (6.8's stand-in line search) exists while an earlier one is judged, and no later cell can rewrite an
-    earlier exercise's outputs. A tests cell out of order (a copy of a later one, moved up) gets no inputs."""
+    folder of the grader's (``sealed``), with its inputs, before the next cell runs (:meth:`before` does both, as
+    each cell starts; :meth:`after` once the notebook ended). So nothing a later exercise's check hands the kernel
+    (6.8's stand-in line search) exists while an earlier one is judged, and no later cell can rewrite an earlier
+    exercise's outputs. A tests cell out of order (a copy of a later one, moved up) gets no inputs."""
 
     def __init__(self, exchange: Path, sealed: Path, inputs: dict[str, dict]):
         from vdtutorial.course import checks
@@ -157,13 +157,14 @@ class _Exchange:
         return None
 
     def before(self, cell, **_) -> None:
+        self.after()
         exercise = self._exercise(cell)
         if exercise is not None:
             self.checks.outputs_path(self.exchange, exercise).unlink(missing_ok=True)
             self.checks.save(self.checks.inputs_path(self.exchange, exercise), self.inputs[exercise])
             self.open = exercise
 
-    def after(self, cell, **_) -> None:
+    def after(self, **_) -> None:
         exercise, self.open = self.open, None
         if exercise is None:
             return
@@ -617,6 +618,7 @@ def grade_one(job: GradingJob) -> Graded:
         api = _api(course, job.timeout, sockets=scratch / "runtime", exchange=turns)
         with _environment(**kernel_env):
             result = api.autograde(ASSIGNMENT, job.student)
+        turns.after()
         error = None if result["success"] else (result.get("error") or "").strip()[-300:]
         failures = {
             exercise: tuple(checks.judge(checks.check(exercise), given, turns.outputs(exercise)))
