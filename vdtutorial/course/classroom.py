@@ -16,8 +16,8 @@ points, visible asserts and hidden tests. This module lays out an nbgrader cours
   one gradebook by the grading process alone. Before anything
   runs, the answer cells are read (:func:`refusals`, :mod:`vdtutorial.course.answer_rules`): an answer that
   uses the library's piece its exercise rebuilds scores 0 there; one that could change the tests makes the
-  whole notebook score 0. The kernel imports a copy of the package in which the pieces the chapter's exercises
-  rebuild are stubs (:mod:`vdtutorial.course.stubs`): that, not the reading, is what keeps them out of an answer.
+  whole notebook score 0. The kernel imports a copy of the package in which the pieces of the chapter's exercises
+  in :data:`vdtutorial.course.stubs.STUBS` are stubs: for those, that, not the reading, keeps them out of an answer.
   Each student gets a report without the hidden checks (:mod:`vdtutorial.course.feedback`).
 
 Each kernel is bounded (:class:`Limits`, :mod:`vdtutorial.course.sandbox`): memory and CPU-time caps, in a
