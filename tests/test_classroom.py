@@ -362,7 +362,9 @@ def test_hostile_submissions_score_only_what_they_solved(tmp_path):
         assert got[student, "ch04_compact_tests"] == (0 if student == "quitter" else 3), student
     ran = cells(tmp_path / "course" / "autograded" / "patcher" / classroom.ASSIGNMENT / teacher.name)
     tests = next(c for c in ran if nbgrader(c).get("grade_id") == "ch04_svdo_layer_tests")
-    assert not [o for o in tests.outputs if o.output_type == "error"], "the patched tests passed in the kernel"
+    # the patched tests passed in the kernel, but for the library's pieces they call, which are stubs there
+    errors = [o for o in tests.outputs if o.output_type == "error"]
+    assert all("is stubbed in grading" in o.evalue for o in errors), [o.evalue for o in errors]
     failed = {s.student: s.failed for s in scores if s.exercise == "ch04_svdo_layer_tests"}
     assert any("kl()" in why for why in failed["patcher"]), failed["patcher"]
 
