@@ -132,7 +132,8 @@ def _api(course: Path, timeout: int, sockets: Path | None = None, exchange=None)
         config.KernelManager.transport = "ipc"
         config.KernelManager.ip = str(sockets / "kernel")
     if exchange is not None:  # nbgrader's Execute takes nbclient's on_cell_executed for itself: one hook does both
-        config.Execute.on_cell_execute = exchange.before
+        # a function, not the bound method: traitlets deep-copies its config, and a method's copy copies its object
+        config.Execute.on_cell_execute = lambda **cell: exchange.before(**cell)
     return NbGraderAPI(config=config)
 
 
