@@ -605,7 +605,10 @@ def test_feedback_names_the_cause_of_a_wrong_answer(tmp_path):
     for student, (chapter, exercise, _, _, words) in NAMED_CAUSES.items():
         page = (tmp_path / "course" / "feedback" / student / f"{chapter}.md").read_text()
         said = page.split(f"## {exercise}\n", 1)[1]
-        assert words in said and "the visible tests raised AssertionError: " in said, (student, page)
+        assert words in said and "is stubbed in grading" not in said, (student, page)
+        # 6.8's visible tests compare with the library's TRPO, a stub in grading: they stop before their asserts
+        visible = exercise != "ch06_trpo_update"
+        assert not visible or "the visible tests raised AssertionError: " in said, (student, page)
         assert NO_ANSWER not in page, (student, page)
 
 
