@@ -12,7 +12,7 @@ from torch import nn
 from vdtutorial.cli import main
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.dropconnect import DropConnect, dropconnect
-from vdtutorial.methods import METHODS, method
+from vdtutorial.methods import METHOD_LABELS, METHODS, method
 from vdtutorial.runner import read_rows
 from vdtutorial.settings import data_dir, is_quick
 from vdtutorial.vd import svdo_layers
@@ -35,6 +35,8 @@ def test_the_dropout_rate_is_part_of_the_name():
     unpruned = method("vd_unpruned")
     assert (unpruned.variational, unpruned.prunes, unpruned.network_of) == (True, False, "vd")
     assert {"vd_unpruned", "dropout"} <= set(METHODS)
+    labels = dict(METHOD_LABELS)  # every name of the table has a label, a family's bare name too
+    assert labels["dropout"] == "binary dropout" and METHOD_LABELS["dropout@0.2"] == "binary dropout, p=0.2"
 
 
 def test_dropconnect_masks_weights_in_training_only_and_leaves_the_plain_network():

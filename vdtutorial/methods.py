@@ -228,6 +228,8 @@ class _Labels(Mapping):
     """The table's labels by name, read at each look-up, so that a method registered later has its label too."""
 
     def __getitem__(self, name: str) -> str:
+        if name in METHODS:  # a family's bare name too (``dropout``): its label without the number
+            return METHODS[name].label
         try:
             return method(name).label
         except ValueError:
