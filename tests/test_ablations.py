@@ -5,6 +5,7 @@ at evaluation or in RL); and the command that measures the rate matched to VD.""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import pytest
 import torch
 from torch import nn
@@ -18,6 +19,7 @@ from vdtutorial.settings import data_dir, is_quick
 from vdtutorial.vd import svdo_layers
 
 RATE = 0.3
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_dropout_rate_is_part_of_the_name():
@@ -170,3 +172,28 @@ def test_the_matched_rate_is_the_mean_of_alpha_over_one_plus_alpha_of_the_kept_w
     other = data_dir() / "checkpoints" / "reach_n4000_sigma0.5_vd_state_seed0.pt"
     assert main(["dropout-rate", str(paths[0]), str(other)]) == 2
     assert "2 data sets" in capsys.readouterr().err
+
+
+def test_the_planned_commands_make_forty_runs_with_two_workers(monkeypatch):
+    """The plan's commands (docs/plan-ablations-and-image-fig5.md) build their runs without running them: the shipped
+    table names both ablations, so two worker processes know them (a method registered in one process would be
+    refused), and each command is the 4 methods times 10 seeds on its one data set."""
+    import vdtutorial.experiments.figures as figures
+
+    seen = {}
+
+    def capture(name, specs, title, out, workers, command=None, **kwargs):
+        seen.update(specs=specs, command=command)
+        raise SystemExit(0)
+
+    monkeypatch.setattr(figures, "run_experiment", capture)
+    plan = (ROOT / "docs" / "plan-ablations-and-image-fig5.md").read_text()
+    for figure, option, data in (("fig6", "--sigmas 0.25", (8000, 0.25)), ("fig5", "--samples 2000", (2000, 0.5))):
+        start = plan.index(f"python -m vdtutorial experiment {figure} {option} --methods vd l2 vd_unpruned dropout@")
+        argv = plan[start : plan.index("/state", start) + len("/state")].replace("\\\n", " ").split()[3:]
+        with pytest.raises(SystemExit):
+            main(argv)
+        assert "--workers 2" in seen["command"] and len(seen["specs"]) == 40
+        assert {(s.samples, s.noise) for s in seen["specs"]} == {data}
+        methods = {s.method for s in seen["specs"]}
+        assert methods - {"vd", "l2", "vd_unpruned"} == {next(m for m in argv if m.startswith("dropout@"))}
