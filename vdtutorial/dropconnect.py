@@ -37,8 +37,8 @@ def _check_rate(rate: float) -> float:
 
 class DropConnect(nn.Module):
     """A plain ``nn.Linear`` or ``nn.Conv2d`` with Bernoulli masks on its weights in training mode
-    (module docstring, "The noise"). ``weight`` and ``bias`` are the plain layer's Parameter objects; the plain layer itself is kept
-    unregistered, to be put back by :func:`dropconnect`."""
+    (module docstring, "The noise"). ``weight`` and ``bias`` are the plain layer's Parameter objects; the plain
+    layer itself is kept unregistered, to be put back by :func:`dropconnect`."""
 
     def __init__(self, layer: nn.Linear | nn.Conv2d, rate: float):
         super().__init__()
