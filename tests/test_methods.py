@@ -1,6 +1,7 @@
 """The table of methods: adding one is one entry (the paper's four, then two ablations of VD:
-tests/test_ablations.py). A method defined here, in the test file (L1 on mu's weights), registered and nothing else, runs through the command line's Fig. 4 beside VD; and no code outside the table
-decides anything by a method's name."""
+tests/test_ablations.py). A method defined here, in the test file (L1 on mu's weights), registered and nothing else,
+runs through the command line's Fig. 4 beside VD; and no code outside the table decides anything by a method's
+name."""
 
 from __future__ import annotations
 
