@@ -52,7 +52,7 @@ class AblationSetting:
         return f"dropout@{self.dropout_rate:g}"
 
 
-#: The plan's two settings, each with the rate the plan fixed for it: Fig. 6 at Sigma = 0.25 and Fig. 5 at 2000 demonstrations.
+#: The plan's two settings, each with the rate the plan fixed for it: Fig. 6 at Sigma = 0.25, Fig. 5 at 2000 demos.
 SETTINGS = (
     AblationSetting("fig6", "Sigma=0.25", 0.32),
     AblationSetting("fig5", "2000 demos", 0.16),
