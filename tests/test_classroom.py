@@ -52,6 +52,11 @@ WRONG = {
         "stats.t.ppf((1 + confidence) / 2, dof)",
         "stats.t.ppf(confidence, dof)",
     ),
+    "11_your_method": (
+        "ch11_l1_penalty",
+        "total = sum(w.abs().sum() for w in weights)",
+        "total = sum((w**2).sum() for w in weights)",
+    ),
 }
 
 

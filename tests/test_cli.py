@@ -198,13 +198,13 @@ def _one_line_error(capsys, argv) -> str:
         (["experiment", "fig4", "--workers", "-1"], "--workers: expected a positive integer"),
         (["experiment", "fig4", "--fvp-subsample", "1.5"], "--fvp-subsample: expected a number in (0, 1]"),
         (
-            ["pretrain", "--reg", "dropout", "--demos", "x.npz"],
-            "--reg dropout: not a pre-training method (they are vd, l2)",
+            ["pretrain", "--reg", "mixup", "--demos", "x.npz"],
+            "--reg mixup: not a pre-training method (they are vd, l2, vd_unpruned, dropout)",
         ),
         (["pretrain", "--reg", "none", "--demos", "x.npz"], "--reg none: not a pre-training method"),
         (
-            ["experiment", "fig4", "--methods", "vd", "dropout"],
-            "no method 'dropout': the methods are vd, l2, none, expert",
+            ["experiment", "fig4", "--methods", "vd", "mixup"],
+            "no method 'mixup': the methods are vd, l2, none, expert, vd_unpruned, dropout",
         ),
         (["bench", "gpu"], "invalid choice: 'gpu'"),
         (["bench", "env", "--profile"], "--profile is an option of bench finetune only"),

@@ -220,6 +220,35 @@ def test_one_student_never_stops_the_class(tmp_path):
     assert took < 3 * wall_minutes * 60, took  # five submissions, two at a time, none past its budget
 
 
+@needs_sandbox
+@pytest.mark.pipeline
+def test_on_ray_a_hung_submission_costs_itself_alone(tmp_path):
+    """On the Ray backend too, each submission is graded in a process of its own under its wall-clock budget: a
+    submission that hangs past every cell timeout is cut off at its budget with the reason, and the honest one
+    beside it gets its points (before, a Ray task graded in its own process with no budget, and waited)."""
+    pytest.importorskip("ray")
+    chapter = "01_environment"
+    _hand_in(tmp_path / "in", "honest", chapter, _chapter_with(chapter))
+    _hand_in(tmp_path / "in", "hanger", chapter, _chapter_with(chapter, extra_cell=CLASS_OF_FIVE["hanger"], at=4))
+    wall_minutes = 2.0
+    start = time.monotonic()
+    scores = classroom.grade(
+        sorted((tmp_path / "in").iterdir()),
+        tmp_path / "course",
+        timeout=600,
+        workers=2,
+        backend="ray",
+        limits=classroom.Limits(wall_minutes=wall_minutes),
+        static_check=False,
+    )
+    took = time.monotonic() - start
+    totals = {st: sum(s.score for s in scores if s.student == st) for st in ("honest", "hanger")}
+    possible = sum(s.max_score for s in scores if s.student == "honest")
+    assert possible > 0 and totals == {"honest": possible, "hanger": 0}, totals
+    assert all("budget" in s.refused for s in scores if s.student == "hanger")
+    assert took < 2 * wall_minutes * 60, took
+
+
 def _npz_bomb(path: Path, gigabytes: float) -> None:
     """A zip64 ``.npz`` whose one array is ``gigabytes`` of float64 zeros: a few MB on disk."""
     import zipfile

@@ -1,6 +1,7 @@
-"""The table of methods: adding one is one entry. A method defined here, in the test file (L1 on mu's weights),
-registered and nothing else, runs through the command line's Fig. 4 beside VD; and no code outside the table
-decides anything by a method's name."""
+"""The table of methods: adding one is one entry (the paper's four, then two ablations of VD:
+tests/test_ablations.py). A method defined here, in the test file (L1 on mu's weights), registered and nothing else,
+runs through the command line's Fig. 4 beside VD; and no code outside the table decides anything by a method's
+name."""
 
 from __future__ import annotations
 
@@ -44,11 +45,11 @@ def table(monkeypatch):
 
 
 def test_the_shipped_entries_are_the_papers_and_cannot_be_replaced(table):
-    assert list(table.METHODS) == ["vd", "l2", "none", "expert"]
+    assert list(table.METHODS) == ["vd", "l2", "none", "expert", "vd_unpruned", "dropout"]
     vd, l2 = method("vd"), method("l2")
     assert (vd.variational, vd.prunes, vd.spread_from) == (True, True, None)
     assert (l2.variational, l2.prunes, l2.spread_from) == (False, False, "vd")
-    assert table.pretraining_methods() == ("vd", "l2")
+    assert table.pretraining_methods() == ("vd", "l2", "vd_unpruned", "dropout")
     with pytest.raises(ValueError, match="shipped method"):
         register(L1("l2", "my L2", "tab:purple"))
     with pytest.raises(ValueError, match="no method 'l1'"):

@@ -8,7 +8,8 @@ from the untrained sigma network. With sparse VD the whole policy is in training
 network's layers draw weight noise too: its parameters stay fixed, but each minibatch sees sigma
 through fresh noise (a few per cent; what it changes: docs/results.md, "Measurements behind the code").
 
-``reg`` names the method (:mod:`vdtutorial.methods`: its layers and the term added to the likelihood).
+``reg`` names the method (:mod:`vdtutorial.methods`: its layers, the term added to the likelihood and any noise
+put on mu while it is cloned).
 ``reg="vd"`` -- sparse variational dropout. ``mu`` has SVDO layers and the loss is the negative ELBO of
 eqs. 1-3 divided by N (the scale of one sample; the optimum is unchanged):
 
@@ -236,7 +237,8 @@ def pretrain(
     actions = torch.as_tensor(demos.actions, dtype=torch.float32)
     train_idx, val_idx = split_by_episode(demos, cfg.val_fraction, seed)
     n_train = len(train_idx)
-    with on_device(policy, device):  # the cloning only: sigma is set, and the policy returned, on the CPU
+    # the cloning only: sigma is set, and the policy returned, on the CPU; the method's noise lasts as long
+    with on_device(policy, device), entry.cloning(policy.mu):
         params = list(policy.mu.parameters())
         optimiser = torch.optim.Adam(params, lr=cfg.lr)
         generator = torch.Generator().manual_seed(seed)

@@ -67,14 +67,20 @@ def cmd_expert(args) -> None:
 
 def _pretraining_method(name: str):
     """The table's entry of the method ``name`` (:mod:`vdtutorial.methods`), which must pre-train."""
-    from vdtutorial.methods import method, pretraining_methods
+    from vdtutorial.methods import METHODS, PARAMETER_SEPARATOR, method, pretraining_methods
 
     try:
         entry = method(name)
-    except ValueError:
+    except ValueError as exc:
+        if name.partition(PARAMETER_SEPARATOR)[0] in METHODS:  # a known method with a wrong or missing number
+            raise CommandError(f"--reg {name}: {exc}") from None
         entry = None
     if entry is None or not entry.pretrains:
         raise CommandError(f"--reg {name}: not a pre-training method (they are {', '.join(pretraining_methods())})")
+    if entry.network_of is not None:
+        raise CommandError(
+            f"--reg {name}: starts from the {entry.network_of} network: pretrain --reg {entry.network_of}"
+        )
     return entry
 
 
@@ -185,6 +191,32 @@ def cmd_digits(args) -> None:
         f"with {result.fraction_pruned:.1%} of weights pruned ({result.seconds:.1f} s)"
     )
     print(result.report)
+
+
+def cmd_dropout_rate(args) -> None:
+    """The rate of binary dropout matched to VD (:mod:`vdtutorial.analysis.dropout_rate`) in each checkpoint, and
+    their mean: the one rate of ``dropout@P`` for the checkpoints' data set."""
+    from vdtutorial.analysis.dropout_rate import matched_dropout_rate
+    from vdtutorial.experiments.checkpoints import CheckpointError, load_checkpoint
+
+    rates, data_sets = [], set()
+    for path in args.checkpoints:
+        try:
+            policy = load_checkpoint(path, variational=True)
+        except CheckpointError as exc:
+            raise CommandError(str(exc)) from exc
+        demos = policy.pretrain_info.get("demos", {})
+        data_sets.add(tuple(demos.get(key) for key in ("task", "samples", "noise", "seed")))
+        rates.append(matched_dropout_rate(policy.mu))
+        print(f"{path}: seed {policy.pretrain_info.get('seed')}, p = {rates[-1]:.4f}")
+    if len(data_sets) != 1:
+        raise CommandError(f"the checkpoints were cloned on {len(data_sets)} data sets: give those of one")
+    task, samples, noise, draw = data_sets.pop()
+    mean = sum(rates) / len(rates)
+    print(
+        f"{task}, {samples} demonstrations at Sigma {noise:g} (draw {draw}): mean over {len(rates)} checkpoints "
+        f"p = {mean:.4f} (from {min(rates):.4f} to {max(rates):.4f}); binary dropout at that rate: dropout@{mean:.2f}"
+    )
 
 
 def cmd_bench(args) -> None:

@@ -27,6 +27,7 @@ from vdtutorial.cli.commands import (
     cmd_claims,
     cmd_demos,
     cmd_digits,
+    cmd_dropout_rate,
     cmd_evaluate,
     cmd_experiment,
     cmd_expert,
@@ -170,6 +171,19 @@ def _add_measurement_commands(sub) -> None:
     p = sub.add_parser("digits", help="validate sparse VD on scikit-learn's digits (dense vs VD MLP)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seeds the split and the training (default 0)")
     p.set_defaults(func=cmd_digits)
+
+    p = sub.add_parser(
+        "dropout-rate",
+        help="the binary dropout rate matched to VD checkpoints of one data set: mean alpha/(1+alpha) of the kept "
+        "weights, per checkpoint and averaged over them",
+    )
+    p.add_argument(
+        "checkpoints",
+        nargs="+",
+        help="VD checkpoints (e.g. data/checkpoints/reach_n2000_sigma0.5_vd_state_seed0.pt and those pretrain "
+        "--reg vd makes for other seeds), all of one data set",
+    )
+    p.set_defaults(func=cmd_dropout_rate)
 
     p = sub.add_parser("bench", help="benchmarks: env, policy, finetune, trpo")
     p.add_argument(

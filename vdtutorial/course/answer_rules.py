@@ -101,6 +101,10 @@ FORBIDDEN: dict[str, tuple[str, ...]] = {
     "ch10_welch_verdict": ("welch_interval", "_welch"),
     # 10: Holm's step-down procedure
     "ch10_holm": ("holm_rejections",),
+    # 11: the L2 entry, whose penalty is the numerator of the matched strength
+    "ch11_l1_strength": ("WeightDecay",),
+    # 11: the L2 entry: an L1 entry is written beside it, not built on its penalty
+    "ch11_l1_penalty": ("WeightDecay",),
 }
 
 #: What reaches code through a string, the kernel or the grader's machinery: builtins called by their plain name

@@ -12,7 +12,8 @@ points, visible asserts and hidden tests. This module lays out an nbgrader cours
   its hidden tests only run the student's function on inputs the grader drew for this submission, and the
   grader compares the results with the library's in its own process (:mod:`vdtutorial.course.checks`).
   Submissions are graded several at once, each in a course folder of its own (a process of its own under a
-  wall-clock budget, :mod:`vdtutorial.course.grading_process`, or a Ray task), and their points are written into the
+  wall-clock budget, :mod:`vdtutorial.course.grading_process`, started by this process or by a Ray task), and
+  their points are written into the
   one gradebook by the grading process alone. Before anything
   runs, the answer cells are read (:func:`refusals`, :mod:`vdtutorial.course.answer_rules`): an answer that
   uses the library's piece its exercise rebuilds scores 0 there; one that could change the tests makes the
@@ -484,7 +485,9 @@ def grade(
         if backend == "local":
             done = run_each(jobs, workers, limits.wall_minutes * 60, did_not_finish, listener.finished)
         else:
-            done = run_jobs(grade_one, jobs, workers=workers, backend=backend, address=address, listener=listener)
+            done = run_jobs(
+                grade_one_supervised, jobs, workers=workers, backend=backend, address=address, listener=listener
+            )
         graded = {**dict(zip(run, done)), **stored}
         results = [graded.get(k, Graded({}, None, None)) for k in range(len(subs))]
         for sub, result in zip(subs, results):
@@ -631,6 +634,16 @@ def grade_one(job: GradingJob) -> Graded:
         if autograded.is_file() and autograded.stat().st_size > MAX_NOTEBOOK_BYTES:  # outputs the kernel flooded
             return Graded(failures, None, f"the graded notebook is larger than {MAX_NOTEBOOK_BYTES >> 20} MB")
         return Graded(failures, autograded.read_bytes() if autograded.is_file() else None, error)
+
+
+def grade_one_supervised(job: GradingJob) -> Graded:
+    """:func:`grade_one` in a process of its own under the submission's wall-clock budget, as the local backend
+    grades every submission (:func:`vdtutorial.course.grading_process.run_each`): a Ray task runs this, so that a
+    killed, stopped or hung grading costs its submission alone on a cluster's node too, and the task ends within
+    the budget."""
+    from vdtutorial.course.grading_process import run_each
+
+    return run_each([job], 1, job.limits.wall_minutes * 60, did_not_finish)[0]
 
 
 def _exercises(chapter: Path) -> list[str]:

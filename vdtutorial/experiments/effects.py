@@ -43,7 +43,7 @@ from vdtutorial.experiments.curves import (
 )
 from vdtutorial.experiments.looks import stages, two_look_test
 from vdtutorial.experiments.measures import MEASURES, measures_of, value
-from vdtutorial.methods import pretraining_methods
+from vdtutorial.methods import method
 
 #: Bootstrap resamples for the steps-to-reach interval.
 BOOTSTRAP_SAMPLES = 2000
@@ -604,7 +604,7 @@ def claims_overview(records: dict[str, dict], measures: tuple[str, ...] = ("fina
 def demo_seed_of(record: dict) -> int:
     """The draw of the demonstrations a figure's record was pre-trained on (its runs' ``demo_seed``; records made
     before runs had one used the shipped draw, 0)."""
-    seeds = {run.get("demo_seed", 0) for run in record["runs"] if run["method"] in pretraining_methods()}
+    seeds = {run.get("demo_seed", 0) for run in record["runs"] if method(run["method"]).pretrains}
     if len(seeds) != 1:
         raise ValueError(f"a record pre-trained on {len(seeds)} draws of the data: expected one")
     return seeds.pop()

@@ -9,7 +9,7 @@ from vdtutorial.experiments.curves import vd_reaches_l2_final
 from vdtutorial.experiments.jobs import RunSpec
 from vdtutorial.experiments.results import ExperimentResult, experiment_command, run_experiment
 from vdtutorial.experiments.runs import default_seeds, default_total_steps, default_trpo_config
-from vdtutorial.methods import METHOD_LABELS, SHIPPED, method
+from vdtutorial.methods import METHOD_LABELS, is_shipped, method
 
 
 #: Each figure's runs: (title, methods, task, data sets (samples, Sigma) of the pre-trained methods, the
@@ -132,7 +132,7 @@ def _figure(
 ) -> ExperimentResult:
     """The runs of figure ``name`` (:func:`figure_specs`) handed to :func:`run_experiment`."""
     specs = figure_specs(name, seeds, total_steps, obs_mode, methods, demo_seed, samples, sigmas)
-    registered = sorted({spec.method for spec in specs} - {entry.name for entry in SHIPPED})
+    registered = sorted({spec.method for spec in specs if not is_shipped(spec.method)})
     if registered and workers > 1:
         raise ValueError(
             f"{', '.join(registered)}: registered in this process only, which other workers do not "

@@ -16,6 +16,7 @@ Taught in chapter 07.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -37,6 +38,7 @@ from vdtutorial.methods import method as method_entry
 from vdtutorial.policy import GaussianPolicy, make_policy
 from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig, pretrain
 from vdtutorial.settings import budget
+from vdtutorial.vd import prune_model
 
 #: The meta entries that say which data set a checkpoint was cloned on: (task, samples, Sigma, demonstration
 #: seed) for a one-shot set; a set made in rounds (DART's, DAgger's) has no Sigma but a method and its rounds.
@@ -163,8 +165,16 @@ def fresh_policy(env: gym.Env | gym.vector.VectorEnv, seed: int, config: Pretrai
 
 def ready_for_rl(reg: str, policy: GaussianPolicy) -> GaussianPolicy:
     """The last step before RL: pruned where log alpha > 3 if the method prunes (Section IV-A: pruned weights are
-    exact zeros that TRPO never moves), as it is otherwise."""
-    return policy.prune_() if method_entry(reg).prunes else policy
+    exact zeros that TRPO never moves). A variational network that does not prune is frozen alike (alphas fixed, no
+    weight noise in RL) with every weight of mu kept, and its sigma network as the pruning method's, whose start
+    sigma it shares. A plain network is returned as it is."""
+    entry = method_entry(reg)
+    if entry.prunes:
+        return policy.prune_()
+    if entry.variational:
+        prune_model(policy.sigma)
+        prune_model(policy.mu, threshold=math.inf)
+    return policy
 
 
 def finetune_policy(
@@ -184,7 +194,8 @@ def finetune_policy(
 
     A method that pre-trains: the policy pre-trained on ``demos`` with ``config`` (:func:`pretrained_policy`)
     with its start sigma ``config.initial_sigma`` (the sigma study's choice by default), made ready for RL
-    (:func:`ready_for_rl`). A method that does not: :func:`fresh_policy` for ``env``.
+    (:func:`ready_for_rl`); for a method whose entry names another's network (``network_of``), that method's
+    checkpoint. A method that does not: :func:`fresh_policy` for ``env``.
     ``resumed``: the run continues from a saved state that holds every parameter, so the network is built
     from the default checkpoint without fitting the start sigma again (minutes for an image policy) only
     to be overwritten.
@@ -198,5 +209,6 @@ def finetune_policy(
     if not entry.pretrains:
         return fresh_policy(env, seed, cfg)
     network = replace(cfg, initial_sigma=PAPER_SIGMA_OPTION) if resumed else cfg
-    policy = pretrained_policy(method, demos, obs_mode, seed, network, checkpoints_root, progress, source)
+    cloned_by = entry.network_of or method  # the checkpoint is that method's: the same network, its start sigma too
+    policy = pretrained_policy(cloned_by, demos, obs_mode, seed, network, checkpoints_root, progress, source)
     return ready_for_rl(method, policy)

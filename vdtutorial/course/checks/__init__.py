@@ -48,7 +48,7 @@ RAISED = "__raised__"
 STUBBED = "__stubbed__"
 #: The failure of a check whose tests cell sent nothing back: the cell raised before the hidden check ran.
 NO_ANSWER = "the hidden check got no answer from your code (a cell before it failed, or the kernel stopped)"
-_CHAPTERS = ("ch01", "ch02", "ch03", "ch04", "ch05", "ch06", "ch07", "ch08", "ch09", "ch10")
+_CHAPTERS = ("ch01", "ch02", "ch03", "ch04", "ch05", "ch06", "ch07", "ch08", "ch09", "ch10", "ch11")
 
 
 @dataclass(frozen=True)
