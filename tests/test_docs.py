@@ -80,7 +80,7 @@ BEYOND_THE_WHEEL = (
     "data/results/fig6_demos1/state/",
     "data/results/beyond/demos/",
 )
-UNDER_WAY = re.compile(r"runs/[^/]+/state/[^/]+\.pt")
+UNDER_WAY = re.compile(r"runs/[^/]+/(state|checkpoints)/[^/]+\.(pt|csv)")
 
 
 def test_data_readme_says_what_the_repository_holds_beyond_the_wheel():
