@@ -26,6 +26,7 @@ CORE = (
     "vd",
     "policy",
     "methods",
+    "dropconnect",  # the layers of the table's binary-dropout entry, a method compared with VD as L2 is
     "pretrain",
     "trust_region",
     "baselines",
