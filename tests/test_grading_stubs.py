@@ -40,6 +40,36 @@ def test_every_stub_names_a_piece_an_exercise_rebuilds_and_exists():
             assert obj.__qualname__ == qualname and module.startswith("vdtutorial.")
 
 
+#: The chapters whose exercises' names are not all accounted for yet: their test fails, as it must (strict).
+_UNFINISHED = {"ch01", "ch02", "ch03", "ch05", "ch07", "ch08", "ch09", "ch10", "ch11"}
+
+
+@pytest.mark.parametrize(
+    "exercise",
+    [
+        pytest.param(e, marks=pytest.mark.xfail(strict=True)) if e.split("_")[0] in _UNFINISHED else e
+        for e in answer_rules.FORBIDDEN
+    ],
+)
+def test_every_name_an_exercise_forbids_is_a_stub_or_goes_through_one_or_is_given(exercise):
+    """The static check forbids a name; the kernel must not have it working unless the table says why."""
+    pieces = stubs.STUBS.get(exercise, ())
+    stubbed = {part for piece in pieces for part in piece.split(":")[1].split(".")}
+    through, given = stubs.THROUGH.get(exercise, {}), stubs.GIVEN.get(exercise, {})
+    for name in answer_rules.FORBIDDEN[exercise]:
+        ways = [name in stubbed, name in through, name in given]
+        assert sum(ways) == 1, (exercise, name, ways)
+    assert set(through.values()) <= set(pieces), exercise
+    assert all(why.strip() for why in given.values())
+
+
+def test_teaching_names_every_piece_the_kernel_keeps_working():
+    text = (classroom.notebooks_dir() / "TEACHING.md").read_text()
+    for exercise, given in stubs.GIVEN.items():
+        for name in given:
+            assert f"`{name}`" in text, (exercise, name)
+
+
 def test_each_route_to_a_stubbed_piece_reaches_the_stub(stubbed):
     """Import, a string-built name, sys.modules, pickle of a global reference, importlib and runpy all give the
     stub; the original source is nowhere in the copy; the untouched pieces still work."""

@@ -75,6 +75,25 @@ KEPT: dict[str, str] = {
     ),
 }
 
+#: Per exercise: the names of :data:`vdtutorial.course.answer_rules.FORBIDDEN` that are not pieces of its
+#: :data:`STUBS` themselves but compute only through one of them (a subclass or a factory of a stubbed class), and
+#: that piece.
+THROUGH: dict[str, dict[str, str]] = {
+    "ch04_svdo_layer": {
+        "LinearSVDO": "vdtutorial.vd:SVDOLayer.forward",
+        "Conv2dSVDO": "vdtutorial.vd:SVDOLayer.forward",
+        "make_linear": "vdtutorial.vd:SVDOLayer.forward",
+        "make_conv2d": "vdtutorial.vd:SVDOLayer.forward",
+    },
+}
+
+#: Per exercise: the names of :data:`vdtutorial.course.answer_rules.FORBIDDEN` that the grading kernel keeps
+#: working, and why: the chapter's later exercise, its probe or its own code needs the library's piece. For these
+#: the static check alone keeps the piece out of the answer (notebooks/TEACHING.md lists them).
+GIVEN: dict[str, dict[str, str]] = {
+    "ch06_reinforce": {"flat_grad": "the Fisher-vector product exercise of the same chapter is built on it"},
+}
+
 #: The stub's words; :func:`called` reads them back.
 _MESSAGE = "the library's {name} is stubbed in grading: it is what exercise {exercise} asks you to build"
 _CALLED = re.compile(r"the library's ([\w.]+) is stubbed in grading: it is what exercise (\w+) asks you to build")
