@@ -448,3 +448,62 @@ def test_an_interrupted_grading_resumes_where_it_stopped(tmp_path):
     nbformat.write(nb, tmp_path / "in" / changed / f"{chapter}.ipynb")
     third = subprocess.run(argv, capture_output=True, text=True, timeout=1800, check=False)
     assert third.returncode == 0 and f"resuming: {len(students) - 1} submissions" in third.stderr, third.stderr[-2000:]
+
+
+def _descendants(pid: int) -> set[int]:
+    """The live processes under ``pid`` (read from /proc: each one's parent; a zombie counts as gone)."""
+    parents = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            state, parent = stat.read_text().rsplit(")", 1)[1].split()[:2]
+        except (OSError, ValueError):
+            continue
+        if state != "Z":
+            parents[int(stat.parent.name)] = int(parent)
+    found, frontier = set(), {pid}
+    while frontier:
+        frontier = {p for p, parent in parents.items() if parent in frontier} - found
+        found |= frontier
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@needs_sandbox
+@pytest.mark.pipeline
+def test_a_grader_killed_outright_leaves_no_process_behind_and_a_rerun_resumes(tmp_path):
+    """``kill -9`` of the grader while one submission's kernel sleeps: its grading process, the sandbox and the
+    kernel end with it (they would otherwise grade on, or sleep, for nobody), and the rerun keeps what was graded."""
+    chapter = "10_what_reproduced"
+    _hand_in(tmp_path / "in", "ann", chapter, _chapter_with(chapter))
+    _hand_in(tmp_path / "in", "bob", chapter, _chapter_with(chapter, extra_cell="import time\ntime.sleep(3600)"))
+    course = tmp_path / "course"
+    argv = [sys.executable, "-m", "vdtutorial", "classroom", "grade", str(tmp_path / "in" / "ann")]
+    argv += [str(tmp_path / "in" / "bob"), "--out", str(course), "--workers", "2"]
+    deadline = time.monotonic() + 900
+    with open(tmp_path / "first.log", "w") as out:
+        first = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
+        while not list(course.glob("results/ann/*.json")) and first.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.5)
+        under = _descendants(first.pid)
+        first.kill()
+        first.wait(timeout=60)
+    assert under and not list(course.glob("results/bob/*.json")), (tmp_path / "first.log").read_text()[-2000:]
+    gone_by = time.monotonic() + 30
+    while any(_alive(p) for p in under) and time.monotonic() < gone_by:
+        time.sleep(0.5)
+    left = {p: Path(f"/proc/{p}/cmdline").read_bytes()[:200] for p in under if _alive(p)}
+    assert not left, left
+
+    nbformat.write(_chapter_with(chapter), tmp_path / "in" / "bob" / f"{chapter}.ipynb")  # bob hands in again
+    again = subprocess.run(argv, capture_output=True, text=True, timeout=1800, check=False)
+    assert again.returncode == 0 and "resuming: 1 submissions were graded" in again.stderr, again.stderr[-2000:]
+    with open(course / "grades.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["student"] for r in rows} == {"ann", "bob"}
+    assert all(float(r["score"]) == float(r["max_score"]) > 0 for r in rows), rows

@@ -7,7 +7,8 @@ session (and process group) of its own, at most ``workers`` at a time, and gives
 measured from outside. A process that ends without a result, or is still running when its budget is spent, is
 killed with its whole process group (the kernel's sandbox goes with it: bubblewrap ends the sandbox when its
 parent dies) and costs that submission alone: its result says ``grading did not finish: ...``, and every other
-submission is graded as usual.
+submission is graded as usual. Each process is told this supervisor's pid, and ends itself with its group if the
+supervisor dies (:func:`vdtutorial.course.grading_worker.end_with`).
 
 The job and its result travel as files in a folder that only the grading processes can read (never a sandbox's).
 
@@ -80,7 +81,7 @@ def _supervise(jobs, workers, budget_seconds, callbacks, folder, waiting, runnin
             k = waiting.pop(0)
             (folder / f"{k}.job").write_bytes(pickle.dumps(jobs[k]))
             process = subprocess.Popen(
-                [sys.executable, "-m", worker, str(folder / f"{k}.job"), str(folder / f"{k}.result")],
+                [sys.executable, "-m", worker, str(folder / f"{k}.job"), str(folder / f"{k}.result"), str(os.getpid())],
                 start_new_session=True,
                 stdin=subprocess.DEVNULL,
             )
