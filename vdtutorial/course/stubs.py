@@ -46,8 +46,13 @@ STUBS: dict[str, tuple[str, ...]] = {
     "ch02_step_towards": ("vdtutorial.expert:step_towards",),
     # 03: the rollout loop of eqs. 5-8 with the executed action open: one noisy rollout is its inner loop
     "ch03_noisy_rollout": ("vdtutorial.demos:collect",),
-    # 03: the data set D: the noisy expert's rollouts (generate_demos) and the loop they run in (collect)
-    "ch03_rollout_demos": ("vdtutorial.demos:generate_demos", "vdtutorial.demos:collect"),
+    # 03: the data set D: the noisy expert's rollouts (generate_demos), the loop they run in (collect), and the
+    # check's own assembly of D from given trajectories (its verdict's helper, which the kernel must not lend out)
+    "ch03_rollout_demos": (
+        "vdtutorial.demos:generate_demos",
+        "vdtutorial.demos:collect",
+        "vdtutorial.course.checks.ch03:_expected",
+    ),
     # 04: eq. 4's noisy forward pass (the sparse VD layers' shared forward)
     "ch04_gaussian_dropout": ("vdtutorial.vd:SVDOLayer.forward",),
     # 04: the layer: its forward pass and its KL (log alpha and keep_mask stay: 4.3 is given library layers)
