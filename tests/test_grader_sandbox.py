@@ -411,6 +411,36 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
     assert "is stubbed in grading" in classroom.table(scores)
 
 
+#: Chapter 02 with the goal set solved (2.1), and the library's eq. 9 imported in 2.1's cell and handed back as 2.2's
+#: answer, eq. 10 named by strings (pkgutil) as 2.3's: the pieces IKExpert is built on.
+TAKEN_IN_02 = (
+    {
+        "ch02_nearest_goal": "def my_nearest_goal(G, j, lower, upper):\n    return _eq9(G, j, lower, upper)\n",
+        "ch02_step_towards": "import pkgutil\n"
+        "my_step = pkgutil.resolve_name('vdtutorial.expert:' + 'step_' + 'towards')\n",
+    },
+    {"ch02_goal_set": "from vdtutorial.expert import nearest_goal as _eq9"},
+)
+
+
+@needs_sandbox
+@pytest.mark.pipeline
+def test_the_experts_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path):
+    """Graded without the static check, a student of chapter 02 keeps 2.1, which they solved, and scores 0 for the
+    library's eq. 9 (imported in 2.1's cell) and eq. 10 (a name built from strings) taken as 2.2's and 2.3's answers;
+    the grades say which stub each called."""
+    chapter = "02_ik_expert"
+    _hand_in(tmp_path / "in", "expert_02", chapter, _chapter_answering(chapter, *TAKEN_IN_02))
+    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", static_check=False)
+    got = {s.exercise: s for s in scores}
+    assert got["ch02_goal_set_tests"].score == got["ch02_goal_set_tests"].max_score > 0, got
+    for exercise, stub in (("ch02_nearest_goal", "expert.nearest_goal"), ("ch02_step_towards", "expert.step_towards")):
+        taken = got[f"{exercise}_tests"]
+        assert taken.score == 0 and f"called a stub: the library's vdtutorial.{stub} is stubbed" in taken.refused, taken
+    with open(tmp_path / "course" / "grades.csv") as fh:
+        assert sum("called a stub" in r["refused"] for r in csv.DictReader(fh)) == len(TAKEN_IN_02[0])
+
+
 @needs_sandbox
 @pytest.mark.pipeline
 def test_an_interrupted_grading_resumes_where_it_stopped(tmp_path):

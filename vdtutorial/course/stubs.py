@@ -38,6 +38,21 @@ from pathlib import Path
 #: other implementation of the same computation in the package; not the helpers the teacher's solution calls
 #: (``flat_grad``, ``mean_kl``, ``set_flat_params``), which compute nothing the check compares.
 STUBS: dict[str, tuple[str, ...]] = {
+    # 02: the goal set G (IKExpert.reset builds it with this, so the library's expert stops here in chapter 02)
+    "ch02_goal_set": ("vdtutorial.expert:solution_set",),
+    # 02: eq. 9 and its per-candidate shift to the nearest equivalent angles (IKExpert.goal computes through it)
+    "ch02_nearest_goal": ("vdtutorial.expert:nearest_goal", "vdtutorial.expert:nearest_equivalent"),
+    # 02: eq. 10 with the overshoot fix (IKExpert.action computes through it)
+    "ch02_step_towards": ("vdtutorial.expert:step_towards",),
+    # 03: the rollout loop of eqs. 5-8 with the executed action open: one noisy rollout is its inner loop
+    "ch03_noisy_rollout": ("vdtutorial.demos:collect",),
+    # 03: the data set D: the noisy expert's rollouts (generate_demos), the loop they run in (collect), and the
+    # check's own assembly of D from given trajectories (its verdict's helper, which the kernel must not lend out)
+    "ch03_rollout_demos": (
+        "vdtutorial.demos:generate_demos",
+        "vdtutorial.demos:collect",
+        "vdtutorial.course.checks.ch03:_expected",
+    ),
     # 04: eq. 4's noisy forward pass (the sparse VD layers' shared forward)
     "ch04_gaussian_dropout": ("vdtutorial.vd:SVDOLayer.forward",),
     # 04: the layer: its forward pass and its KL (log alpha and keep_mask stay: 4.3 is given library layers)
@@ -79,6 +94,7 @@ KEPT: dict[str, str] = {
 #: :data:`STUBS` themselves but compute only through one of them (a subclass or a factory of a stubbed class), and
 #: that piece.
 THROUGH: dict[str, dict[str, str]] = {
+    "ch03_noisy_rollout": {"generate_demos": "vdtutorial.demos:collect"},
     "ch04_svdo_layer": {
         "LinearSVDO": "vdtutorial.vd:SVDOLayer.forward",
         "Conv2dSVDO": "vdtutorial.vd:SVDOLayer.forward",
