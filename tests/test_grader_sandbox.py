@@ -411,6 +411,21 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
     assert "is stubbed in grading" in classroom.table(scores)
 
 
+@pytest.mark.pipeline
+def test_without_the_sandbox_the_stubbed_copy_still_comes_first(tmp_path):
+    """``--no-sandbox`` shows the kernel no copy at the package's own path, but puts the stubbed copy first on its
+    path: the routes of one of the students above still reach only the stubs, and the table says what was given up."""
+    chapter, student = "04_sparse_variational_dropout", "crosscell_pkgutil"
+    _hand_in(tmp_path / "in", student, chapter, _chapter_answering(chapter, *STEALERS[student]))
+    limits = classroom.Limits(sandbox=False)
+    scores = classroom.grade([tmp_path / "in" / student], tmp_path / "course", limits=limits, static_check=False)
+    got = {s.exercise: s for s in scores}
+    assert got["ch04_gaussian_dropout_tests"].score == got["ch04_gaussian_dropout_tests"].max_score > 0
+    for exercise in ("ch04_svdo_layer", "ch04_compact"):
+        assert got[f"{exercise}_tests"].score == 0 and "called a stub" in got[f"{exercise}_tests"].refused
+    assert classroom.table(scores).startswith("graded WITHOUT a sandbox (--no-sandbox)")
+
+
 #: Chapter 02 with the goal set solved (2.1), and the library's eq. 9 imported in 2.1's cell and handed back as 2.2's
 #: answer, eq. 10 named by strings (pkgutil) as 2.3's: the pieces IKExpert is built on.
 TAKEN_IN_02 = (
