@@ -38,6 +38,22 @@ from pathlib import Path
 #: other implementation of the same computation in the package; not the helpers the teacher's solution calls
 #: (``flat_grad``, ``mean_kl``, ``set_flat_params``), which compute nothing the check compares.
 STUBS: dict[str, tuple[str, ...]] = {
+    # 01: the reaching env's goal test and eq. 11 (its step, reset and every runner on it stop there)
+    "ch01_reward_eq11": (
+        "vdtutorial.envs.reach:JacoReachEnv._goal_status",
+        "vdtutorial.envs.reach:JacoReachEnv._reward",
+    ),
+    # 01: the library's episode runners that count how episodes end
+    "ch01_collision_share": (
+        "vdtutorial.experiments.evaluation:successes_per_episode",
+        "vdtutorial.experiments.evaluation:expert_success_rate",
+    ),
+    # 01: the grasping env's goal test, its reward and the tilt of the approach axis the test rests on
+    "ch01_grasp_reward": (
+        "vdtutorial.envs.grasp:JacoGraspEnv._goal_status",
+        "vdtutorial.envs.grasp:JacoGraspEnv._reward",
+        "vdtutorial.envs.grasp:tilt_deg",
+    ),
     # 02: the goal set G (IKExpert.reset builds it with this, so the library's expert stops here in chapter 02)
     "ch02_goal_set": ("vdtutorial.expert:solution_set",),
     # 02: eq. 9 and its per-candidate shift to the nearest equivalent angles (IKExpert.goal computes through it)
@@ -79,6 +95,11 @@ STUBS: dict[str, tuple[str, ...]] = {
     "ch06_linear_baseline": ("vdtutorial.baselines:LinearFeatureBaseline",),
     "ch06_line_search": ("vdtutorial.trust_region:line_search",),
     "ch06_trpo_update": ("vdtutorial.trpo:TRPO._trpo_step",),
+    # 08: the grasping env's goal test and the tilt it rests on (8.2's runner gets the grader's trajectories played
+    # back, vdtutorial/course/checks/ch01.py's Replay)
+    "ch08_grasp_success": ("vdtutorial.envs.grasp:JacoGraspEnv._goal_status", "vdtutorial.envs.grasp:tilt_deg"),
+    # 08: the library's episode runner that counts outcomes and sums rewards
+    "ch08_trajectory_return": ("vdtutorial.experiments.evaluation:successes_per_episode",),
 }
 
 #: What a stub still does before it raises, where a later exercise or the chapter is given part of the piece: the

@@ -5,6 +5,9 @@ environment in each of them and returns what the student's function gave there; 
 environment in the same states and compares with what its ``step`` (eq. 11, the sparse grasping reward) and its
 episodes say. Each process builds its pybullet environments once (:func:`environment`).
 
+In the grading kernel both environments' goal tests and rewards are stubs (they are what 1.1 and 1.3 ask for), so
+no live ``step`` can run there: the runner of 1.2 is given the grader's own episodes, played back (:class:`Replay`).
+
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
 
@@ -12,6 +15,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from types import SimpleNamespace
+from typing import Callable
 
 import gymnasium as gym
 import numpy as np
@@ -44,6 +48,75 @@ def environment(task: str, owner: str) -> gym.Env:
 
 def _cup(rng) -> np.ndarray:
     return rng.uniform(CUP_REGION_LOW, CUP_REGION_HIGH)
+
+
+def episode(env: gym.Env, act: Callable, seed: int) -> dict:
+    """One episode in the grader's ``env`` from ``env.reset(seed=seed)``, each action ``act(obs)``, as
+    :class:`Replay` plays it back: the cup, the joint angles, observations and info after the reset and each step
+    (index 0: the reset), and the actions, rewards and ends of the steps."""
+    obs, info = env.reset(seed=int(seed))
+    base = env.unwrapped
+    found = {"joints": [base.joints], "obs": [obs], "infos": [info], "action": [], "reward": []}
+    found.update(cup_xy=base.cup_position[:2], terminated=[], truncated=[])
+    done = False
+    while not done:
+        action = np.asarray(act(obs), dtype=np.float64)
+        obs, reward, terminated, truncated, info = env.step(action)
+        for key, value in zip(
+            ("joints", "obs", "infos", "action", "reward", "terminated", "truncated"),
+            (base.joints, obs, info, action, reward, terminated, truncated),
+        ):
+            found[key].append(value)
+        done = terminated or truncated
+    infos = found.pop("infos")
+    found["info"] = {key: np.array([i[key] for i in infos]) for key in infos[-1]}
+    return {key: value if isinstance(value, dict) else np.array(value) for key, value in found.items()}
+
+
+class Replay(gym.Wrapper):
+    """The grader's episodes (:func:`episode`, by seed), played back as the environment a runner exercise is given.
+
+    The environment's goal test and reward are stubs in the grading kernel, so a live ``step`` cannot run there;
+    what a runner computes -- how an episode ends, its length, its return -- is a function of what ``reset`` and
+    ``step`` return, which the grader computed. ``reset(seed=s)`` starts the episode of seed ``s`` (another seed
+    is not one the grader played); each ``step`` returns that episode's next transition and puts the kernel's scene
+    in its state (the cup at the reset, the joint angles after each step), so that a policy which reads the scene,
+    such as the IK expert, sees the state it would see live. The episode does not depend on the actions: they are
+    kept in :attr:`actions` for the verdict to compare with the ones that made it."""
+
+    def __init__(self, env: gym.Env, episodes: dict):
+        super().__init__(env)
+        self.episodes, self.actions, self._episode, self._t = episodes, [], None, 0
+
+    def reset(self, *, seed=None, options=None):
+        if seed is None or str(int(seed)) not in self.episodes:
+            raise ValueError(f"this check's episodes start from env.reset(seed=s) for its seeds, not seed={seed!r}")
+        self._episode, self._t = self.episodes[str(int(seed))], 0
+        self.env.unwrapped.set_state(self._episode["joints"][0], self._episode["cup_xy"])
+        return self._transition(0)
+
+    def step(self, action):
+        self.env.unwrapped.check_action(action)  # the same ValueError as the live environment for a malformed action
+        self.actions.append(np.asarray(action, dtype=np.float64))
+        if self._episode is None or self._t >= len(self._episode["reward"]):
+            raise RuntimeError("env.step after the episode ended, or before env.reset")
+        self._t += 1
+        self.env.unwrapped.scene.set_joints(self._episode["joints"][self._t])
+        return self._transition(self._t)
+
+    def _transition(self, t: int) -> tuple:
+        found = self._episode
+        info = {key: value[t].item() for key, value in found["info"].items()}
+        obs = found["obs"][t].copy()
+        if t == 0:
+            return obs, info
+        return (
+            obs,
+            float(found["reward"][t - 1]),
+            bool(found["terminated"][t - 1]),
+            bool(found["truncated"][t - 1]),
+            info,
+        )
 
 
 # -- Exercise 1.1: eq. 11 from the scene -------------------------------------------------------------------------
@@ -194,18 +267,25 @@ def policy(name: str, env, seed: int) -> Recorded:
 
 
 def runner_inputs(rng: np.random.Generator) -> dict:
-    """Distinct episode seeds for each policy of :data:`POLICIES`, and the random policies' seed."""
+    """Distinct episode seeds for each policy of :data:`POLICIES`, the random policies' seed, and each policy's
+    episodes in the grader's environment (:func:`episode`), which the kernel plays back (:class:`Replay`)."""
     seeds = rng.choice(2**31, size=sum(POLICIES.values()), replace=False)
     ends = np.cumsum(list(POLICIES.values()))
-    return {
+    found = {
         "seeds": {name: seeds[end - n : end] for (name, n), end in zip(POLICIES.items(), ends)},
         "policy_seed": int(rng.integers(2**31)),
     }
+    env, found["episodes"] = environment("reach", "grader"), {}
+    for name in POLICIES:
+        act = policy(name, env, found["policy_seed"])
+        found["episodes"][name] = {str(int(seed)): episode(env, act, seed) for seed in found["seeds"][name]}
+    return found
 
 
 def runner_probe(namespace: dict, inputs: dict) -> dict:
-    env, out = environment("reach", "probe"), {}
+    out = {}
     for name in POLICIES:
+        env = Replay(environment("reach", "probe"), inputs["episodes"][name])
         recorded = policy(name, env, int(inputs["policy_seed"]))
         outcomes, lengths = namespace["run_episodes"](env, recorded, [int(s) for s in inputs["seeds"][name]])
         outcomes = dict(outcomes)
@@ -214,24 +294,27 @@ def runner_probe(namespace: dict, inputs: dict) -> dict:
             "counts": [int(outcomes.get(k, -1)) for k in OUTCOMES],
             "lengths": [int(n) for n in lengths],
             "seen": np.array(recorded.seen).reshape(-1, 9),
+            "actions": np.array(env.actions).reshape(-1, 6),
         }
     return out
 
 
 def runner_reference(inputs: dict) -> dict:
-    """The episodes of each policy in the grader's environment: how they ended, their lengths, what the policy saw."""
-    env, out = environment("reach", "grader"), {}
+    """Each policy's episodes as the grader played them: how they ended, their lengths, what the policy saw (every
+    observation but the last of each episode) and the actions that made them."""
+    out = {}
     for name in POLICIES:
-        recorded, counts, lengths = policy(name, env, int(inputs["policy_seed"])), dict.fromkeys(OUTCOMES, 0), []
-        for seed in inputs["seeds"][name]:
-            obs, _ = env.reset(seed=int(seed))
-            done, steps = False, 0
-            while not done:
-                obs, _, terminated, truncated, info = env.step(recorded(obs))
-                steps, done = steps + 1, terminated or truncated
-            counts["success" if info["is_success"] else "failure" if info["is_failure"] else "truncated"] += 1
-            lengths.append(steps)
-        out[name] = {"counts": [counts[k] for k in OUTCOMES], "lengths": lengths, "seen": np.array(recorded.seen)}
+        played = [inputs["episodes"][name][str(int(seed))] for seed in inputs["seeds"][name]]
+        counts = dict.fromkeys(OUTCOMES, 0)
+        for one in played:
+            success, failure = bool(one["info"]["is_success"][-1]), bool(one["info"]["is_failure"][-1])
+            counts["success" if success else "failure" if failure else "truncated"] += 1
+        out[name] = {
+            "counts": [counts[k] for k in OUTCOMES],
+            "lengths": [len(one["reward"]) for one in played],
+            "seen": np.concatenate([one["obs"][:-1] for one in played]),
+            "actions": np.concatenate([one["action"] for one in played]),
+        }
     return out
 
 
@@ -247,11 +330,15 @@ def runner_verdict(inputs: dict, outputs: dict) -> list[str]:
         )
         failures.equal(got["counts"], want[name]["counts"], f"{where}: the counts of how the episodes ended")
         failures.equal(got["lengths"], want[name]["lengths"], f"{where}: the episodes' lengths in steps")
-        seen, wanted = np.asarray(got["seen"], dtype=float), want[name]["seen"]
+        same = [
+            np.shape(got[key]) == want[name][key].shape
+            and np.allclose(np.asarray(got[key], dtype=float), want[name][key], rtol=0, atol=1e-6)
+            for key in ("seen", "actions")
+        ]
         failures.true(
-            seen.shape == wanted.shape and np.allclose(seen, wanted, rtol=0, atol=1e-6),
+            all(same),
             f"{where}: one episode per seed, on that seed's cup, each action policy(obs) from the latest "
-            "observation, once per step, until the episode ends",
+            "observation, once per step and passed to env.step, until the episode ends",
         )
     return failures
 

@@ -4,8 +4,10 @@
 random sign, since q and -q are the same rotation) and a few exact cases; the grader recomputes distance, tilt and
 success as :class:`vdtutorial.envs.grasp.JacoGraspEnv` does. 8.2: trajectories in the grasping env from random seeds
 of three policies (the IK expert, a random constant action, a slow one, so that successes, collisions and time-outs
-occur), each acting with noise unless asked for its mean action. The kernel also returns the start state and the
-actions the env got; the grader replays each trajectory in its own env, built once per process like the kernel's.
+occur), each acting with noise unless asked for its mean action. The grasping env's goal test is a stub in the
+grading kernel (it is what 8.1 asks for), so the grader plays each trajectory with the mean actions in its own env
+first and the kernel's env plays it back (:class:`vdtutorial.course.checks.ch01.Replay`); the kernel also returns
+the start state and the actions the env got, which the grader compares with the ones that made the trajectory.
 
 Not taught in a chapter: part of the teacher's grading (vdtutorial/course/checks/__init__.py).
 """
@@ -20,6 +22,7 @@ import numpy as np
 import pybullet as p
 
 from vdtutorial.course.checks import Check, Failures
+from vdtutorial.course.checks.ch01 import Replay, episode
 from vdtutorial.envs import ENV_IDS
 from vdtutorial.envs.base import MAX_DELTA
 from vdtutorial.envs.grasp import POSITION_TOLERANCE, TILT_TOLERANCE_DEG, grasp_point, tilt_deg
@@ -119,8 +122,9 @@ class _Actor:
 
 
 def trajectory_inputs(rng: np.random.Generator) -> dict:
-    """Three random env seeds; for each, the expert, a random constant action and a slow constant action."""
-    cases = {}
+    """Three random env seeds; for each, the expert, a random constant action and a slow constant action, and the
+    trajectory of the policy's mean action in the grader's env (:func:`vdtutorial.course.checks.ch01.episode`)."""
+    cases, env = {}, _grasp_env()
     for k, seed in enumerate(rng.choice(10**6, 3, replace=False)):
         for name, constant in (
             ("expert", None),
@@ -133,6 +137,8 @@ def trajectory_inputs(rng: np.random.Generator) -> dict:
                 "noise_seed": int(rng.integers(2**31)),
                 "action": np.zeros(6) if constant is None else constant,
             }
+            actor = _policy(env, cases[f"{name}{k}"])
+            cases[f"{name}{k}"]["episode"] = episode(env, lambda obs: actor.act(obs, deterministic=True), seed)
     return cases
 
 
@@ -160,8 +166,9 @@ class _Recorder(gym.Wrapper):
 def trajectory_probe(namespace: dict, inputs: dict) -> dict:
     out = {}
     for key in sorted(inputs):
-        env = _Recorder(_grasp_env())
-        found = namespace["run_trajectory"](env, _policy(env, inputs[key]), int(inputs[key]["seed"]))
+        case = inputs[key]
+        env = _Recorder(Replay(_grasp_env(), {str(int(case["seed"])): case["episode"]}))
+        found = namespace["run_trajectory"](env, _policy(env, case), int(case["seed"]))
         out[key] = {
             "outcome": str(found["outcome"]),
             "steps": int(found["steps"]),
@@ -174,18 +181,12 @@ def trajectory_probe(namespace: dict, inputs: dict) -> dict:
 
 
 def trajectory_verdict(inputs: dict, outputs: dict) -> list[str]:
-    failures, env, gamma = Failures(), _grasp_env(), TRPOConfig().gamma
+    failures, gamma = Failures(), TRPOConfig().gamma
     for key in sorted(inputs):
         got, where = outputs[key], f"{_KINDS[key[:-1]]}, trajectory {key[-1]}"
-        policy, rewards, actions = _policy(env, inputs[key]), [], []
-        obs, info = env.reset(seed=int(inputs[key]["seed"]))
-        start = np.array(obs, dtype=np.float64)
-        while True:
-            actions.append(policy.act(obs, deterministic=True))
-            obs, reward, terminated, truncated, info = env.step(actions[-1])
-            rewards.append(float(reward))
-            if terminated or truncated:
-                break
+        played = inputs[key]["episode"]
+        rewards, actions, start, info = list(played["reward"]), played["action"], played["obs"][0], played["info"]
+        info = {name: values[-1] for name, values in info.items()}
         outcome = "success" if info["is_success"] else "collision" if info["is_failure"] else "time out"
         starts, taken = np.asarray(got["starts"], dtype=float), np.asarray(got["actions"], dtype=float)
         failures.true(
@@ -193,7 +194,7 @@ def trajectory_verdict(inputs: dict, outputs: dict) -> list[str]:
             f"{where}: start the trajectory with env.reset(seed=seed)",
         )
         failures.true(
-            taken.shape == np.shape(actions) and np.allclose(taken, actions, rtol=0, atol=1e-9),
+            taken.shape == actions.shape and np.allclose(taken, actions, rtol=0, atol=1e-9),
             f"{where}: the actions taken must be the policy's mean actions, one per step until the end",
         )
         failures.true(str(got["outcome"]) == outcome, f"{where}: the outcome")
