@@ -456,6 +456,49 @@ def test_the_experts_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path)
         assert sum("called a stub" in r["refused"] for r in csv.DictReader(fh)) == len(TAKEN_IN_02[0])
 
 
+#: Chapter 01 handed in by a student who writes the episode runner (1.2) and takes the reaching env's goal test
+#: (1.1) by a name built from strings, and the grasping task's tilt (1.3) by an import in 1.2's cell.
+TAKEN_IN_01 = (
+    {
+        "ch01_reward_eq11": "import pkgutil\nfrom types import SimpleNamespace\n"
+        "_status = pkgutil.resolve_name('vdtutorial.envs.reach:JacoReachEnv.' + '_goal' + '_status')\n"
+        "def eq11_terms(scene, q_old, action):\n"
+        "    q_old = np.asarray(q_old, dtype=float)\n"
+        "    failure = scene.path_in_collision(q_old, np.clip(q_old + action, scene.lower, scene.upper))\n"
+        "    success, info = _status(SimpleNamespace(scene=scene))\n"
+        "    return {'-|a|': -float(np.linalg.norm(action)), '-d_t': -info['distance'],\n"
+        "            '+c1 succ': C_SUCCESS * (success and not failure), '-c2 fail': -C_FAILURE * failure}\n",
+        "ch01_grasp_reward": "def grasp_outcome(scene, failure):\n"
+        "    hand, approach = scene.tcp_pose()\n"
+        "    near = np.linalg.norm(hand - grasp_point(scene.cup_position)) < POSITION_TOLERANCE\n"
+        "    success = bool(near and _tilt(approach) < TILT_TOLERANCE_DEG and not failure)\n"
+        "    return -1.0 + 25.0 * success - 25.0 * failure, success or bool(failure)\n",
+    },
+    {"ch01_collision_share": "from vdtutorial.envs.grasp import tilt_deg as _tilt"},
+)
+
+
+@needs_sandbox
+@pytest.mark.pipeline
+def test_the_environments_goal_tests_are_stubs_in_the_kernel_whatever_the_route(tmp_path):
+    """Graded without the static check, a chapter 01 student who takes the reaching env's goal test by
+    ``pkgutil.resolve_name`` and the grasping tilt by an import in another exercise's cell scores 0 on both, and the
+    grades say that the answer called a stub; the runner they wrote (1.2), checked on the grader's episodes played
+    back in the kernel, keeps its points."""
+    chapter = "01_environment"
+    _hand_in(tmp_path / "in", "taken_01", chapter, _chapter_answering(chapter, *TAKEN_IN_01))
+    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", timeout=600, static_check=False)
+    got = {s.exercise: s for s in scores}
+    own = got["ch01_collision_share_tests"]
+    assert own.score == own.max_score > 0, own
+    for exercise, stub in (("ch01_reward_eq11", "JacoReachEnv._goal_status"), ("ch01_grasp_reward", "tilt_deg")):
+        taken = got[f"{exercise}_tests"]
+        assert taken.score == 0, taken
+        assert "called a stub: the library's vdtutorial.envs." in taken.refused and stub in taken.refused, taken
+    with open(tmp_path / "course" / "grades.csv") as fh:
+        assert sum("called a stub" in r["refused"] for r in csv.DictReader(fh)) == len(TAKEN_IN_01[0])
+
+
 @needs_sandbox
 @pytest.mark.pipeline
 def test_an_interrupted_grading_resumes_where_it_stopped(tmp_path):
