@@ -14,7 +14,10 @@ sandbox, and the stubbed code never ran, so no object holding it exists to be fo
 A piece that a later exercise of the same chapter is given (4.3 compacts a network of the library's
 ``LinearSVDO`` layers, and so needs their parameters, ``log_alpha``, ``keep_mask`` and eval mode's forward pass)
 keeps those parts (:data:`KEPT`): only what scores the earlier exercise is stubbed (training mode's sampling and
-the KL). A stub that an answer called is named
+the KL). Where a later exercise's check needs what a stubbed piece computes, the grader computes it and hands it
+over with the exercise's inputs instead: the environments' goal tests are stubs in chapters 01 and 08, so the
+episode runners of 1.2 and 8.2 are given the grader's own episodes, played back in the kernel
+(:class:`vdtutorial.course.checks.ch01.Replay`). A stub that an answer called is named
 in the grader's table (:func:`called`), so that the teacher sees why the exercise scored nothing.
 
 The trusted checks' probes run in the kernel next to the student's code and can reach only what it can: they call
