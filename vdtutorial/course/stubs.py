@@ -46,10 +46,12 @@ STUBS: dict[str, tuple[str, ...]] = {
         "vdtutorial.envs.reach:JacoReachEnv._goal_status",
         "vdtutorial.envs.reach:JacoReachEnv._reward",
     ),
-    # 01: the library's episode runners that count how episodes end
+    # 01: the library's episode runners that count how episodes end, and the check's own count of how the given
+    # episodes ended (its verdict's helper, which the kernel must not lend out)
     "ch01_collision_share": (
         "vdtutorial.experiments.evaluation:successes_per_episode",
         "vdtutorial.experiments.evaluation:expert_success_rate",
+        "vdtutorial.course.checks.ch01:runner_reference",
     ),
     # 01: the grasping env's goal test, its reward and the tilt of the approach axis the test rests on
     "ch01_grasp_reward": (
