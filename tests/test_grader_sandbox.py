@@ -374,6 +374,19 @@ TAKEN_IN_06A = (
 )
 
 
+#: Chapter 07 with 7.2 solved and 7.1 answered by the library's pruning of the policy, named by a string: a correct
+#: answer, if the kernel had the library's prune_.
+TAKEN_IN_07 = (
+    {
+        "ch07_prune": "import pkgutil\n"
+        "def prune_for_rl(policy, threshold=THRESHOLD):\n"
+        "    prune = pkgutil.resolve_name('vdtutorial.policy:GaussianPolicy.' + 'prune' + '_')\n"
+        "    return prune(copy.deepcopy(policy), threshold)\n",
+    },
+    {},
+)
+
+
 @needs_sandbox
 @pytest.mark.pipeline
 def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path):
@@ -381,12 +394,13 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
     for the library's layer and compaction they took: by an import in another exercise's cell, a name built from
     strings (pkgutil), sys.modules, pickle of a global reference, code decoded and run, an alias of the library's
     class, importlib and runpy; and one of chapter 06a keeps 6.1 and 6.2 and scores 0 for the conjugate gradient,
-    Fisher-vector product and GAE it imported in 6.1's cell. The table and grades.csv say that the answer called a
-    stub."""
+    Fisher-vector product and GAE it imported in 6.1's cell; one of chapter 07 keeps 7.2 and scores 0 for the
+    library's pruning, resolved from a string. The table and grades.csv say that the answer called a stub."""
     chapter = "04_sparse_variational_dropout"
     for student, (answers, before) in STEALERS.items():
         _hand_in(tmp_path / "in", student, chapter, _chapter_answering(chapter, answers, before))
     _hand_in(tmp_path / "in", "crosscell_06a", "06a_trpo_pieces", _chapter_answering("06a_trpo_pieces", *TAKEN_IN_06A))
+    _hand_in(tmp_path / "in", "pkgutil_07", "07_finetuning", _chapter_answering("07_finetuning", *TAKEN_IN_07))
     scores = classroom.grade(
         sorted((tmp_path / "in").iterdir()), tmp_path / "course", timeout=600, workers=2, static_check=False
     )
@@ -404,10 +418,16 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
     for exercise in TAKEN_IN_06A[0]:
         taken = got["crosscell_06a", f"{exercise}_tests"]
         assert taken.score == 0 and "called a stub: the library's vdtutorial." in taken.refused, taken
+    own = got["pkgutil_07", "ch07_steps_to_level_tests"]
+    assert own.score == own.max_score > 0, own
+    taken = got["pkgutil_07", "ch07_prune_tests"]
+    assert (
+        taken.score == 0 and "called a stub: the library's vdtutorial.policy.GaussianPolicy.prune_" in taken.refused
+    ), taken
     with open(tmp_path / "course" / "grades.csv") as fh:
         rows = [r for r in csv.DictReader(fh) if "called a stub" in r["refused"]]
-    assert {r["student"] for r in rows} == {*STEALERS, "crosscell_06a"}
-    assert len(rows) == 2 * len(STEALERS) + len(TAKEN_IN_06A[0])
+    assert {r["student"] for r in rows} == {*STEALERS, "crosscell_06a", "pkgutil_07"}
+    assert len(rows) == 2 * len(STEALERS) + len(TAKEN_IN_06A[0]) + len(TAKEN_IN_07[0])
     assert "is stubbed in grading" in classroom.table(scores)
 
 

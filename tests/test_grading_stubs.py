@@ -12,9 +12,15 @@ import pytest
 from vdtutorial.course import answer_rules, checks, classroom, stubs
 
 
+def _exercises(*chapters: str) -> list[str]:
+    return [exercise for exercise in stubs.STUBS if exercise.split("_")[0] in chapters]
+
+
 @pytest.fixture(scope="module")
 def stubbed(tmp_path_factory):
-    return stubs.stubbed_copy(tmp_path_factory.mktemp("library") / "vdtutorial", list(stubs.STUBS))
+    """The copy of a kernel that grades chapters 04 and 06 at once (a real kernel stubs one chapter's exercises;
+    these two chapters share no piece, so one copy serves the tests of both)."""
+    return stubs.stubbed_copy(tmp_path_factory.mktemp("library") / "vdtutorial", _exercises("ch04", "ch06"))
 
 
 def _in_copy(stubbed, code: str) -> subprocess.CompletedProcess:
@@ -41,7 +47,7 @@ def test_every_stub_names_a_piece_an_exercise_rebuilds_and_exists():
 
 
 #: The chapters whose exercises' names are not all accounted for yet: their test fails, as it must (strict).
-_UNFINISHED = {"ch05", "ch07", "ch09", "ch10", "ch11"}
+_UNFINISHED = {"ch09", "ch10", "ch11"}
 
 
 @pytest.mark.parametrize(
@@ -107,6 +113,46 @@ except NotImplementedError as exc:
         assert f"{route} STUB {want}" in lines, (route, lines)
     assert "eval (1, 2) keep (2, 3)" in lines
     assert any(line.startswith("train STUB") and "ch04_gaussian_dropout" in line for line in lines), lines
+
+
+def test_chapter_07s_kernel_runs_a_pruned_layer_but_prunes_nothing_itself(tmp_path):
+    """7.1's check runs the student's pruned copy, whose forward pass reads the mask the answer froze; the mask from
+    log alpha (an unpruned layer's, also in its eval-mode forward pass) and every pruning routine are stubs. Chapter
+    04's kernel, which keeps eval mode's forward pass, does not stub the mask: a kernel stubs one chapter."""
+    assert "vdtutorial.vd:SVDOLayer.keep_mask" not in {p for e in _exercises("ch04") for p in stubs.STUBS[e]}
+    copy = stubs.stubbed_copy(tmp_path / "vdtutorial", _exercises("ch07"))
+    code = """
+import pkgutil, torch
+from vdtutorial.vd import LinearSVDO
+layer = LinearSVDO(3, 2)
+for name, call in {
+    "eval": lambda: layer.eval()(torch.ones(1, 3)),
+    "prune_": lambda: pkgutil.resolve_name("vdtutorial.vd:SVDOLayer." + "prune_")(layer),
+    "kept_weights": lambda: pkgutil.resolve_name("vdtutorial.analysis.sparsity:kept_" + "weights")(layer),
+    "curves": lambda: pkgutil.resolve_name("vdtutorial.experiments:curves_from_" + "rows")([], "successes", 1),
+}.items():
+    try:
+        call()
+        print(name, "REAL")
+    except NotImplementedError as exc:
+        print(name, "STUB", exc)
+with torch.no_grad():
+    layer.mask.copy_(torch.tensor([[True, False, True], [False, True, True]]))
+    layer.pruned.fill_(True)
+print("pruned", layer.train()(torch.ones(1, 3)).tolist() == layer.eval()(torch.ones(1, 3)).tolist(),
+      torch.equal(layer.keep_mask(), layer.mask))
+"""
+    run = _in_copy(copy, code)
+    assert run.returncode == 0, run.stderr
+    lines = run.stdout.splitlines()
+    for name, piece, exercise in (
+        ("eval", "vdtutorial.vd:SVDOLayer.keep_mask", "ch07_prune"),
+        ("prune_", "vdtutorial.vd:SVDOLayer.prune_", "ch07_prune"),
+        ("kept_weights", "vdtutorial.analysis.sparsity:kept_weights", "ch07_prune"),
+        ("curves", "vdtutorial.experiments.curves:curves_from_rows", "ch07_steps_to_level"),
+    ):
+        assert f"{name} STUB {stubs.message(piece, exercise)}" in lines, (name, lines)
+    assert "pruned True True" in lines, lines
 
 
 def test_the_checks_verdicts_are_stubs_in_the_kernel_and_their_probes_are_not(stubbed):

@@ -85,6 +85,18 @@ STUBS: dict[str, tuple[str, ...]] = {
         "vdtutorial.analysis.compact:rebuild_sequential",
         "vdtutorial.analysis.sparsity:dead_units",
     ),
+    # 05: the library's cloning loop holds the ELBO step; the VD method's penalty is its beta-weighted KL / N with
+    # the warm-up; the sigma-fitting variant runs the same loop
+    "ch05_elbo_step": (
+        "vdtutorial.pretrain:pretrain",
+        "vdtutorial.experiments.initial_sigma:pretrain_with_sigma",
+        "vdtutorial.methods:SparseVD.penalty",
+    ),
+    "ch05_clone_vd": (
+        "vdtutorial.pretrain:pretrain",
+        "vdtutorial.experiments.initial_sigma:pretrain_with_sigma",
+        "vdtutorial.methods:SparseVD.penalty",
+    ),
     # 06a: the surrogate is computed inside TRPO's step
     "ch06_surrogate": ("vdtutorial.trpo:TRPO._trpo_step",),
     "ch06_conjugate_gradient": ("vdtutorial.trust_region:conjugate_gradient",),
@@ -100,6 +112,21 @@ STUBS: dict[str, tuple[str, ...]] = {
     "ch06_linear_baseline": ("vdtutorial.baselines:LinearFeatureBaseline",),
     "ch06_line_search": ("vdtutorial.trust_region:line_search",),
     "ch06_trpo_update": ("vdtutorial.trpo:TRPO._trpo_step",),
+    # 07: pruning (the layer's and the policy's method, the model function) and the masks it freezes (the layer's
+    # own, and the analysis' for any layer)
+    "ch07_prune": (
+        "vdtutorial.vd:SVDOLayer.prune_",
+        "vdtutorial.policy:GaussianPolicy.prune_",
+        "vdtutorial.vd:prune_model",
+        "vdtutorial.vd:SVDOLayer.keep_mask",
+        "vdtutorial.analysis.sparsity:kept_weights",
+    ),
+    # 07: the figures' smoothed curves over seeds, and both first crossings of a level (the claims' own too)
+    "ch07_steps_to_level": (
+        "vdtutorial.experiments.curves:curves_from_rows",
+        "vdtutorial.experiments.curves:steps_to_reach",
+        "vdtutorial.experiments.effects:_first_reach",
+    ),
     # 08: the grasping env's goal test and the tilt it rests on (8.2's runner gets the grader's trajectories played
     # back, vdtutorial/course/checks/ch01.py's Replay)
     "ch08_grasp_success": ("vdtutorial.envs.grasp:JacoGraspEnv._goal_status", "vdtutorial.envs.grasp:tilt_deg"),
@@ -109,11 +136,16 @@ STUBS: dict[str, tuple[str, ...]] = {
 
 #: What a stub still does before it raises, where a later exercise or the chapter is given part of the piece: the
 #: sparse VD layers' deterministic forward pass (eval mode, or a pruned layer) stays, since 4.3 compacts networks of
-#: library layers and may run them; the sampling of training mode is what 4.1 and 4.2 build.
+#: library layers and may run them; the sampling of training mode is what 4.1 and 4.2 build. A kernel stubs one
+#: chapter's exercises, so the entries of different chapters never meet (the mask from log alpha is stubbed in
+#: chapter 07's kernel only, where a layer's forward pass works once the answer has pruned it).
 KEPT: dict[str, str] = {
     "vdtutorial.vd:SVDOLayer.forward": (
         "if self.pruned or not self.training:\n    return self._op(x, self.weight * self.keep_mask(), self.bias)"
     ),
+    # 07: a pruned layer's mask is the one the answer froze, and its forward pass reads it (7.1's check runs the
+    # student's pruned copy); the mask from log alpha, what 7.1 builds, is stubbed
+    "vdtutorial.vd:SVDOLayer.keep_mask": "if self.pruned:\n    return self.mask",
 }
 
 #: Per exercise: the names of :data:`vdtutorial.course.answer_rules.FORBIDDEN` that are not pieces of its
