@@ -359,19 +359,34 @@ STEALERS = {
 }
 
 
-#: Chapter 06a with the library's conjugate gradient, Fisher-vector product and GAE imported in the REINFORCE
-#: cell (6.1, solved) and handed back as 6.3-6.5's answers; 6.2 solved too.
-TAKEN_IN_06A = (
-    {
-        "ch06_conjugate_gradient": "def my_cg(Avp, b, iters):\n    return _cg(Avp, b, iters)\n",
-        "ch06_fisher_vector_product": "my_fvp = _fvp\n",
-        "ch06_gae": "def my_gae(*args):\n    return _gae(*args)\n",
-    },
-    {
-        "ch06_reinforce": "from vdtutorial.trust_region import conjugate_gradient as _cg, double_backward_fvp as _fvp\n"
-        "from vdtutorial.trpo import gae as _gae"
-    },
-)
+#: Other chapters handed in by one student each, who takes the library's pieces as the answers of some exercises
+#: (their answers, by exercise) and solves the others (the teacher's answers): student -> (chapter, answers, code
+#: put before answers). 06a: the conjugate gradient, Fisher-vector product and GAE imported in the REINFORCE cell
+#: (6.1) and handed back as 6.3-6.5's answers. 09: DAgger's mixture by a name built from strings (pkgutil).
+TAKEN_ELSEWHERE = {
+    "crosscell_06a": (
+        "06a_trpo_pieces",
+        {
+            "ch06_conjugate_gradient": "def my_cg(Avp, b, iters):\n    return _cg(Avp, b, iters)\n",
+            "ch06_fisher_vector_product": "my_fvp = _fvp\n",
+            "ch06_gae": "def my_gae(*args):\n    return _gae(*args)\n",
+        },
+        {
+            "ch06_reinforce": "from vdtutorial.trust_region import conjugate_gradient as _cg\n"
+            "from vdtutorial.trust_region import double_backward_fvp as _fvp\n"
+            "from vdtutorial.trpo import gae as _gae"
+        },
+    ),
+    "resolved_09": (
+        "09_beyond_the_paper",
+        {
+            "ch09_dagger_plan": "import pkgutil\n\n\ndef dagger_plan(k, policy, demos):\n"
+            "    mix = pkgutil.resolve_name('vdtutorial.beyond.dagger:' + 'mix' + 'ture')\n"
+            "    return mix(policy, BETA**k), {'beta': BETA**k}\n"
+        },
+        {},
+    ),
+}
 
 
 @needs_sandbox
@@ -380,13 +395,14 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
     """Graded without the static check (the stubs alone), each of these students scores 4.1, which they solved, and 0
     for the library's layer and compaction they took: by an import in another exercise's cell, a name built from
     strings (pkgutil), sys.modules, pickle of a global reference, code decoded and run, an alias of the library's
-    class, importlib and runpy; and one of chapter 06a keeps 6.1 and 6.2 and scores 0 for the conjugate gradient,
-    Fisher-vector product and GAE it imported in 6.1's cell. The table and grades.csv say that the answer called a
-    stub."""
+    class, importlib and runpy; and each student of another chapter (``TAKEN_ELSEWHERE``) keeps the points of the
+    exercises they solved and scores 0 for those whose library piece they took. The table and grades.csv say that
+    the answer called a stub."""
     chapter = "04_sparse_variational_dropout"
     for student, (answers, before) in STEALERS.items():
         _hand_in(tmp_path / "in", student, chapter, _chapter_answering(chapter, answers, before))
-    _hand_in(tmp_path / "in", "crosscell_06a", "06a_trpo_pieces", _chapter_answering("06a_trpo_pieces", *TAKEN_IN_06A))
+    for student, (other, answers, before) in TAKEN_ELSEWHERE.items():
+        _hand_in(tmp_path / "in", student, other, _chapter_answering(other, answers, before))
     scores = classroom.grade(
         sorted((tmp_path / "in").iterdir()), tmp_path / "course", timeout=600, workers=2, static_check=False
     )
@@ -398,16 +414,18 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
             taken = got[student, f"{exercise}_tests"]
             assert taken.score == 0, taken
             assert "called a stub: the library's vdtutorial." in taken.refused and stub in taken.refused, taken
-    for exercise in ("ch06_reinforce", "ch06_surrogate"):
-        own = got["crosscell_06a", f"{exercise}_tests"]
-        assert own.score == own.max_score > 0, own
-    for exercise in TAKEN_IN_06A[0]:
-        taken = got["crosscell_06a", f"{exercise}_tests"]
-        assert taken.score == 0 and "called a stub: the library's vdtutorial." in taken.refused, taken
+    for student, (_, answers, _) in TAKEN_ELSEWHERE.items():
+        graded = [s for s in scores if s.student == student]
+        assert {s.exercise.removesuffix("_tests") for s in graded} > set(answers), graded
+        for score in graded:
+            if score.exercise.removesuffix("_tests") in answers:
+                assert score.score == 0 and "called a stub: the library's vdtutorial." in score.refused, score
+            else:
+                assert score.score == score.max_score > 0, score
     with open(tmp_path / "course" / "grades.csv") as fh:
         rows = [r for r in csv.DictReader(fh) if "called a stub" in r["refused"]]
-    assert {r["student"] for r in rows} == {*STEALERS, "crosscell_06a"}
-    assert len(rows) == 2 * len(STEALERS) + len(TAKEN_IN_06A[0])
+    assert {r["student"] for r in rows} == {*STEALERS, *TAKEN_ELSEWHERE}
+    assert len(rows) == 2 * len(STEALERS) + sum(len(answers) for _, answers, _ in TAKEN_ELSEWHERE.values())
     assert "is stubbed in grading" in classroom.table(scores)
 
 
