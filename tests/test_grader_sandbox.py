@@ -359,32 +359,74 @@ STEALERS = {
 }
 
 
-#: Chapter 06a with the library's conjugate gradient, Fisher-vector product and GAE imported in the REINFORCE
-#: cell (6.1, solved) and handed back as 6.3-6.5's answers; 6.2 solved too.
-TAKEN_IN_06A = (
-    {
-        "ch06_conjugate_gradient": "def my_cg(Avp, b, iters):\n    return _cg(Avp, b, iters)\n",
-        "ch06_fisher_vector_product": "my_fvp = _fvp\n",
-        "ch06_gae": "def my_gae(*args):\n    return _gae(*args)\n",
-    },
-    {
-        "ch06_reinforce": "from vdtutorial.trust_region import conjugate_gradient as _cg, double_backward_fvp as _fvp\n"
-        "from vdtutorial.trpo import gae as _gae"
-    },
-)
-
-
-#: Chapter 07 with 7.2 solved and 7.1 answered by the library's pruning of the policy, named by a string: a correct
-#: answer, if the kernel had the library's prune_.
-TAKEN_IN_07 = (
-    {
-        "ch07_prune": "import pkgutil\n"
-        "def prune_for_rl(policy, threshold=THRESHOLD):\n"
-        "    prune = pkgutil.resolve_name('vdtutorial.policy:GaussianPolicy.' + 'prune' + '_')\n"
-        "    return prune(copy.deepcopy(policy), threshold)\n",
-    },
-    {},
-)
+#: Other chapters handed in by one student each, who takes the library's pieces as the answers of some exercises
+#: (their answers, by exercise) and solves the others (the teacher's answers): student -> (chapter, answers, code
+#: put before answers). 01: the reaching env's goal test by a name built from strings (pkgutil), the grasping tilt by
+#: an import in 1.2's cell. 02: eq. 9 imported in 2.1's cell, eq. 10 by pkgutil (the pieces IKExpert is built on).
+#: 06a: the conjugate gradient, Fisher-vector product and GAE imported in the REINFORCE cell (6.1) and handed back
+#: as 6.3-6.5's answers. 07: the policy's pruning by pkgutil. 09: DAgger's mixture by pkgutil.
+TAKEN_ELSEWHERE = {
+    "taken_01": (
+        "01_environment",
+        {
+            "ch01_reward_eq11": "import pkgutil\nfrom types import SimpleNamespace\n"
+            "_status = pkgutil.resolve_name('vdtutorial.envs.reach:JacoReachEnv.' + '_goal' + '_status')\n"
+            "def eq11_terms(scene, q_old, action):\n"
+            "    q_old = np.asarray(q_old, dtype=float)\n"
+            "    failure = scene.path_in_collision(q_old, np.clip(q_old + action, scene.lower, scene.upper))\n"
+            "    success, info = _status(SimpleNamespace(scene=scene))\n"
+            "    return {'-|a|': -float(np.linalg.norm(action)), '-d_t': -info['distance'],\n"
+            "            '+c1 succ': C_SUCCESS * (success and not failure), '-c2 fail': -C_FAILURE * failure}\n",
+            "ch01_grasp_reward": "def grasp_outcome(scene, failure):\n"
+            "    hand, approach = scene.tcp_pose()\n"
+            "    near = np.linalg.norm(hand - grasp_point(scene.cup_position)) < POSITION_TOLERANCE\n"
+            "    success = bool(near and _tilt(approach) < TILT_TOLERANCE_DEG and not failure)\n"
+            "    return -1.0 + 25.0 * success - 25.0 * failure, success or bool(failure)\n",
+        },
+        {"ch01_collision_share": "from vdtutorial.envs.grasp import tilt_deg as _tilt"},
+    ),
+    "expert_02": (
+        "02_ik_expert",
+        {
+            "ch02_nearest_goal": "def my_nearest_goal(G, j, lower, upper):\n    return _eq9(G, j, lower, upper)\n",
+            "ch02_step_towards": "import pkgutil\n"
+            "my_step = pkgutil.resolve_name('vdtutorial.expert:' + 'step_' + 'towards')\n",
+        },
+        {"ch02_goal_set": "from vdtutorial.expert import nearest_goal as _eq9"},
+    ),
+    "pkgutil_07": (
+        "07_finetuning",
+        {
+            "ch07_prune": "import pkgutil\n"
+            "def prune_for_rl(policy, threshold=THRESHOLD):\n"
+            "    prune = pkgutil.resolve_name('vdtutorial.policy:GaussianPolicy.' + 'prune' + '_')\n"
+            "    return prune(copy.deepcopy(policy), threshold)\n",
+        },
+        {},
+    ),
+    "crosscell_06a": (
+        "06a_trpo_pieces",
+        {
+            "ch06_conjugate_gradient": "def my_cg(Avp, b, iters):\n    return _cg(Avp, b, iters)\n",
+            "ch06_fisher_vector_product": "my_fvp = _fvp\n",
+            "ch06_gae": "def my_gae(*args):\n    return _gae(*args)\n",
+        },
+        {
+            "ch06_reinforce": "from vdtutorial.trust_region import conjugate_gradient as _cg\n"
+            "from vdtutorial.trust_region import double_backward_fvp as _fvp\n"
+            "from vdtutorial.trpo import gae as _gae"
+        },
+    ),
+    "resolved_09": (
+        "09_beyond_the_paper",
+        {
+            "ch09_dagger_plan": "import pkgutil\n\n\ndef dagger_plan(k, policy, demos):\n"
+            "    mix = pkgutil.resolve_name('vdtutorial.beyond.dagger:' + 'mix' + 'ture')\n"
+            "    return mix(policy, BETA**k), {'beta': BETA**k}\n"
+        },
+        {},
+    ),
+}
 
 
 @needs_sandbox
@@ -393,14 +435,14 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
     """Graded without the static check (the stubs alone), each of these students scores 4.1, which they solved, and 0
     for the library's layer and compaction they took: by an import in another exercise's cell, a name built from
     strings (pkgutil), sys.modules, pickle of a global reference, code decoded and run, an alias of the library's
-    class, importlib and runpy; and one of chapter 06a keeps 6.1 and 6.2 and scores 0 for the conjugate gradient,
-    Fisher-vector product and GAE it imported in 6.1's cell; one of chapter 07 keeps 7.2 and scores 0 for the
-    library's pruning, resolved from a string. The table and grades.csv say that the answer called a stub."""
+    class, importlib and runpy; and each student of another chapter (``TAKEN_ELSEWHERE``) keeps the points of the
+    exercises they solved and scores 0 for those whose library piece they took. The table and grades.csv say that
+    the answer called a stub."""
     chapter = "04_sparse_variational_dropout"
     for student, (answers, before) in STEALERS.items():
         _hand_in(tmp_path / "in", student, chapter, _chapter_answering(chapter, answers, before))
-    _hand_in(tmp_path / "in", "crosscell_06a", "06a_trpo_pieces", _chapter_answering("06a_trpo_pieces", *TAKEN_IN_06A))
-    _hand_in(tmp_path / "in", "pkgutil_07", "07_finetuning", _chapter_answering("07_finetuning", *TAKEN_IN_07))
+    for student, (other, answers, before) in TAKEN_ELSEWHERE.items():
+        _hand_in(tmp_path / "in", student, other, _chapter_answering(other, answers, before))
     scores = classroom.grade(
         sorted((tmp_path / "in").iterdir()), tmp_path / "course", timeout=600, workers=2, static_check=False
     )
@@ -412,22 +454,18 @@ def test_the_librarys_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path
             taken = got[student, f"{exercise}_tests"]
             assert taken.score == 0, taken
             assert "called a stub: the library's vdtutorial." in taken.refused and stub in taken.refused, taken
-    for exercise in ("ch06_reinforce", "ch06_surrogate"):
-        own = got["crosscell_06a", f"{exercise}_tests"]
-        assert own.score == own.max_score > 0, own
-    for exercise in TAKEN_IN_06A[0]:
-        taken = got["crosscell_06a", f"{exercise}_tests"]
-        assert taken.score == 0 and "called a stub: the library's vdtutorial." in taken.refused, taken
-    own = got["pkgutil_07", "ch07_steps_to_level_tests"]
-    assert own.score == own.max_score > 0, own
-    taken = got["pkgutil_07", "ch07_prune_tests"]
-    assert (
-        taken.score == 0 and "called a stub: the library's vdtutorial.policy.GaussianPolicy.prune_" in taken.refused
-    ), taken
+    for student, (_, answers, _) in TAKEN_ELSEWHERE.items():
+        graded = [s for s in scores if s.student == student]
+        assert {s.exercise.removesuffix("_tests") for s in graded} > set(answers), graded
+        for score in graded:
+            if score.exercise.removesuffix("_tests") in answers:
+                assert score.score == 0 and "called a stub: the library's vdtutorial." in score.refused, score
+            else:
+                assert score.score == score.max_score > 0, score
     with open(tmp_path / "course" / "grades.csv") as fh:
         rows = [r for r in csv.DictReader(fh) if "called a stub" in r["refused"]]
-    assert {r["student"] for r in rows} == {*STEALERS, "crosscell_06a", "pkgutil_07"}
-    assert len(rows) == 2 * len(STEALERS) + len(TAKEN_IN_06A[0]) + len(TAKEN_IN_07[0])
+    assert {r["student"] for r in rows} == {*STEALERS, *TAKEN_ELSEWHERE}
+    assert len(rows) == 2 * len(STEALERS) + sum(len(answers) for _, answers, _ in TAKEN_ELSEWHERE.values())
     assert "is stubbed in grading" in classroom.table(scores)
 
 
@@ -444,79 +482,6 @@ def test_without_the_sandbox_the_stubbed_copy_still_comes_first(tmp_path):
     for exercise in ("ch04_svdo_layer", "ch04_compact"):
         assert got[f"{exercise}_tests"].score == 0 and "called a stub" in got[f"{exercise}_tests"].refused
     assert classroom.table(scores).startswith("graded WITHOUT a sandbox (--no-sandbox)")
-
-
-#: Chapter 02 with the goal set solved (2.1), and the library's eq. 9 imported in 2.1's cell and handed back as 2.2's
-#: answer, eq. 10 named by strings (pkgutil) as 2.3's: the pieces IKExpert is built on.
-TAKEN_IN_02 = (
-    {
-        "ch02_nearest_goal": "def my_nearest_goal(G, j, lower, upper):\n    return _eq9(G, j, lower, upper)\n",
-        "ch02_step_towards": "import pkgutil\n"
-        "my_step = pkgutil.resolve_name('vdtutorial.expert:' + 'step_' + 'towards')\n",
-    },
-    {"ch02_goal_set": "from vdtutorial.expert import nearest_goal as _eq9"},
-)
-
-
-@needs_sandbox
-@pytest.mark.pipeline
-def test_the_experts_pieces_are_stubs_in_the_kernel_whatever_the_route(tmp_path):
-    """Graded without the static check, a student of chapter 02 keeps 2.1, which they solved, and scores 0 for the
-    library's eq. 9 (imported in 2.1's cell) and eq. 10 (a name built from strings) taken as 2.2's and 2.3's answers;
-    the grades say which stub each called."""
-    chapter = "02_ik_expert"
-    _hand_in(tmp_path / "in", "expert_02", chapter, _chapter_answering(chapter, *TAKEN_IN_02))
-    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", static_check=False)
-    got = {s.exercise: s for s in scores}
-    assert got["ch02_goal_set_tests"].score == got["ch02_goal_set_tests"].max_score > 0, got
-    for exercise, stub in (("ch02_nearest_goal", "expert.nearest_goal"), ("ch02_step_towards", "expert.step_towards")):
-        taken = got[f"{exercise}_tests"]
-        assert taken.score == 0 and f"called a stub: the library's vdtutorial.{stub} is stubbed" in taken.refused, taken
-    with open(tmp_path / "course" / "grades.csv") as fh:
-        assert sum("called a stub" in r["refused"] for r in csv.DictReader(fh)) == len(TAKEN_IN_02[0])
-
-
-#: Chapter 01 handed in by a student who writes the episode runner (1.2) and takes the reaching env's goal test
-#: (1.1) by a name built from strings, and the grasping task's tilt (1.3) by an import in 1.2's cell.
-TAKEN_IN_01 = (
-    {
-        "ch01_reward_eq11": "import pkgutil\nfrom types import SimpleNamespace\n"
-        "_status = pkgutil.resolve_name('vdtutorial.envs.reach:JacoReachEnv.' + '_goal' + '_status')\n"
-        "def eq11_terms(scene, q_old, action):\n"
-        "    q_old = np.asarray(q_old, dtype=float)\n"
-        "    failure = scene.path_in_collision(q_old, np.clip(q_old + action, scene.lower, scene.upper))\n"
-        "    success, info = _status(SimpleNamespace(scene=scene))\n"
-        "    return {'-|a|': -float(np.linalg.norm(action)), '-d_t': -info['distance'],\n"
-        "            '+c1 succ': C_SUCCESS * (success and not failure), '-c2 fail': -C_FAILURE * failure}\n",
-        "ch01_grasp_reward": "def grasp_outcome(scene, failure):\n"
-        "    hand, approach = scene.tcp_pose()\n"
-        "    near = np.linalg.norm(hand - grasp_point(scene.cup_position)) < POSITION_TOLERANCE\n"
-        "    success = bool(near and _tilt(approach) < TILT_TOLERANCE_DEG and not failure)\n"
-        "    return -1.0 + 25.0 * success - 25.0 * failure, success or bool(failure)\n",
-    },
-    {"ch01_collision_share": "from vdtutorial.envs.grasp import tilt_deg as _tilt"},
-)
-
-
-@needs_sandbox
-@pytest.mark.pipeline
-def test_the_environments_goal_tests_are_stubs_in_the_kernel_whatever_the_route(tmp_path):
-    """Graded without the static check, a chapter 01 student who takes the reaching env's goal test by
-    ``pkgutil.resolve_name`` and the grasping tilt by an import in another exercise's cell scores 0 on both, and the
-    grades say that the answer called a stub; the runner they wrote (1.2), checked on the grader's episodes played
-    back in the kernel, keeps its points."""
-    chapter = "01_environment"
-    _hand_in(tmp_path / "in", "taken_01", chapter, _chapter_answering(chapter, *TAKEN_IN_01))
-    scores = classroom.grade(sorted((tmp_path / "in").iterdir()), tmp_path / "course", timeout=600, static_check=False)
-    got = {s.exercise: s for s in scores}
-    own = got["ch01_collision_share_tests"]
-    assert own.score == own.max_score > 0, own
-    for exercise, stub in (("ch01_reward_eq11", "JacoReachEnv._goal_status"), ("ch01_grasp_reward", "tilt_deg")):
-        taken = got[f"{exercise}_tests"]
-        assert taken.score == 0, taken
-        assert "called a stub: the library's vdtutorial.envs." in taken.refused and stub in taken.refused, taken
-    with open(tmp_path / "course" / "grades.csv") as fh:
-        assert sum("called a stub" in r["refused"] for r in csv.DictReader(fh)) == len(TAKEN_IN_01[0])
 
 
 @needs_sandbox

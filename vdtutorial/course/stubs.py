@@ -132,6 +132,26 @@ STUBS: dict[str, tuple[str, ...]] = {
     "ch08_grasp_success": ("vdtutorial.envs.grasp:JacoGraspEnv._goal_status", "vdtutorial.envs.grasp:tilt_deg"),
     # 08: the library's episode runner that counts outcomes and sums rewards
     "ch08_trajectory_return": ("vdtutorial.experiments.evaluation:successes_per_episode",),
+    # 09: DART's Sigma_hat (the errors, their mean outer product, the two on the held-out split) and its behaviour
+    "ch09_dart_noise": (
+        "vdtutorial.beyond.dart:estimate_noise",
+        "vdtutorial.beyond.dart:noise_estimate",
+        "vdtutorial.beyond.dart:policy_errors",
+        "vdtutorial.beyond.dart:noisy_expert",
+    ),
+    # 09: DAgger's per-step mixture of expert and learner
+    "ch09_dagger_plan": ("vdtutorial.beyond.dagger:mixture",),
+    # 10: Welch's interval, the statistics under it, and the reading of an interval as a verdict
+    "ch10_welch_verdict": (
+        "vdtutorial.experiments.effects:welch_interval",
+        "vdtutorial.experiments.effects:_welch",
+        "vdtutorial.experiments.effects:verdict",
+    ),
+    "ch10_holm": ("vdtutorial.experiments.effects:holm_rejections",),
+    # 11: the L2 entry's penalty, l2 * sum W^2: the numerator of 11.1's matched strength, and the term 11.2 writes
+    # beside it (the class stays: only its penalty computes what the checks compare)
+    "ch11_l1_strength": ("vdtutorial.methods:WeightDecay.penalty",),
+    "ch11_l1_penalty": ("vdtutorial.methods:WeightDecay.penalty",),
 }
 
 #: What a stub still does before it raises, where a later exercise or the chapter is given part of the piece: the
