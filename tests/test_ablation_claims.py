@@ -11,24 +11,10 @@ import numpy as np
 
 from vdtutorial.experiments.ablations import SETTINGS, ablation_claims, ablation_effects
 
+from flat_curves import flat_rows
+
+
 PLAN = Path(__file__).resolve().parents[1] / "docs" / "plan-ablations-and-image-fig5.md"
-
-
-def _rows(label: str, method: str, finals: list[float]) -> list[dict]:
-    """Flat learning curves of 10 iterations, one per seed: seed k's successes are ``finals[k]`` throughout."""
-    return [
-        {
-            "label": label,
-            "method": method,
-            "seed": seed,
-            "iteration": i,
-            "env_steps": (i + 1) * 200,
-            "successes": level,
-            "episodes": 40,
-        }
-        for seed, level in enumerate(finals)
-        for i in range(10)
-    ]
 
 
 def _class(levels: dict[str, float], spread: float = 0.5) -> list[dict]:
@@ -38,7 +24,7 @@ def _class(levels: dict[str, float], spread: float = 0.5) -> list[dict]:
     for s in SETTINGS:
         for method in ("vd", "l2", "vd_unpruned", s.dropout):
             level = levels["dropout" if method.startswith("dropout@") else method]
-            rows += _rows(s.label(method), method.split("@")[0], list(level + offsets))
+            rows += flat_rows(s.label(method), method.split("@")[0], dict(enumerate(level + offsets)))
     return rows
 
 

@@ -17,6 +17,8 @@ from vdtutorial.experiments.effects import claim_effects, claim_table
 from vdtutorial.experiments.looks import looks_table
 from vdtutorial.settings import data_dir
 
+from flat_curves import flat_rows
+
 ROOT = Path(__file__).resolve().parents[1]
 #: The records the results page's "Batches of seeds" tables are generated from.
 BATCH_RECORDS = {
@@ -34,29 +36,13 @@ def _load(folder: str) -> tuple[dict, list[dict]]:
     return record, read_rows(results_file(path, record["experiment"]))
 
 
-def _rows(label, method, finals):
-    return [
-        {
-            "label": label,
-            "method": method,
-            "seed": seed,
-            "iteration": i,
-            "env_steps": (i + 1) * 200,
-            "successes": level,
-            "episodes": 40 + seed,
-        }
-        for seed, level in finals.items()
-        for i in range(10)
-    ]
-
-
 def test_a_claim_whose_curves_ran_in_different_batches_is_marked_with_its_within_batch_comparison():
     """VD ran in both batches (seeds 0-2, then 3-9), no pre-training only in the first: the claim crosses batches,
     and its comparison on seeds 0-2 alone is Welch's on those seeds. VD against L2 (both in both batches) does not."""
     rng = np.random.default_rng(2)
     vd, l2 = ({s: level + rng.normal() for s in range(10)} for level in (60, 58))
     scratch = {s: 5 + rng.normal() for s in range(3)}
-    rows = _rows("VD", "vd", vd) + _rows("L2", "l2", l2) + _rows("no pre-training", "none", scratch)
+    rows = flat_rows("VD", "vd", vd) + flat_rows("L2", "l2", l2) + flat_rows("no pre-training", "none", scratch)
     record = {
         "seeds": list(range(10)),
         "window": 5,

@@ -17,22 +17,7 @@ from vdtutorial.experiments.effects import (
 from vdtutorial.experiments.looks import looks_of, max_score_p_value, pocock_boundary
 from vdtutorial.settings import data_dir
 
-
-def _rows(label, method, finals):
-    """Flat learning curves of 10 iterations, one per seed: seed k's metric is ``finals[k]`` throughout."""
-    return [
-        {
-            "label": label,
-            "method": method,
-            "seed": seed,
-            "iteration": i,
-            "env_steps": (i + 1) * 200,
-            "successes": level,
-            "episodes": 40 + seed,
-        }
-        for seed, level in finals.items()
-        for i in range(10)
-    ]
+from flat_curves import flat_rows
 
 
 def _no_look_max_p(score: float, rho: float) -> float:
@@ -65,7 +50,11 @@ def test_a_two_look_record_is_judged_by_the_combination_of_its_stages():
     vd = {s: 60 + 3.0 * rng.normal() for s in range(14)}
     l2 = {s: 57 + 3.0 * rng.normal() for s in range(14)}
     other = {s: 55 + 3.0 * rng.normal() for s in range(6)}
-    rows = _rows("VD, 2000 demos", "vd", vd) + _rows("L2, 2000 demos", "l2", l2) + _rows("L2, 8000 demos", "l2", other)
+    rows = (
+        flat_rows("VD, 2000 demos", "vd", vd)
+        + flat_rows("L2, 2000 demos", "l2", l2)
+        + flat_rows("L2, 8000 demos", "l2", other)
+    )
     looks = looks_of(
         {
             "looks": [
