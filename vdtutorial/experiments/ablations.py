@@ -21,6 +21,9 @@ Each setting's runs are one command (one batch: VD and L2 are run again beside t
 is within a batch. :func:`ablation_effects` reads the two settings' rows together, so that the eight claims are
 one Holm family on the paper's metric, as in every other record (:func:`~vdtutorial.experiments.effects.claim_effects`).
 
+:func:`plan_reading` turns the verdicts into the plan's sentences; the record of the finished runs is
+:mod:`~vdtutorial.experiments.ablation_record`.
+
 Not taught in a chapter: the runs it judges are under way (the plan and its commands are in docs/).
 """
 
@@ -52,6 +55,12 @@ class AblationSetting:
         return f"dropout@{self.dropout_rate:g}"
 
 
+#: The worktree commit every run of both settings is made from (the plan's "Worktree commit the runs are made from").
+RUNS_COMMIT = "4ab9285"
+#: The plan's seeds per method and setting, and each run's budget in env steps (the stopping rule: all runs to it).
+PLAN_SEEDS = tuple(range(10))
+PLAN_STEPS = 300_000
+
 #: The plan's two settings, each with the rate the plan fixed for it: Fig. 6 at Sigma = 0.25, Fig. 5 at 2000 demos.
 SETTINGS = (
     AblationSetting("fig6", "Sigma=0.25", 0.32),
@@ -78,3 +87,53 @@ def ablation_effects(rows: list[dict], metric: str, window: int | None = None) -
     """The eight claims judged on ``rows``, the two settings' rows together (their labels differ by setting), so
     that the claims on the paper's metric are one Holm family. Claims whose curves are missing are left out."""
     return claim_effects("ablations", rows, metric, window=window, claims=ablation_claims())
+
+
+#: The plan's fixed readings of one setting's four verdicts, in the plan's order
+#: (module docstring, "fixes how the verdicts are read").
+PRUNING_WINS = "the pruning is what wins"
+NOISE_WINS = "the multiplicative noise alone wins"
+VARIANCES_MATTER = "the learned variances matter"
+OTHER_PATTERN = "another pattern than the plan's three, reported as it is with its intervals"
+
+
+def _where(setting: AblationSetting) -> str:
+    """The setting as the claims' texts name it ("Sigma = 0.25", "2000 demos")."""
+    return setting.curve_suffix.replace("=", " = ")
+
+
+def setting_readings(verdicts: tuple[str, str, str, str]) -> list[str]:
+    """Which of the plan's readings one setting's four Holm verdicts give, in the claims' order: (1) VD without
+    pruning ends at VD's level, (2) binary dropout ends at VD's level, (3) VD without pruning ends above L2, (4)
+    binary dropout ends above L2. More than one may hold; none is :data:`OTHER_PATTERN`'s case."""
+    unpruned_vd, dropout_vd, unpruned_l2, dropout_l2 = verdicts
+    readings = []
+    if unpruned_vd == "contradicted" and unpruned_l2 != "confirmed":
+        readings.append(PRUNING_WINS)
+    if dropout_l2 == "confirmed":
+        readings.append(NOISE_WINS)
+    if dropout_vd == "contradicted" and unpruned_vd != "contradicted":
+        readings.append(VARIANCES_MATTER)
+    return readings
+
+
+def plan_reading(effects: list[dict], settings: tuple[AblationSetting, ...] = SETTINGS) -> dict[str, str]:
+    """The plan's sentence for each setting (keyed by its experiment, "fig6" and "fig5"), read from the Holm
+    verdicts of :func:`ablation_effects`'s primary family (the verdicts the family-wise 5% allows). Where several
+    readings hold they are all given; where none does, the four claims are given as they are: effect, 95% interval
+    and Holm verdict."""
+    primary = {e["text"]: e for e in effects if e["family"] == "primary"}
+    claims = ablation_claims(settings)
+    sentences = {}
+    for k, setting in enumerate(settings):
+        own = [primary[c.text] for c in claims[4 * k : 4 * k + 4]]
+        readings = setting_readings(tuple(e["holm_verdict"] for e in own))
+        head = f"{setting.figure}, {_where(setting)}: "
+        if readings:
+            sentences[setting.figure] = head + "; and ".join(readings)
+            continue
+        given = "; ".join(
+            f"{e['text']}: {e['estimate']:+.3g} ({e['low']:+.3g} to {e['high']:+.3g}), {e['holm_verdict']}" for e in own
+        )
+        sentences[setting.figure] = f"{head}{OTHER_PATTERN}: {given}"
+    return sentences
