@@ -513,3 +513,24 @@ def cmd_rederive(args) -> None:
     for folder in args.folders:
         remake, summary = own.get(names[folder], (rederive, format_summary))
         print(summary(remake(folder)))
+
+
+def cmd_ablations(args) -> None:
+    """The ablations' record from the plan's two folders (:mod:`vdtutorial.experiments.ablation_record`), refused
+    in one line when a folder is missing or a run of the plan is missing or short of its budget."""
+    from vdtutorial.experiments.ablation_record import NAME, ablation_record
+    from vdtutorial.experiments.results import default_out
+
+    out = Path(args.out) if args.out else default_out(NAME)
+    try:
+        record = ablation_record([args.runs_fig6, args.runs_fig5], out)
+    except (ValueError, OSError) as exc:
+        raise CommandError(str(exc)) from exc
+    for claim in record["claims"]:
+        print(
+            f"{claim['text']}: {claim['estimate']:+.3g} ({claim['low']:+.3g} to {claim['high']:+.3g}), "
+            f"p = {claim['p_value']:.2g}, {claim['verdict']}; Holm: {claim['holm_verdict']}"
+        )
+    for sentence in record["reading"].values():
+        print(f"reading: {sentence}")
+    print(f"wrote {out}")

@@ -22,6 +22,7 @@ from vdtutorial.cli.arguments import (
 from vdtutorial.cli.commands import (
     GRID_ONLY,
     STATE_ONLY,
+    cmd_ablations,
     cmd_bench,
     cmd_book,
     cmd_claims,
@@ -399,6 +400,21 @@ def _add_experiment_commands(sub) -> None:
         "replicate, but the rows no longer one command's on one CPU; the record says so)",
     )
     p.set_defaults(func=cmd_rederive)
+
+    p = sub.add_parser(
+        "ablations",
+        help="the ablations' record (docs/plan-ablations-and-image-fig5.md, section 2) from the plan's two finished "
+        "experiment folders: the eight claims as one Holm family, the plan's reading, each run's final level",
+    )
+    p.add_argument("runs_fig6", metavar="RUNS_FIG6", help="the Fig. 6 folder (e.g. runs/ablations_fig6_sigma0.25)")
+    p.add_argument("runs_fig5", metavar="RUNS_FIG5", help="the Fig. 5 folder (e.g. runs/ablations_fig5_n2000)")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="the record's folder (default: runs/ablations; the shipped one: data/results/ablations); it also keeps "
+        "the two folders' records and rows under rows/, from which the same command makes the record again",
+    )
+    p.set_defaults(func=cmd_ablations)
 
     p = sub.add_parser("reproduce", help="the main job: the whole pipeline at small scale (a few minutes on 2 cores)")
     p.add_argument(
