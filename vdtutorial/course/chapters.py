@@ -54,8 +54,9 @@ class WrittenBook:
 #: What an experiment writes beside its results while it runs (its per-run logs, saved states, the checkpoints and
 #: the data sets it made, locks): never shipped, so never copied out or packed. Some are committed (a grid's states,
 #: the beyond experiment's data sets) so that a rerun of its command continues rather than starts again; the results
-#: themselves (NAME.csv.gz, NAME.json, NAME.png) hold everything a chapter reads.
-_SCRATCH = ("runs", "state", "checkpoints", "demos")
+#: themselves (NAME.csv.gz, NAME.json, NAME.png) hold everything a chapter reads. A record made from other experiments'
+#: folders keeps their rows under ``rows`` (the ablations': its JSON holds every number it reports).
+_SCRATCH = ("runs", "state", "checkpoints", "demos", "rows")
 
 
 def _shipped_data(path: Path, data: Path) -> bool:
