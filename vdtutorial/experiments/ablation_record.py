@@ -48,7 +48,7 @@ from vdtutorial.experiments.ablations import (
 from vdtutorial.experiments.curves import CONFIDENCE, record_window
 from vdtutorial.experiments.effects import per_run, run_summaries
 from vdtutorial.experiments.measures import MEASURES, measures_of
-from vdtutorial.experiments.paths import recorded_path
+from vdtutorial.experiments.paths import data_dir, recorded_path
 from vdtutorial.experiments.plots import save_png
 from vdtutorial.methods import method
 from vdtutorial.runner.rows import read_rows, results_file
@@ -141,6 +141,23 @@ def _keep(folder: Path, figure: str, kept: Path) -> None:
             shutil.copyfile(path, kept / path.name)
 
 
+def _origins(folders: list[Path], kept: list[Path], out: Path) -> list[Path]:
+    """The experiment folders the runs were first read from: ``folders`` themselves, except a folder that is already
+    the record's kept copy, whose origin the record being made again names (so that making the record again from
+    its kept rows, its ``rederive_command``, keeps the command and folders of the runs it was judged from)."""
+    previous = out / f"{NAME}.json"
+    named = {}
+    if previous.is_file():
+        named = {s["kept_as"]: s["folder"] for s in json.loads(previous.read_text()).get("sources", [])}
+    project = data_dir().resolve().parent
+    return [
+        project / named[recorded_path(keep)]
+        if folder.resolve() == keep.resolve() and recorded_path(keep) in named
+        else folder
+        for folder, keep in zip(folders, kept)
+    ]
+
+
 def ablation_record(folders, out: str | Path, steps: int = PLAN_STEPS, seeds=PLAN_SEEDS, settings=SETTINGS) -> dict:
     """Turn the plan's two finished experiment folders (``folders``, in the order of ``settings``: Fig. 6 at
     Sigma = 0.25, then Fig. 5 at 2000 demonstrations) into the record in ``out``
@@ -161,10 +178,11 @@ def ablation_record(folders, out: str | Path, steps: int = PLAN_STEPS, seeds=PLA
     kept = [out / KEPT / folder.name for folder in folders]
     for folder, setting, keep in zip(folders, settings, kept):
         _keep(folder, setting.figure, keep)
+    origins = _origins(folders, kept, out)
     record = {
         "record": NAME,
         "plan": "docs/plan-ablations-and-image-fig5.md, section 2",
-        "command": ablations_command(folders, out),
+        "command": ablations_command(origins, out),
         "rederive_command": ablations_command(kept, out),
         "runs_commit": RUNS_COMMIT,
         "metric": metric,
@@ -184,7 +202,7 @@ def ablation_record(folders, out: str | Path, steps: int = PLAN_STEPS, seeds=PLA
                 "setting": setting.figure,
                 "data_set": setting.curve_suffix,
                 "dropout_rate": setting.dropout_rate,
-                "folder": recorded_path(folder),
+                "folder": recorded_path(origin),
                 "kept_as": recorded_path(keep),
                 "command": source.get("command"),
                 "state_dir": source.get("state_dir"),
@@ -192,7 +210,7 @@ def ablation_record(folders, out: str | Path, steps: int = PLAN_STEPS, seeds=PLA
                 "versions": source.get("versions"),
                 "wall_time_s": source.get("wall_time_s"),
             }
-            for folder, setting, keep, source in zip(folders, settings, kept, records)
+            for origin, setting, keep, source in zip(origins, settings, kept, records)
         ],
     }
     out.mkdir(parents=True, exist_ok=True)
