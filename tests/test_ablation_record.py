@@ -367,3 +367,14 @@ def test_the_figure_is_written_with_every_run(project, record):
             "VD without pruning",
             "binary dropout,",
         ]
+
+
+def test_the_results_page_carries_the_shipped_table():
+    """The results page's ablation table is the function's output on the shipped record, word for word."""
+    from vdtutorial.experiments.ablation_record import ablation_table
+
+    root = Path(__file__).resolve().parents[1]
+    shipped = json.loads((root / "data" / "results" / "ablations" / "ablations.json").read_text())
+    table = ablation_table(shipped)
+    assert table in (root / "docs" / "results.md").read_text()
+    assert table.count("\n| ") == len(shipped["claims"]) + len(shipped["secondary"])

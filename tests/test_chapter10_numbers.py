@@ -42,8 +42,15 @@ def numbers(text: str) -> Counter:
     return Counter(token.lstrip("+").replace(",", "") for token in NUMBER.findall(text))
 
 
+#: The ablations' record, which the synthesis reads beside the figures' (not a figure of the claims table).
+ABLATIONS = "ablations"
+
+
 def _records(root: Path) -> dict[str, dict]:
-    return {folder: json.loads(next((root / folder).glob("*.json")).read_text()) for folder in HEADINGS.values()}
+    return {
+        folder: json.loads(next((root / folder).glob("*.json")).read_text())
+        for folder in (*HEADINGS.values(), ABLATIONS)
+    }
 
 
 def _on_metric(record: dict) -> list[dict]:
@@ -113,7 +120,12 @@ def expected_synthesis(records: dict[str, dict]) -> list[str]:
             f"Fig. 5 2000 {looks['stage_seeds'][0][0]} {looks['stage_seeds'][1][0]} {looks['stage_estimates'][0]:+.1f} "
             f"{looks['stage_estimates'][1]:+.1f} {looks['combined_p_one_sided']:.2g} {fig5['p_value']:.2g}"
         )
-    return [" ".join(first), " ".join(second), " ".join(third), ""]
+    ablations = records[ABLATIONS]
+    where = [f"{len(seeds)}" for seeds in {tuple(s) for s in ablations["seeds"].values()}] + ["per 200 steps"]
+    for source in ablations["sources"]:
+        where.append(f"Fig. {source['setting'].removeprefix('fig')} {source['data_set']} {source['dropout_rate']:g}")
+    where += [_effect(c) for c in ablations["claims"]]
+    return [" ".join(first), " ".join(second), " ".join(where), " ".join(third), ""]
 
 
 def expected_counts(records: dict[str, dict]) -> str:
@@ -233,7 +245,7 @@ def test_the_chapter_reads_the_records_this_test_reads():
 
 
 def test_every_number_chapter_10_prints_is_its_records(shipped_output):
-    assert shipped_output["synthesis"].count("\n\n") == 3 and "seeds per method" in shipped_output["foundations"]
+    assert shipped_output["synthesis"].count("\n\n") == 4 and "seeds per method" in shipped_output["foundations"]
     assert mismatches(shipped_output, _records(data_dir() / "results")) == []
 
 
@@ -241,7 +253,7 @@ def test_a_number_that_differs_from_its_record_fails(shipped_output, tmp_path):
     """A copy of the records with one estimate changed: the chapter's text from the shipped records no longer matches
     them, and the chapter run on the copy prints the new number and matches. A number typed into a sentence, and two
     seed counts swapped between curves, fail too."""
-    for folder in HEADINGS.values():
+    for folder in (*HEADINGS.values(), ABLATIONS):
         shutil.copytree(data_dir() / "results" / folder, tmp_path / folder, ignore=shutil.ignore_patterns("*.png"))
     altered = copy.deepcopy(_records(tmp_path))
     claim = _claim(altered["fig4_rgbd"], "VD ends above L2")

@@ -65,3 +65,26 @@ def test_the_draws_of_the_demonstrations_are_counted_per_figure(folder, expected
     text = synthesis(_records())
     figures = re.findall(r"except (Fig\. \d[^(]*) \(draws", text)
     assert (expected in figures) if expected else not any(f.startswith("Fig. 4") for f in figures)
+
+
+def test_the_ablations_paragraph_follows_its_record():
+    """Each ablation claim's effect and Holm verdict, and the plan's reading of each setting, come from the
+    ablations' record; the closing sentences follow the verdicts they sum up."""
+    records = _records()
+    text = synthesis(records).split("\n\n")[2]
+    assert text.startswith("**Where VD's wins in state mode come from.**")
+    for claim in records["ablations"]["claims"]:
+        effect = f"{claim['estimate']:+.1f} ({claim['low']:+.1f} to {claim['high']:+.1f}), {claim['holm_verdict']}"
+        assert effect in text, claim["text"]
+    for reading in records["ablations"]["reading"].values():
+        assert f"the plan's reading: {reading.partition(': ')[2]}." in text
+
+    changed = copy.deepcopy(records)
+    unpruned = next(
+        c for c in changed["ablations"]["claims"] if c["a"].startswith("VD without pruning") and c["b"].startswith("L2")
+    )
+    unpruned.update(estimate=-3.04, low=-9.0, high=2.9, holm_verdict="not confirmed")
+    changed["ablations"]["reading"] = {f: f"{f}, x: pruning wins" for f in changed["ablations"]["reading"]}
+    new = synthesis(changed).split("\n\n")[2]
+    assert "-3.0 (-9.0 to +2.9), not confirmed" in new
+    assert "The pruning is not what wins" not in new and "readings differ" not in new

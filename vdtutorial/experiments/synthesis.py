@@ -17,8 +17,9 @@ from collections import defaultdict
 from vdtutorial.experiments.effects import demo_seed_of
 from vdtutorial.experiments.looks import RULE
 
-#: The records the synthesis reads: the folder under data/results/ of each figure's full-scale record.
-FOLDERS = ("fig4", "fig4_rgbd", "fig5", "fig6", "fig6_demos1", "fig7")
+#: The records the synthesis reads: the folder under data/results/ of each figure's full-scale record, and the
+#: ablations' record (:mod:`vdtutorial.experiments.ablation_record`).
+FOLDERS = ("fig4", "fig4_rgbd", "fig5", "fig6", "fig6_demos1", "fig7", "ablations")
 #: The figure each record belongs to (records of one figure and observation are draws of its demonstrations).
 FIGURE_OF = {
     "fig4": "Fig. 4 (state)",
@@ -130,7 +131,7 @@ def _limits(records: dict[str, dict]) -> str:
     ]
     grasp = _primary(records["fig7"], "VD ends above L2 (grasping)")["detectable"]
     draws = defaultdict(set)
-    for folder in FOLDERS:
+    for folder in FIGURE_OF:
         draws[FIGURE_OF[folder]].add(demo_seed_of(records[folder]))
     several = {figure: sorted(seeds) for figure, seeds in draws.items() if len(seeds) > 1}
     fig5 = _primary(records["fig5"], "VD ends above L2 with 2000 demonstrations")
@@ -151,6 +152,37 @@ def _limits(records: dict[str, dict]) -> str:
             f"p = {looks['combined_p_one_sided']:.2g}, the claim's p = {fig5['p_value']:.2g}: "
             f"{fig5['holm_verdict']} after Holm)."
         )
+    return text
+
+
+def _ablations(records: dict[str, dict]) -> str:
+    """Where VD's state-mode wins come from: the ablations' eight claims, setting by setting, with the plan's
+    reading of each setting (``docs/plan-ablations-and-image-fig5.md``, section 2)."""
+    record = records["ablations"]
+    rates = {s["setting"]: s["dropout_rate"] for s in record["sources"]}
+    seeds = sorted({len(s) for s in record["seeds"].values()})
+    settings = []
+    for figure, reading in record["reading"].items():
+        where, _, verdict = reading.partition(": ")
+        claims = [c for c in record["claims"] if c["figure"] == figure]
+        named = "; ".join(
+            f"{c['a'].split(',')[0]} minus {c['b'].split(',')[0]} {_effect(c)}, {c['holm_verdict']}" for c in claims
+        )
+        settings.append(
+            f"{where.replace(figure, 'Fig. ' + figure.removeprefix('fig'))} (binary dropout at rate "
+            f"{rates[figure]:g}): {named}; the plan's reading: {verdict}."
+        )
+    unpruned = [c for c in record["claims"] if c["a"].startswith("VD without pruning") and c["b"].startswith("L2")]
+    text = (
+        f"**Where VD's wins in state mode come from.** Two ablations ran beside VD and L2 where VD wins, "
+        f"{' or '.join(map(str, seeds))} seeds per method, their eight claims one Holm family, the test and the "
+        f"reading fixed before the runs: VD without pruning (the same clone, every weight kept) and binary dropout at "
+        f"VD's mean dropout rate (effects in successes per 200 steps, Holm verdicts). " + " ".join(settings)
+    )
+    if unpruned and all(c["holm_verdict"] == "confirmed" for c in unpruned):
+        text += " The pruning is not what wins: with every weight kept, VD still ends above L2 in both settings."
+    if len(set(r.partition(": ")[2] for r in record["reading"].values())) > 1:
+        text += " The two settings' readings differ, so what else makes the win depends on the setting."
     return text
 
 
@@ -184,6 +216,6 @@ def _meaning(records: dict[str, dict]) -> str:
 
 def synthesis(records: dict[str, dict]) -> str:
     """The shipped records' findings as Markdown paragraphs (``records``: ``{folder: record}`` for
-    :data:`FOLDERS`): images, state mode by setting, what the seeds and draws can see (and Fig. 5's two looks),
-    and what it means for the paper."""
-    return "\n\n".join((_images(records), _state(records), _limits(records), _meaning(records)))
+    :data:`FOLDERS`): images, state mode by setting, where VD's state-mode wins come from (the ablations), what the
+    seeds and draws can see (and Fig. 5's two looks), and what it means for the paper."""
+    return "\n\n".join((_images(records), _state(records), _ablations(records), _limits(records), _meaning(records)))
