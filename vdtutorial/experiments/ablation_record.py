@@ -145,10 +145,11 @@ def _origins(folders: list[Path], kept: list[Path], out: Path) -> list[Path]:
     """The experiment folders the runs were first read from: ``folders`` themselves, except a folder that is already
     the record's kept copy, whose origin the record being made again names (so that making the record again from
     its kept rows, its ``rederive_command``, keeps the command and folders of the runs it was judged from)."""
-    previous = out / f"{NAME}.json"
-    named = {}
-    if previous.is_file():
-        named = {s["kept_as"]: s["folder"] for s in json.loads(previous.read_text()).get("sources", [])}
+    previous, named = out / f"{NAME}.json", {}
+    try:
+        named = {s["kept_as"]: s["folder"] for s in json.loads(previous.read_text())["sources"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        pass  # no earlier record, or one this command did not write: the folders given are the origins
     project = data_dir().resolve().parent
     return [
         project / named[recorded_path(keep)]
