@@ -134,3 +134,58 @@ def test_commands_on_the_same_kernels_are_one_batch():
     assert batches[1]["commands"] == ["b", "d"]
     effect = {"a": "VD", "b": "no pre-training", "measure": "final", "metric": "successes"}
     assert not mark_batches([effect], record)[0]["across_batches"]
+
+
+def test_a_later_command_adding_one_curves_seeds_belongs_to_its_own_batch_for_that_curve_only():
+    """The image Fig. 4's no pre-training at seeds 3-9 came after VD's seeds 3-9, by its own command: the two parts
+    share seeds but not runs. Each curve's seeds belong to the part that ran them (``labels``; a part merged before
+    parts named their curves holds the rest), so the claim is within batches when the kernels match and across them
+    when they do not, with the shared batch's comparison on that batch's runs of each curve."""
+    rng = np.random.default_rng(3)
+    vd = {s: 60 + rng.normal() for s in range(10)}
+    scratch = {s: 5 + rng.normal() for s in range(10)}
+    rows = flat_rows("VD", "vd", vd) + flat_rows("no pre-training", "none", scratch)
+
+    def record(later_kernels):
+        return {
+            "seeds": list(range(10)),
+            "window": 5,
+            "metric": "successes",
+            "runs": [{"label": label, "seed": s} for label in ("VD", "no pre-training") for s in range(10)],
+            "merged": [
+                {"seeds": [0, 1, 2], "kernels": {"torch_cpu_capability": "AVX2"}, "command": "first"},
+                {"seeds": list(range(3, 10)), "kernels": {"torch_cpu_capability": "AVX512"}, "command": "vd"},
+                {"command": "merge"},
+                {
+                    "seeds": list(range(3, 10)),
+                    "labels": ["no pre-training"],
+                    "kernels": later_kernels,
+                    "command": "none",
+                },
+                {"command": "merge"},
+            ],
+        }
+
+    from vdtutorial.experiments.batches import batches_of
+
+    effect = {"a": "VD", "b": "no pre-training", "measure": "final", "metric": "successes"}
+    same = record({"torch_cpu_capability": "AVX512"})
+    assert [b["seeds"] for b in batches_of(same)] == [[0, 1, 2], list(range(3, 10))]
+    assert batches_of(same)[1]["commands"] == ["vd", "none"]
+    assert mark_batches([effect], same, rows)[0] == {**effect, "batches": [[0, 1], [0, 1]], "across_batches": False}
+
+    other = record({"torch_cpu_capability": "AVX512", "OPENBLAS_CORETYPE": "Haswell"})
+    batches = batches_of(other)
+    assert [sorted({label for label, _ in b["runs"]}) for b in batches] == [
+        ["VD", "no pre-training"],
+        ["VD"],
+        ["no pre-training"],
+    ]
+    marked = mark_batches([effect], other, rows)[0]
+    assert marked["batches"] == [[0, 1], [0, 2]] and marked["across_batches"]
+    first = [vd[s] for s in range(3)], [scratch[s] for s in range(3)]
+    assert marked["within_shared_batches"]["seeds"] == [3, 3]
+    assert marked["within_shared_batches"]["estimate"] == pytest.approx(np.mean(first[0]) - np.mean(first[1]))
+    differences = {(d["label"], d["measure"]): d for d in batch_differences(other, rows)}
+    assert differences[("no pre-training", "final")]["batches"] == [1, 3]
+    assert differences[("VD", "final")]["seeds"] == [3, 7]

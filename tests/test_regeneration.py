@@ -356,6 +356,20 @@ def test_more_seeds_of_some_curves_merge_and_the_record_says_how_many_each_has(t
     assert [e.get("seeds") for e in merged.record["merged"]] == [[0, 1], [2], None]
     with pytest.raises(ValueError, match="differs in its runs"):
         merge_seeds(later, _seeds_of("fig4_rgbd", (1,), tmp_path / "all"))
+    # then seed 2 of no pre-training by its own command (as the image Fig. 4's seeds 3-9 after VD's and L2's):
+    # the seed is already in the record, its run is not; the same run twice is refused
+    again = merge_seeds(first, _seeds_of("fig4_rgbd", (2,), tmp_path / "scratch", methods=("none",)))
+    per_method = {m: sorted({r["seed"] for r in again.rows if r["method"] == m}) for m in ("vd", "none", "expert")}
+    assert per_method == {"vd": [0, 1, 2], "none": [0, 1, 2], "expert": [0, 1]}
+    assert [e.get("labels") for e in again.record["merged"]] == [
+        ["VD", "L2", "no pre-training", "IK expert"],
+        ["VD", "L2"],
+        None,
+        ["no pre-training"],
+        None,
+    ]
+    with pytest.raises(ValueError, match=r"share seeds \[2\] of VD"):
+        merge_seeds(first, _seeds_of("fig4_rgbd", (2,), tmp_path / "twice", methods=("vd",)))
 
 
 def test_seeds_run_on_another_cpu_merge_only_when_asked_and_the_record_says_so(tmp_path):

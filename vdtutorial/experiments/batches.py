@@ -35,37 +35,56 @@ def _kernels_key(kernels):
     return tuple(sorted((key, value) for key, value in kernels.items() if value))
 
 
+def _part_runs(parts: list[dict], record: dict) -> list[set[tuple[str, int]]]:
+    """Each part's runs as (curve, seed) pairs. A part that names its curves (``labels``, which merges write since
+    parts could add seeds to some curves only) holds those curves' runs at its seeds; one that does not (merged
+    before then) holds every curve's runs at its seeds that no part naming its curves holds."""
+    runs = {(run["label"], run["seed"]) for run in record["runs"]}
+    named = {(label, seed) for part in parts if "labels" in part for label in part["labels"] for seed in part["seeds"]}
+    return [
+        {
+            (label, seed)
+            for label, seed in runs
+            if seed in part["seeds"] and (label in part["labels"] if "labels" in part else (label, seed) not in named)
+        }
+        for part in parts
+    ]
+
+
 def batches_of(record: dict) -> list[dict]:
     """The batches of a record's runs, in order: the runs of one command, or of several commands that recorded the
     same CPU kernels (the records hold no code commit, so commands on the same kernels count as one batch; a
-    command whose kernels were not recorded is a batch of its own). Each with its ``seeds``, ``kernels``,
-    ``commands`` and ``state_dirs`` (one batch, the record itself, when nothing was merged into it)."""
+    command whose kernels were not recorded is a batch of its own). Each with its ``seeds``, its ``runs`` ((curve,
+    seed) pairs: two commands may run the same seed of different curves), ``kernels``, ``commands`` and
+    ``state_dirs`` (one batch, the record itself, when nothing was merged into it)."""
     parts = [entry for entry in record.get("merged") or [] if "seeds" in entry] or [
         {"seeds": record["seeds"], **{key: record.get(key) for key in ("kernels", "command", "state_dir")}}
     ]
     batches: list[dict] = []
-    for part in parts:
+    for part, runs in zip(parts, _part_runs(parts, record)):
         key = _kernels_key(part.get("kernels"))
         same = next((b for b in batches if key is not None and _kernels_key(b["kernels"]) == key), None)
         if same is None:
             batches.append(
                 {
-                    "seeds": list(part["seeds"]),
+                    "seeds": sorted(set(part["seeds"])),
+                    "runs": runs,
                     "kernels": part.get("kernels"),
                     "commands": [part["command"]],
                     "state_dirs": [part.get("state_dir")],
                 }
             )
         else:
-            same["seeds"] = sorted(same["seeds"] + list(part["seeds"]))
+            same["seeds"] = sorted(set(same["seeds"]) | set(part["seeds"]))
+            same["runs"] |= runs
             same["commands"].append(part["command"])
             same["state_dirs"].append(part.get("state_dir"))
     return batches
 
 
-def batch_indices(record: dict, seeds) -> list[int]:
-    """The batches (indices into :func:`batches_of`) that ``seeds`` come from."""
-    return sorted({k for k, batch in enumerate(batches_of(record)) for seed in seeds if seed in batch["seeds"]})
+def batch_indices(record: dict, label: str, seeds) -> list[int]:
+    """The batches (indices into :func:`batches_of`) that curve ``label``'s ``seeds`` come from."""
+    return sorted({k for k, batch in enumerate(batches_of(record)) for seed in seeds if (label, seed) in batch["runs"]})
 
 
 def _claim_seeds(record: dict, label: str, effect: dict) -> list[int]:
@@ -88,18 +107,18 @@ def mark_batches(effects: list[dict], record: dict, rows: list[dict] | None = No
         if effect.get("n_b_counts") == "episodes" or "a" not in effect:
             marked.append(effect)
             continue
-        used = [batch_indices(record, _claim_seeds(record, effect[key], effect)) for key in ("a", "b")]
+        used = [batch_indices(record, effect[key], _claim_seeds(record, effect[key], effect)) for key in ("a", "b")]
         extra = {"batches": used, "across_batches": used[0] != used[1]}
         shared = sorted(set(used[0]) & set(used[1]))
         if extra["across_batches"] and shared and rows is not None and effect["measure"] != "steps_to_reach":
             if effect["metric"] not in groups:
                 groups[effect["metric"]] = per_run(rows, effect["metric"])
-            seeds = [s for k in shared for s in batches_of(record)[k]["seeds"]]
+            shared_runs = set().union(*(batches_of(record)[k]["runs"] for k in shared))
             values = [
                 run_summaries(
                     of_seeds(
                         groups[effect["metric"]][effect[key]],
-                        [s for s in groups[effect["metric"]][effect[key]]["seeds"] if s in seeds],
+                        [s for s in groups[effect["metric"]][effect[key]]["seeds"] if (effect[key], s) in shared_runs],
                     ),
                     effect["measure"],
                     int(record["window"]),
@@ -142,7 +161,7 @@ def batch_differences(record: dict, rows: list[dict], measures: tuple[str, ...] 
     for label, group in groups.items():
         if group["values"].ndim == 1:
             continue
-        by_batch = [[i for i, seed in enumerate(group["seeds"]) if seed in batch["seeds"]] for batch in batches]
+        by_batch = [[i for i, seed in enumerate(group["seeds"]) if (label, seed) in batch["runs"]] for batch in batches]
         present = [k for k, index in enumerate(by_batch) if index]
         for later in present[1:]:
             for measure in measures:

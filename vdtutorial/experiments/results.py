@@ -352,8 +352,9 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
     of one data set, no single command makes the rows and the first part's command stays), and ``merged`` lists, in
     order, each command that ran with its seeds and kernels, then each merge (this function's own command line).
     Refuses records that differ
-    in anything but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that share a seed;
-    ``other`` may hold only some of the methods (more seeds of the curves that need them).
+    in anything but the seeds (:data:`SAME_EXPERIMENT`, and the runs' budgets and observations) or that both hold a
+    curve's seed; ``other`` may hold only some of the methods (more seeds of the curves that need them, e.g. the
+    image Fig. 4's no pre-training at seeds 3-9, run after VD's and L2's).
 
     ``other_cpu``: also merge seeds run with other CPU kernels (a ``kernels`` entry that differs, or that one
     record predates). Each seed stays a valid replicate -- kernels change the last bits, which TRPO amplifies,
@@ -381,8 +382,12 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
             f"{', '.join(differ) or 'its runs (methods, observations or budgets)'}{hint}"
         )
     seeds = [{run["seed"] for run in record["runs"]} for record in records]
-    if seeds[0] & seeds[1]:
-        raise ValueError(f"{folder} and {other} share seeds {sorted(seeds[0] & seeds[1])}")
+    curve_seeds = [{(run["label"], run["method"], run["seed"]) for run in record["runs"]} for record in records]
+    if shared := curve_seeds[0] & curve_seeds[1]:  # a curve's seed run twice; other curves may add that seed
+        raise ValueError(
+            f"{folder} and {other} share seeds {sorted({seed for *_, seed in shared})} "
+            f"of {', '.join(sorted({label for label, *_ in shared}))}"
+        )
     name = records[0]["experiment"]
     rows = read_rows(results_file(folder, name)) + read_rows(results_file(other, name))
     curves = list(dict.fromkeys((row["label"], row["method"]) for row in rows))
@@ -398,6 +403,7 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
             {
                 **{key: record.get(key) for key in ("command", "argv", "state_dir", "wall_time_s")},
                 "seeds": sorted(folder_seeds),
+                "labels": list(dict.fromkeys(run["label"] for run in record["runs"])),  # its curves (batches.py)
                 "kernels": record.get("kernels") or NOT_RECORDED,
             }
         ]
