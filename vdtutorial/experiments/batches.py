@@ -143,7 +143,11 @@ def batch_settings(record: dict) -> str:
     lines = ["| batch | seeds | kernels | commands | states |", "|---|---|---|---|---|"]
     for k, batch in enumerate(batches_of(record), 1):
         kernels = batch["kernels"]
-        kernels = kernels.get("torch_cpu_capability", "?") if isinstance(kernels, dict) else str(kernels)
+        if isinstance(kernels, dict):  # torch's capability, then every variable that was set (a pin)
+            pins = [f"{name}={value}" for name, value in kernels.items() if value and name != "torch_cpu_capability"]
+            kernels = ", ".join([kernels.get("torch_cpu_capability", "?"), *pins])
+        else:
+            kernels = str(kernels)
         seeds = batch["seeds"]
         consecutive = seeds == list(range(seeds[0], seeds[-1] + 1))
         span = f"{seeds[0]}-{seeds[-1]}" if consecutive else ", ".join(map(str, seeds))
