@@ -272,7 +272,15 @@ def test_a_number_that_differs_from_its_record_fails(shipped_output, tmp_path):
     shipped = _records(data_dir() / "results")
     typed = dict(shipped_output, synthesis=shipped_output["synthesis"].replace("80% power", "90% power"))
     assert any("90" in line for line in mismatches(typed, shipped))
-    line = next(x for x in shipped_output["foundations"].splitlines() if "no pre-training 3," in x)
-    swapped = line.replace("VD 10", "VD 3", 1).replace("no pre-training 3,", "no pre-training 10,")
+    # two curves' seed counts swapped on one line (the first line whose curves have different counts)
+    counts = [
+        (line, re.findall(r"([A-Za-z0-9 .,-]+?) (\d+)(?=,|$)", line.split("seeds per method: ")[1]))
+        for line in shipped_output["foundations"].splitlines()
+        if "seeds per method: " in line
+    ]
+    line, curves = next((line, curves) for line, curves in counts if len({n for _, n in curves}) > 1)
+    (a, n), (b, m) = curves[0], next(c for c in curves if c[1] != curves[0][1])
+    a, b = a.lstrip(", "), b.lstrip(", ")
+    swapped = line.replace(f"{a} {n}", f"{a} {m}", 1).replace(f"{b} {m}", f"{b} {n}", 1)
     moved = dict(shipped_output, foundations=shipped_output["foundations"].replace(line, swapped))
-    assert any("no 'no pre-training 3'" in x for x in mismatches(moved, shipped))  # the same numbers, misplaced
+    assert any(f"no '{b} {m}'" in x for x in mismatches(moved, shipped))  # the same numbers, misplaced
