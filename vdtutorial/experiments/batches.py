@@ -82,9 +82,10 @@ def batches_of(record: dict) -> list[dict]:
     return batches
 
 
-def batch_indices(record: dict, label: str, seeds) -> list[int]:
-    """The batches (indices into :func:`batches_of`) that curve ``label``'s ``seeds`` come from."""
-    return sorted({k for k, batch in enumerate(batches_of(record)) for seed in seeds if (label, seed) in batch["runs"]})
+def batch_indices(batches: list[dict], label: str, seeds) -> list[int]:
+    """The batches (indices into ``batches``, a record's :func:`batches_of`) that curve ``label``'s ``seeds`` come
+    from."""
+    return sorted({k for k, batch in enumerate(batches) for seed in seeds if (label, seed) in batch["runs"]})
 
 
 def _claim_seeds(record: dict, label: str, effect: dict) -> list[int]:
@@ -100,20 +101,21 @@ def mark_batches(effects: list[dict], record: dict, rows: list[dict] | None = No
     claim of a record made by one command, as they are. With the record's ``rows``, a difference of means that
     crosses batches also gets the same comparison on the seeds of the batches both curves ran in
     (``within_shared_batches``: estimate, 95% interval, two-sided p and seeds)."""
-    if len(batches_of(record)) == 1:
+    batches = batches_of(record)
+    if len(batches) == 1:
         return effects
     marked, groups = [], {}
     for effect in effects:
         if effect.get("n_b_counts") == "episodes" or "a" not in effect:
             marked.append(effect)
             continue
-        used = [batch_indices(record, effect[key], _claim_seeds(record, effect[key], effect)) for key in ("a", "b")]
+        used = [batch_indices(batches, effect[key], _claim_seeds(record, effect[key], effect)) for key in ("a", "b")]
         extra = {"batches": used, "across_batches": used[0] != used[1]}
         shared = sorted(set(used[0]) & set(used[1]))
         if extra["across_batches"] and shared and rows is not None and effect["measure"] != "steps_to_reach":
             if effect["metric"] not in groups:
                 groups[effect["metric"]] = per_run(rows, effect["metric"])
-            shared_runs = set().union(*(batches_of(record)[k]["runs"] for k in shared))
+            shared_runs = set().union(*(batches[k]["runs"] for k in shared))
             values = [
                 run_summaries(
                     of_seeds(
