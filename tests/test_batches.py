@@ -136,6 +136,28 @@ def test_commands_on_the_same_kernels_are_one_batch():
     assert not mark_batches([effect], record)[0]["across_batches"]
 
 
+def test_the_cpu_model_is_part_of_a_batch_where_it_was_recorded():
+    """The same recorded kernels on two CPU models are two batches, and so are a command that names its CPU and one
+    that does not (nothing says they ran on one machine); the batch table names the CPU after the kernels."""
+    from vdtutorial.experiments.batches import batch_settings, batches_of
+
+    avx512 = {"torch_cpu_capability": "AVX512", "OPENBLAS_CORETYPE": "Haswell"}
+    record = {
+        "seeds": list(range(4)),
+        "runs": [{"label": "VD", "seed": s} for s in range(4)],
+        "merged": [
+            {"seeds": [0], "kernels": {**avx512, "cpu": "AMD EPYC"}, "command": "a"},
+            {"seeds": [1], "kernels": {**avx512, "cpu": "Intel(R) Xeon(R)"}, "command": "b"},
+            {"seeds": [2], "kernels": avx512, "command": "c"},
+            {"seeds": [3], "kernels": {**avx512, "cpu": "AMD EPYC"}, "command": "d"},
+        ],
+    }
+    assert [b["seeds"] for b in batches_of(record)] == [[0, 3], [1], [2]]
+    table = batch_settings(record)
+    assert "| 1 | 0, 3 | AVX512, OPENBLAS_CORETYPE=Haswell (on AMD EPYC) | `a`; `d` |" in table
+    assert "| 3 | 2 | AVX512, OPENBLAS_CORETYPE=Haswell | `c` |" in table
+
+
 def test_a_later_command_adding_one_curves_seeds_belongs_to_its_own_batch_for_that_curve_only():
     """The image Fig. 4's no pre-training at seeds 3-9 came after VD's seeds 3-9, by its own command: the two parts
     share seeds but not runs. Each curve's seeds belong to the part that ran them (``labels``; a part merged before

@@ -301,8 +301,8 @@ def test_states_are_written_whole_through_a_temporary_file_of_their_own(tmp_path
 
 def test_a_state_saved_under_other_numerics_resumes_with_a_warning(tmp_path):
     """Another torch or other CPU kernels do not change what a run is (no error), but its rows may differ in
-    the last digits from an uninterrupted run's: resuming says so. A state saved before the numerics were
-    recorded resumes silently."""
+    the last digits from an uninterrupted run's: resuming says so, another CPU model included. A state saved
+    before the numerics (or the CPU model) were recorded resumes silently."""
     import warnings
 
     path = tmp_path / "state.pt"
@@ -314,11 +314,22 @@ def test_a_state_saved_under_other_numerics_resumes_with_a_warning(tmp_path):
     with pytest.warns(UserWarning, match=r"other numerics \(torch: '1\.0\.0' -> .*last digits"):
         finetune("none", "reach", total_steps=400, state_path=path, checkpoint_every=1)
     state = read_run_state(path)
+    state["numerics"] = {**state["numerics"], "cpu": "Intel(R) Xeon(R)"}
+    resume_module._atomic_save(state, path)
+    with pytest.warns(UserWarning, match=r"other numerics \(cpu: 'Intel\(R\) Xeon\(R\)' -> "):
+        finetune("none", "reach", total_steps=600, state_path=path, checkpoint_every=1)
+    state = read_run_state(path)
+    del state["numerics"]["cpu"]
+    resume_module._atomic_save(state, path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        finetune("none", "reach", total_steps=800, state_path=path, checkpoint_every=1)
+    state = read_run_state(path)
     del state["numerics"]
     resume_module._atomic_save(state, path)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        finetune("none", "reach", total_steps=600, state_path=path, checkpoint_every=1)
+        finetune("none", "reach", total_steps=1000, state_path=path, checkpoint_every=1)
 
 
 def test_settings_differences_name_nested_settings():

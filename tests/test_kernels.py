@@ -10,7 +10,7 @@ import warnings
 import pytest
 
 from vdtutorial.runner import kernels
-from vdtutorial.runner.kernels import PINNED, cpu_flags, pin_vector_kernels
+from vdtutorial.runner.kernels import PINNED, cpu_flags, cpu_model, kernel_settings, pin_vector_kernels
 
 PROBE = (
     "import json, vdtutorial, torch, threadpoolctl; "
@@ -24,6 +24,17 @@ def test_cpu_flags_reads_the_flags_line(tmp_path):
     info.write_text("processor\t: 0\nmodel name\t: AMD EPYC\nflags\t\t: fpu sse2 avx avx2 fma\n\nprocessor\t: 1\n")
     assert cpu_flags(str(info)) == {"fpu", "sse2", "avx", "avx2", "fma"}
     assert cpu_flags(str(tmp_path / "missing")) == set()
+
+
+def test_the_record_names_the_cpu_model_beside_the_kernels(tmp_path, monkeypatch):
+    """Two machines with the same recorded kernels may still round differently (an Intel CPU's MKL against an AMD
+    one's), so a record's kernels carry the model name, which Linux gives once per core."""
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nmodel name\t: AMD EPYC 9B14\n\nprocessor\t: 1\nmodel name\t: AMD EPYC 9B14\n")
+    assert cpu_model(str(info)) == "AMD EPYC 9B14"
+    monkeypatch.setattr(kernels.platform, "processor", lambda: "arm")
+    assert cpu_model(str(tmp_path / "missing")) == "arm"
+    assert set(kernel_settings()) == {"torch_cpu_capability", *PINNED, "cpu"}
 
 
 @pytest.mark.parametrize(

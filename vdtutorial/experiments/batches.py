@@ -5,7 +5,8 @@ more, perhaps on another CPU's kernels, from another checkout, with checkpoints 
 run is a pure function of its settings and seed, so seeds from two batches are meant to be replicates of one
 experiment; that is an assumption, and this module is where it is checked:
 
-* a batch is the runs of one command, or of several that recorded the same CPU kernels (:func:`batches_of`);
+* a batch is the runs of one command, or of several that recorded the same CPU kernels and, where recorded, the
+  same CPU model (:func:`batches_of`);
 * a claim whose two curves draw their seeds from different sets of batches (one curve run only in the first, say)
   **crosses batches**: any difference between the batches is then part of its effect. The record marks it
   (``across_batches``) and the tables say so;
@@ -54,7 +55,9 @@ def _part_runs(parts: list[dict], record: dict) -> list[set[tuple[str, int]]]:
 def batches_of(record: dict) -> list[dict]:
     """The batches of a record's runs, in order: the runs of one command, or of several commands that recorded the
     same CPU kernels (the records hold no code commit, so commands on the same kernels count as one batch; a
-    command whose kernels were not recorded is a batch of its own). Each with its ``seeds``, its ``runs`` ((curve,
+    command whose kernels were not recorded is a batch of its own). The CPU model is part of the kernels where a
+    record has it (records made before it was kept do not): a command that names its CPU and one that does not
+    are two batches, since nothing says they ran on the same machine. Each with its ``seeds``, its ``runs`` ((curve,
     seed) pairs: two commands may run the same seed of different curves), ``kernels``, ``commands`` and
     ``state_dirs`` (one batch, the record itself, when nothing was merged into it)."""
     parts = [entry for entry in record.get("merged") or [] if "seeds" in entry] or [
@@ -145,13 +148,15 @@ def batch_settings(record: dict) -> str:
     lines = ["| batch | seeds | kernels | commands | states |", "|---|---|---|---|---|"]
     for k, batch in enumerate(batches_of(record), 1):
         kernels = batch["kernels"]
-        if isinstance(kernels, dict):  # torch's capability, then every variable that was set (a pin)
-            pins = [f"{name}={value}" for name, value in kernels.items() if value and name != "torch_cpu_capability"]
-            kernels = ", ".join([kernels.get("torch_cpu_capability", "?"), *pins])
+        if isinstance(kernels, dict):  # torch's capability, then every variable that was set (a pin), then the CPU
+            named = ("torch_cpu_capability", "cpu")
+            pins = [f"{name}={value}" for name, value in kernels.items() if value and name not in named]
+            cpu = f" (on {kernels['cpu']})" if kernels.get("cpu") else ""
+            kernels = ", ".join([kernels.get("torch_cpu_capability", "?"), *pins]) + cpu
         else:
             kernels = str(kernels)
         seeds = batch["seeds"]
-        consecutive = seeds == list(range(seeds[0], seeds[-1] + 1))
+        consecutive = len(seeds) > 1 and seeds == list(range(seeds[0], seeds[-1] + 1))
         span = f"{seeds[0]}-{seeds[-1]}" if consecutive else ", ".join(map(str, seeds))
         commands = "; ".join(f"`{command}`" for command in batch["commands"])
         lines.append(f"| {k} | {span} | {kernels} | {commands} | {'; '.join(f'`{d}`' for d in batch['state_dirs'])} |")

@@ -40,6 +40,18 @@ def cpu_flags(path: str = "/proc/cpuinfo") -> set[str]:
         return set()
 
 
+def cpu_model(path: str = "/proc/cpuinfo") -> str:
+    """The CPU's model name as Linux lists it (``platform.processor()`` where there is no such file; empty if
+    neither says). Recorded beside the kernels because the variables do not name the machine: torch's BLAS (MKL)
+    picks its code path by CPU vendor as well as by vector width, so an Intel and an AMD CPU with the same
+    recorded kernels can still round differently (docs/results.md, "Regenerable results")."""
+    try:
+        with open(path) as f:
+            return next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), "")
+    except OSError:
+        return platform.processor()
+
+
 def can_pin(flags: set[str] | None = None) -> bool:
     """Whether this CPU runs the AVX2 kernels: an x86-64 CPU whose flags (:func:`cpu_flags`) include avx2."""
     flags = cpu_flags() if flags is None else flags
@@ -72,10 +84,12 @@ def pinned(environ=os.environ) -> bool:
 
 
 def kernel_settings() -> dict[str, str]:
-    """What an experiment record notes about the kernels: torch's CPU capability in use, and the variables."""
+    """What an experiment record notes about the kernels: torch's CPU capability in use, the variables, and the
+    CPU they ran on (:func:`cpu_model`)."""
     import torch
 
     return {
         "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
         **{name: os.environ.get(name, "") for name in PINNED},
+        "cpu": cpu_model(),
     }

@@ -88,8 +88,10 @@ def numerics() -> dict[str, str]:
 
 def numerics_warning(state: dict) -> str | None:
     """A warning if ``state`` was saved under other numerics than this process's (None: the same, or a
-    state from before they were saved)."""
-    differences = settings_differences(state.get("numerics", numerics()), numerics())
+    state from before they were saved). Only what the state recorded is compared: a state saved before the CPU
+    model was kept says nothing about its machine."""
+    saved, now = state.get("numerics", {}), numerics()
+    differences = settings_differences(saved, {key: now[key] for key in saved if key in now})
     if not differences:
         return None
     return (
