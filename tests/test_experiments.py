@@ -44,6 +44,7 @@ from vdtutorial.experiments import (
 from vdtutorial.experiments.checkpoints import checkpoint_path
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.runner import backends
+from vdtutorial.runner.compressed import load_compressed
 from vdtutorial.settings import QUICK_ENV
 from vdtutorial.trpo import TIMING_COLUMNS
 from vdtutorial.vd import svdo_layers
@@ -461,7 +462,7 @@ def test_files_written_before_kl_divisor_was_renamed_still_load_and_merge():
     from vdtutorial.experiments.results import with_defaults
 
     path = checkpoint_path(Demos.load(demo_path("reach", 8000, 0.5, 0)).meta, "vd", "state", 0)
-    assert "kl_samples" in torch.load(path, weights_only=True)["meta"]["config"]  # as shipped
+    assert "kl_samples" in load_compressed(path)["meta"]["config"]  # as shipped
     config = load_checkpoint(path, kl_divisor=None).pretrain_info["config"]
     assert "kl_samples" not in config and PretrainConfig(**config).kl_divisor is None
     old, new = {"kl_samples": 7200, "epochs": 40}, {"kl_divisor": 7200, "epochs": 40}

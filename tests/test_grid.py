@@ -33,7 +33,8 @@ from vdtutorial.demos import demo_path
 from vdtutorial.experiments import finetune
 from vdtutorial.runner import resume as resume_module
 from vdtutorial.experiments import pipeline as pipeline_module
-from vdtutorial.runner.resume import GZIP_MAGIC, read_run_state, settings_differences
+from vdtutorial.runner.compressed import GZIP_MAGIC, save_compressed
+from vdtutorial.runner.resume import read_run_state, settings_differences
 from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.settings import is_quick
 from vdtutorial.trpo import TIMING_COLUMNS, TRPOConfig
@@ -310,23 +311,23 @@ def test_a_state_saved_under_other_numerics_resumes_with_a_warning(tmp_path):
     state = read_run_state(path)
     assert state["numerics"] == resume_module.numerics()
     state["numerics"] = {**state["numerics"], "torch": "1.0.0"}
-    resume_module._atomic_save(state, path)
+    save_compressed(state, path)
     with pytest.warns(UserWarning, match=r"other numerics \(torch: '1\.0\.0' -> .*last digits"):
         finetune("none", "reach", total_steps=400, state_path=path, checkpoint_every=1)
     state = read_run_state(path)
     state["numerics"] = {**state["numerics"], "cpu": "Intel(R) Xeon(R)"}
-    resume_module._atomic_save(state, path)
+    save_compressed(state, path)
     with pytest.warns(UserWarning, match=r"other numerics \(cpu: 'Intel\(R\) Xeon\(R\)' -> "):
         finetune("none", "reach", total_steps=600, state_path=path, checkpoint_every=1)
     state = read_run_state(path)
     del state["numerics"]["cpu"]
-    resume_module._atomic_save(state, path)
+    save_compressed(state, path)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         finetune("none", "reach", total_steps=800, state_path=path, checkpoint_every=1)
     state = read_run_state(path)
     del state["numerics"]
-    resume_module._atomic_save(state, path)
+    save_compressed(state, path)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         finetune("none", "reach", total_steps=1000, state_path=path, checkpoint_every=1)

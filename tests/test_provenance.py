@@ -8,13 +8,13 @@ import zipfile
 from pathlib import Path
 
 import pytest
-import torch
 
 from vdtutorial.cli.commands import demos_output, pretrain_output
 from vdtutorial.cli.parser import build_parser
 from vdtutorial.experiments import sigma_study
 from vdtutorial.experiments.results import NOT_RECORDED
 from vdtutorial.experiments.pipeline import made_in_rounds
+from vdtutorial.runner.compressed import load_compressed
 from vdtutorial.settings import data_dir
 
 DATA = data_dir()
@@ -124,7 +124,7 @@ def test_a_data_set_command_makes_a_file_of_its_name(path):
 def test_a_checkpoint_command_makes_a_file_of_its_name_from_a_shipped_data_set(path):
     """Its name holds the data set, regulariser, observation, seed, start sigma and early stop: a command that left
     out ``--patience`` (as the stopped image checkpoint's once did) would make another file."""
-    meta = torch.load(DATA / path, map_location="cpu", weights_only=True)["meta"]
+    meta = load_compressed(DATA / path)["meta"]
     args = parse(meta["command"])
     demos = ROOT / args.demos
     assert demos.exists(), f"{path}: {args.demos} is not shipped"

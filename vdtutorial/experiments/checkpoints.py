@@ -1,26 +1,25 @@
 """The experiments' pre-trained checkpoints: the settings they are made with (:func:`default_config`), their
 file names (:func:`checkpoint_path`), and saving and loading them with what made them
 (:func:`save_checkpoint`, :func:`load_checkpoint`). A checkpoint is the policy's config, its ``state_dict`` and
-its ``pretrain_info`` (the config, the seed, the data set's meta and the per-epoch log); loading one checks it is
-the policy that was asked for.
+its ``pretrain_info`` (the config, the seed, the data set's meta and the per-epoch log), in ``torch.save``'s format
+compressed with gzip (:mod:`vdtutorial.runner.compressed`; plain ``torch.save`` files still load); loading one
+checks it is the policy that was asked for.
 
 Taught in chapter 05.
 """
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import replace
 from pathlib import Path
-
-import torch
 
 import vdtutorial
 from vdtutorial.demos import DATA_SET_PATTERN, data_set_name, demo_path
 from vdtutorial.policy import GaussianPolicy
 from vdtutorial.pretrain import PAPER_SIGMA_OPTION, PretrainConfig
 from vdtutorial.experiments.paths import recorded_path
+from vdtutorial.runner.compressed import load_compressed, save_compressed
 from vdtutorial.settings import budget, data_dir
 
 #: Where RL starts in the experiments and the shipped results (``default_config``): option (c), sigma fitted to the
@@ -135,14 +134,10 @@ def reusable_checkpoint(
 
 
 def save_checkpoint(policy: GaussianPolicy, path, extra: dict | None = None) -> Path:
-    """``state_dict`` plus the policy's config and how it was made; written atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """``state_dict`` plus the policy's config and how it was made; written whole and gzip-compressed
+    (:func:`~vdtutorial.runner.compressed.save_compressed`: two workers may make the same checkpoint)."""
     meta = {"vdtutorial": vdtutorial.__version__, **getattr(policy, "pretrain_info", {}), **(extra or {})}
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # two workers may make the same checkpoint
-    torch.save({"config": policy.config, "state_dict": policy.state_dict(), "meta": meta}, tmp)
-    tmp.replace(path)
-    return path
+    return save_compressed({"config": policy.config, "state_dict": policy.state_dict(), "meta": meta}, path)
 
 
 #: The conventional file name of :func:`checkpoint_path`, read back to fill in a make-it hint.
@@ -183,7 +178,7 @@ def load_checkpoint(path, **expected) -> GaussianPolicy:
     if not path.exists():
         raise CheckpointError(f"checkpoint {path} does not exist. {fix}")
     try:
-        blob = torch.load(path, map_location="cpu", weights_only=True)
+        blob = load_compressed(path)
         config, state, meta = blob["config"], blob["state_dict"], blob.get("meta", {})
     except Exception as exc:  # torch raises several types for a damaged or foreign file
         raise CheckpointError(f"checkpoint {path} is corrupt or not a vdtutorial checkpoint ({exc}). {fix}") from exc

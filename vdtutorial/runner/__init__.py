@@ -6,7 +6,8 @@ Modules, one idea each: :mod:`~vdtutorial.runner.grid` (a restartable grid of jo
 :mod:`~vdtutorial.runner.backends` (where jobs execute), :mod:`~vdtutorial.runner.resume` (a run's saved
 state), :mod:`~vdtutorial.runner.run_lock` (one process at a time per run),
 :mod:`~vdtutorial.runner.progress` (the grid's progress lines), :mod:`~vdtutorial.runner.rows` (CSV
-files) and :mod:`~vdtutorial.runner.kernels` (the CPU kernels pinned for exact re-runs).
+files), :mod:`~vdtutorial.runner.compressed` (torch files written whole and gzip-compressed: run states and
+checkpoints) and :mod:`~vdtutorial.runner.kernels` (the CPU kernels pinned for exact re-runs).
 
 Taught in chapter 07.
 """

@@ -12,55 +12,27 @@ its state is :meth:`TRPO.checkpoint <vdtutorial.trpo.TRPO.checkpoint>`, see
 * ``rng``: the global torch, numpy and Python random states, restored on resume, so that a resumed run
   stays exact even if some part of it draws from them.
 
-Writes go to a temporary file and are moved into place with ``os.replace``, so a run killed at any moment
-(SIGKILL included) leaves the previous state or the new one, never half a file. The file is
-``torch.save``'s format compressed with gzip: a pruned VD policy's zeros and one-byte masks compress well
-(docs/results.md, "Compressed run states"), which matters when a long grid's states are committed as it goes.
-Uncompressed states are still read.
+States are written whole and gzip-compressed (:mod:`vdtutorial.runner.compressed`): a run killed at any moment
+(SIGKILL included) leaves the previous state or the new one, never half a file, and a long grid's states, committed
+as it goes, take a third of the room or less. Uncompressed states are still read.
 Taught in chapter 07.
 """
 
 from __future__ import annotations
 
-import gzip
-import io
 import os
 import random
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from vdtutorial.runner.compressed import load_compressed, save_compressed
 from vdtutorial.runner.kernels import kernel_settings
 
 
 class ResumeError(ValueError):
     """A saved run cannot continue the requested one: other settings, or more iterations than asked for."""
-
-
-#: The first two bytes of every gzip stream; ``torch.save``'s own format is a zip archive ("PK").
-GZIP_MAGIC = b"\x1f\x8b"
-
-
-def _atomic_save(state: dict, path: Path) -> None:
-    """Write ``state`` gzip-compressed to ``path`` so that a reader sees the old file or the new one, never a
-    part: into a temporary file of its own (two processes saving the same run never share one), flushed to
-    the disk, then renamed over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buffer = io.BytesIO()
-    torch.save(state, buffer)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as file:
-            file.write(gzip.compress(buffer.getvalue(), compresslevel=6, mtime=0))  # mtime=0: equal states, equal files
-            file.flush()
-            os.fsync(file.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp's 0o600 would hide the state from the other users of a shared folder
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _rng_state() -> dict:
@@ -104,7 +76,7 @@ def save_run_state(checkpoint: dict, path: str | os.PathLike, settings: dict, se
     """Write a run's ``checkpoint`` (a dict with its ``rows``, e.g. :meth:`TRPO.checkpoint
     <vdtutorial.trpo.TRPO.checkpoint>`) with the run's settings, the global random states, the numerics
     (:func:`numerics`) and the run's compute time so far (``seconds``), atomically."""
-    _atomic_save(
+    save_compressed(
         {**checkpoint, "run_settings": settings, "rng": _rng_state(), "numerics": numerics(), "seconds": seconds},
         Path(path),
     )
@@ -112,14 +84,13 @@ def save_run_state(checkpoint: dict, path: str | os.PathLike, settings: dict, se
 
 def save_finished_rows(path: str | os.PathLike, settings: dict, rows: list[dict], seconds: float) -> None:
     """The state of a run computed in one piece (the expert's reference): its settings and all its rows."""
-    _atomic_save({"run_settings": settings, "rows": rows, "seconds": seconds}, Path(path))
+    save_compressed({"run_settings": settings, "rows": rows, "seconds": seconds}, path)
 
 
 def read_run_state(path: str | os.PathLike) -> dict:
     """A state file as written by :func:`save_run_state` or :func:`save_finished_rows`."""
     try:
-        data = Path(path).read_bytes()
-        state = torch.load(io.BytesIO(gzip.decompress(data) if data[:2] == GZIP_MAGIC else data), weights_only=True)
+        state = load_compressed(path)
     except Exception as exc:  # truncated or not a state file: say which file, and what to do
         raise ResumeError(f"{path} is not a readable run state ({exc}); delete it or rerun with --restart") from exc
     if not isinstance(state, dict) or "run_settings" not in state:
