@@ -115,6 +115,8 @@ def test_a_grid_killed_with_sigkill_resumes_to_the_rows_of_an_uninterrupted_grid
     record = json.loads((killed / "fig4.json").read_text())
     resumed = {run["name"]: run["resumed_at_iteration"] for run in record["runs"]}
     assert any(resumed[name] == n for name, n in at_kill.items() if 0 < n < ITERATIONS)
+    # the same machine and numerics before and after the kill: one stretch per run, from its first iteration
+    assert all([s["from_iteration"] for s in run["numerics_stretches"]] == [0] for run in record["runs"])
 
 
 @pytest.mark.skipif(not is_quick(), reason="runs the experiment command: quick mode only")
@@ -307,14 +309,17 @@ def test_a_state_saved_under_other_numerics_resumes_with_a_warning(tmp_path):
     import warnings
 
     path = tmp_path / "state.pt"
+    here = resume_module.numerics()
     finetune("none", "reach", total_steps=200, state_path=path, checkpoint_every=1)
     state = read_run_state(path)
-    assert state["numerics"] == resume_module.numerics()
-    state["numerics"] = {**state["numerics"], "torch": "1.0.0"}
+    assert state["numerics"] == here and state["numerics_stretches"] == [{"from_iteration": 0, **here}]
+    old_torch = {**here, "torch": "1.0.0"}
+    state["numerics"], state["numerics_stretches"] = old_torch, [{"from_iteration": 0, **old_torch}]
     save_compressed(state, path)
     with pytest.warns(UserWarning, match=r"other numerics \(torch: '1\.0\.0' -> .*last digits"):
         finetune("none", "reach", total_steps=400, state_path=path, checkpoint_every=1)
     state = read_run_state(path)
+    assert state["numerics_stretches"] == [{"from_iteration": 0, **old_torch}, {"from_iteration": 1, **here}]
     state["numerics"] = {**state["numerics"], "cpu": "Intel(R) Xeon(R)"}
     save_compressed(state, path)
     with pytest.warns(UserWarning, match=r"other numerics \(cpu: 'Intel\(R\) Xeon\(R\)' -> "):
@@ -326,11 +331,24 @@ def test_a_state_saved_under_other_numerics_resumes_with_a_warning(tmp_path):
         warnings.simplefilter("error")
         finetune("none", "reach", total_steps=800, state_path=path, checkpoint_every=1)
     state = read_run_state(path)
-    del state["numerics"]
+    del state["numerics"], state["numerics_stretches"]  # as saved before either was kept
     save_compressed(state, path)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         finetune("none", "reach", total_steps=1000, state_path=path, checkpoint_every=1)
+    assert read_run_state(path)["numerics_stretches"] == [{"from_iteration": 4, **here}]
+
+
+def test_a_state_saved_before_stretches_were_kept_counts_as_one_stretch_of_unknown_start():
+    """Its last saved numerics are all it says; this process's numerics start a stretch only where they differ."""
+    here = resume_module.numerics()
+    assert resume_module.numerics_stretches({"numerics": here}, 7) == [{"from_iteration": None, **here}]
+    no_cpu = {k: v for k, v in here.items() if k != "cpu"}
+    assert resume_module.numerics_stretches({"numerics": no_cpu}, 7) == [
+        {"from_iteration": None, **no_cpu},
+        {"from_iteration": 7, **here},
+    ]
+    assert resume_module.numerics_stretches(None, 0) == [{"from_iteration": 0, **here}]
 
 
 def test_settings_differences_name_nested_settings():

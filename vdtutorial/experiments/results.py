@@ -233,6 +233,8 @@ def run_experiment(
                 "seconds": result["seconds"],
                 # the iteration this command continued the run from; null: found finished
                 "resumed_at_iteration": result["resumed_at"],
+                # the numerics (versions, kernels, CPU) of each stretch of the run; null: its state kept none
+                "numerics_stretches": result.get("stretches"),
             }
             for job, result in zip(jobs, results)
         ],

@@ -30,6 +30,7 @@ from vdtutorial.pretrain import PretrainConfig
 from vdtutorial.rollout import make_vec_env
 from vdtutorial.runner.resume import (
     check_resumable,
+    numerics_stretches,
     numerics_warning,
     read_run_state,
     restore_random_states,
@@ -195,6 +196,7 @@ def finetune_steps(
         if saved is not None:
             algo.restore(saved)
             restore_random_states(saved)
+        stretches = numerics_stretches(saved, algo.iteration_index)
         if csv_path is not None:  # TRPO appends: start the file from the rows so far (a stale file would mix runs)
             Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
             Path(csv_path).unlink(missing_ok=True)
@@ -210,7 +212,7 @@ def finetune_steps(
             )
             if state_path is not None:
                 seconds = (saved or {}).get("seconds", 0.0) + time.perf_counter() - start
-                save_run_state(algo.checkpoint(), state_path, settings, seconds)
+                save_run_state(algo.checkpoint(), state_path, settings, seconds, stretches)
             yield {
                 "iteration": algo.iteration_index,
                 "iterations": iterations,

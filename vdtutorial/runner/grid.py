@@ -58,17 +58,21 @@ class SavedInStateDir:
         return self.state_dir / f"{self.name}.csv"
 
 
-def _result(job: GridJob, rows: list[dict], seconds: float, resumed_at: int | None = 0) -> dict:
+def _result(
+    job: GridJob, rows: list[dict], seconds: float, resumed_at: int | None = 0, stretches: list[dict] | None = None
+) -> dict:
     """A job's rows labelled with its tags, its compute time, and a one-line summary. ``resumed_at``: the
     iteration this invocation continued it from (0: started now; None: found finished, its history is
-    that of earlier invocations). The rows are rounded as a CSV stores them
-    (:func:`~vdtutorial.runner.rows.stored_rows`)."""
+    that of earlier invocations). ``stretches``: the numerics each stretch of the run was computed under, as its
+    state keeps them (:func:`~vdtutorial.runner.resume.numerics_stretches`; None: a state that does not). The rows
+    are rounded as a CSV stores them (:func:`~vdtutorial.runner.rows.stored_rows`)."""
     tags = job.tags()
     # rounded as the CSVs store them: an experiment derives what its shipped CSV gives back (runner.rows)
     return {
         "rows": stored_rows([{**tags, **row} for row in rows]),
         "seconds": seconds,
         "resumed_at": resumed_at,
+        "stretches": stretches,
         "summary": job.summary(rows),
     }
 
@@ -88,7 +92,8 @@ def run_job(job: GridJob):
     finally:
         lock.release()
     write_csv(job.csv_path, rows)
-    return _result(job, rows, read_run_state(job.state_path)["seconds"], resumed_at)
+    state = read_run_state(job.state_path)
+    return _result(job, rows, state["seconds"], resumed_at, state.get("numerics_stretches"))
 
 
 def run_grid(
@@ -131,7 +136,7 @@ def run_grid(
             continue
         if len(state["rows"]) == job.rows_expected:
             write_csv(job.csv_path, state["rows"])
-            results[i] = _result(job, state["rows"], state["seconds"], resumed_at=None)
+            results[i] = _result(job, state["rows"], state["seconds"], None, state.get("numerics_stretches"))
         else:
             pending.append(i)
             left.append(job.env_steps * (1 - len(state["rows"]) / job.rows_expected))

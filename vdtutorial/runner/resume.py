@@ -72,19 +72,55 @@ def numerics_warning(state: dict) -> str | None:
     )
 
 
-def save_run_state(checkpoint: dict, path: str | os.PathLike, settings: dict, seconds: float) -> None:
+def numerics_stretches(saved: dict | None, iteration: int) -> list[dict]:
+    """The numerics each stretch of a run was computed under, as ``{"from_iteration": k, **numerics}`` entries:
+    ``saved``'s stretches (None: a new run), then this process's numerics from ``iteration`` on where they differ
+    from the last stretch's. A run continued in another session may have moved to another machine; the stretches
+    say where, which the last saved numerics alone cannot. A state saved before stretches were kept counts as one
+    stretch of its last numerics from an unknown iteration (``None``)."""
+    stretches = list((saved or {}).get("numerics_stretches") or [])
+    if not stretches and saved is not None and "numerics" in saved:
+        stretches = [{"from_iteration": None, **saved["numerics"]}]
+    now = numerics()
+    if not stretches or {k: v for k, v in stretches[-1].items() if k != "from_iteration"} != now:
+        stretches.append({"from_iteration": iteration, **now})
+    return stretches
+
+
+def save_run_state(
+    checkpoint: dict, path: str | os.PathLike, settings: dict, seconds: float, stretches: list[dict]
+) -> None:
     """Write a run's ``checkpoint`` (a dict with its ``rows``, e.g. :meth:`TRPO.checkpoint
     <vdtutorial.trpo.TRPO.checkpoint>`) with the run's settings, the global random states, the numerics
-    (:func:`numerics`) and the run's compute time so far (``seconds``), atomically."""
+    (:func:`numerics`) and those of each of its stretches (:func:`numerics_stretches`), and the run's compute
+    time so far (``seconds``), atomically."""
     save_compressed(
-        {**checkpoint, "run_settings": settings, "rng": _rng_state(), "numerics": numerics(), "seconds": seconds},
+        {
+            **checkpoint,
+            "run_settings": settings,
+            "rng": _rng_state(),
+            "numerics": numerics(),
+            "numerics_stretches": stretches,
+            "seconds": seconds,
+        },
         Path(path),
     )
 
 
 def save_finished_rows(path: str | os.PathLike, settings: dict, rows: list[dict], seconds: float) -> None:
-    """The state of a run computed in one piece (the expert's reference): its settings and all its rows."""
-    save_compressed({"run_settings": settings, "rows": rows, "seconds": seconds}, path)
+    """The state of a run computed in one piece (the expert's reference): its settings, all its rows, and the
+    numerics of its one stretch."""
+    here = numerics()
+    save_compressed(
+        {
+            "run_settings": settings,
+            "rows": rows,
+            "numerics": here,
+            "numerics_stretches": [{"from_iteration": 0, **here}],
+            "seconds": seconds,
+        },
+        path,
+    )
 
 
 def read_run_state(path: str | os.PathLike) -> dict:
