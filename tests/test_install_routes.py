@@ -82,6 +82,21 @@ def test_recorded_paths_are_relative_to_the_folder_holding_data():
     assert recorded_path("/elsewhere/scratch") == "/elsewhere/scratch"  # outside: a user's own folder, as given
 
 
+def test_a_path_under_a_linked_runs_folder_is_recorded_relative(tmp_path, monkeypatch):
+    """A worktree whose ``runs`` links to the main checkout's (the long image runs): its record says ``runs/...``,
+    not the absolute folder the link leads to; a link out of the checkout from elsewhere is still followed."""
+    checkout, other = tmp_path / "worktree", tmp_path / "main"
+    (checkout / "data").mkdir(parents=True)
+    (other / "runs" / "fig5").mkdir(parents=True)
+    (checkout / "runs").symlink_to(other / "runs")
+    (tmp_path / "scratch").symlink_to(checkout / "runs")
+    monkeypatch.setenv("VDTUTORIAL_DATA", str(checkout / "data"))
+    assert recorded_path(checkout / "runs" / "fig5" / "state") == "runs/fig5/state"
+    monkeypatch.chdir(checkout)
+    assert recorded_path("runs/fig5/state") == "runs/fig5/state"
+    assert recorded_path(tmp_path / "scratch" / "fig5") == str(other / "runs" / "fig5")
+
+
 class _FakeDistribution:
     def __init__(self, **files):
         self.files = files

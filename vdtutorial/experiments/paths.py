@@ -32,6 +32,14 @@ def recorded_path(path) -> str:
     """``path`` as a record that may be shipped writes it (a result's JSON, a checkpoint's command): relative
     to the folder that holds ``data/`` when it is inside it (``data/demos/...``, ``runs/...``), so that a
     shipped file never names the machine that made it and its commands run from any clone or copy. A
-    path outside that folder (a user's scratch folder) is written as given."""
-    path, project = Path(path).resolve(), data_dir().resolve().parent
-    return path.relative_to(project).as_posix() if path.is_relative_to(project) else str(path)
+    path outside that folder (a user's scratch folder) is written as given.
+
+    The path is looked at as written before its links are followed: a ``runs/`` that links to another disk,
+    or to the checkout a worktree shares it with, is still ``runs/...`` to the commands that ran in it."""
+    data = data_dir()
+    as_written = (Path(os.path.abspath(path)), Path(os.path.abspath(data)).parent)
+    resolved = (Path(path).resolve(), data.resolve().parent)
+    for candidate, project in (as_written, resolved):
+        if candidate.is_relative_to(project):
+            return candidate.relative_to(project).as_posix()
+    return str(resolved[0])
