@@ -74,7 +74,12 @@ def test_every_command_of_a_record_parses_and_writes_its_folder(path):
         assert args.out == _folder(path) or args.out in added, entry["command"]
         assert args.seeds == entry["seeds"] and entry["kernels"] is not None
     if merged:
-        assert sorted(s for e in runs for s in e["seeds"]) == record["seeds"] and record["argv"] is None
+        assert sorted({s for e in runs for s in e["seeds"]}) == record["seeds"] and record["argv"] is None
+        # a part that names its curves ("labels") may share seeds with another curve's part, never its own curve's;
+        # parts merged before curves were named hold disjoint seeds
+        labelled = [(label, s) for e in runs if "labels" in e for label in e["labels"] for s in e["seeds"]]
+        unlabelled = [s for e in runs if "labels" not in e for s in e["seeds"]]
+        assert len(labelled) == len(set(labelled)) and len(unlabelled) == len(set(unlabelled))
         assert (
             len(added) == len(runs) - 1
             and record["kernels"] == "mixed"
