@@ -24,6 +24,7 @@ from vdtutorial.experiments.effects import (
 )
 from vdtutorial.experiments.batches import mark_batches
 from vdtutorial.experiments.looks import looks_of
+from vdtutorial.experiments.plans import primary_of
 from vdtutorial.settings import data_dir
 from conftest import require_locked
 
@@ -214,7 +215,10 @@ def test_results_page_claim_tables_are_generated_from_the_shipped_rows(folder):
     rows = read_rows(results_file(data_dir() / "results" / folder, record["experiment"]))
     window = int(re.search(r"over (\d+) iterations", record["smoothing"])[1])
     effects = mark_batches(
-        claim_effects(record["experiment"], rows, record["metric"], window, looks=looks_of(record)), record
+        claim_effects(
+            record["experiment"], rows, record["metric"], window, looks=looks_of(record), primary=primary_of(record)
+        ),
+        record,
     )
     page = (Path(__file__).resolve().parents[1] / "docs" / "results.md").read_text()
     claims = page[page.index("## The paper's claims on the shipped curves") :]

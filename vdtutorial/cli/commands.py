@@ -499,12 +499,17 @@ def cmd_rederive(args) -> None:
         if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
             raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
         names[folder] = json.loads(next(Path(folder).glob("*.json")).read_text()).get("experiment")
-    if (args.add or args.add_other_cpu) and len(args.folders) != 1:
-        raise CommandError("--add merges into one experiment folder: name one")
-    if (args.add or args.add_other_cpu) and set(names.values()) & set(own):
+    if (args.add or args.add_other_cpu or args.plan) and len(args.folders) != 1:
+        raise CommandError("--add and --plan take one experiment folder: name one")
+    planned = json.loads(next(Path(args.folders[0]).glob("*.json")).read_text()).get("plan")
+    if (args.add or args.add_other_cpu) and (args.plan or planned):
         raise CommandError(
-            f"--add merges the figures' seeds: {', '.join(sorted(set(names.values()) & set(own)))} "
-            "takes more seeds by running it again with them"
+            f"{args.folders[0]} holds a pre-registered plan's runs: its stopping rule adds no seeds after the runs"
+        )
+    if (args.add or args.add_other_cpu or args.plan) and set(names.values()) & set(own):
+        raise CommandError(
+            f"--add and --plan are for the figures' records: {', '.join(sorted(set(names.values()) & set(own)))} "
+            "takes more seeds by running it again with them, and has no plan"
         )
     for other in args.add:
         merge_seeds(args.folders[0], other)
@@ -512,7 +517,11 @@ def cmd_rederive(args) -> None:
         merge_seeds(args.folders[0], other, other_cpu=True)
     for folder in args.folders:
         remake, summary = own.get(names[folder], (rederive, format_summary))
-        print(summary(remake(folder)))
+        try:
+            result = remake(folder, plan=args.plan) if args.plan else remake(folder)
+        except ValueError as exc:
+            raise CommandError(str(exc)) from exc
+        print(summary(result))
 
 
 def cmd_ablations(args) -> None:

@@ -37,6 +37,7 @@ from vdtutorial.cli.commands import (
     cmd_rederive,
     cmd_reproduce,
 )
+from vdtutorial.experiments.plans import PLANS
 from vdtutorial.settings import QUICK_ENV, data_dir
 
 #: What ``python -m vdtutorial --help`` says first.
@@ -398,6 +399,14 @@ def _add_experiment_commands(sub) -> None:
         metavar="OTHER",
         help="the same, for runs made with other CPU kernels than the folder's (each seed a valid "
         "replicate, but the rows no longer one command's on one CPU; the record says so)",
+    )
+    p.add_argument(
+        "--plan",
+        choices=sorted(PLANS),
+        default=None,
+        help="the pre-registered plan the folder's runs were made under (vdtutorial/experiments/plans.py): its "
+        "claims become the primary family, tested as the plan fixed; refused unless every run of the plan is there "
+        "and finished",
     )
     p.set_defaults(func=cmd_rederive)
 

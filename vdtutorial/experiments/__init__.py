@@ -7,7 +7,8 @@ policy ready for RL), :mod:`~vdtutorial.experiments.checkpoints` (the pre-traine
 (one run: TRPO from that policy, the expert's reference), :mod:`~vdtutorial.experiments.jobs` (runs as jobs of the
 grid runner, :mod:`vdtutorial.runner`), :mod:`~vdtutorial.experiments.measures` (what a point of a curve measures),
 :mod:`~vdtutorial.experiments.curves` (smoothing, bands, "steps to reach"),
-:mod:`~vdtutorial.experiments.effects` (claims as effect sizes), :mod:`~vdtutorial.experiments.plots`
+:mod:`~vdtutorial.experiments.effects` (claims as effect sizes), :mod:`~vdtutorial.experiments.plans` (a test
+fixed before its runs), :mod:`~vdtutorial.experiments.plots`
 (the figure), :mod:`~vdtutorial.experiments.results` (an experiment's files),
 :mod:`~vdtutorial.experiments.figures` (Figs. 4-7), :mod:`~vdtutorial.experiments.estimate` (a grid's
 cost), :mod:`~vdtutorial.experiments.sparsity_table` (Table I), :mod:`~vdtutorial.experiments.sigma_study`

@@ -357,6 +357,7 @@ def claim_effects(
     confidence: float = CONFIDENCE,
     claims: tuple[Claim, ...] | None = None,
     looks: list[dict] | None = None,
+    primary: tuple[str, ...] | None = None,
 ) -> list[dict]:
     """Every claim of experiment ``name`` (``CLAIMS[name]``, or ``claims``: an experiment whose questions depend
     on its results, like the beyond experiment's "best hand-set Sigma") whose curves are in ``rows``, on every
@@ -384,19 +385,26 @@ def claim_effects(
     ``looks``: the seeds each look added per curve, for an experiment extended after its result was seen
     (:func:`~vdtutorial.experiments.looks.looks_of`); a claim on extended curves is then judged by the sequential
     rule of :mod:`~vdtutorial.experiments.looks`.
+
+    ``primary``: the claims (by their words) a pre-registered plan made its primary family
+    (:mod:`~vdtutorial.experiments.plans`): only they form the primary family, each marked ``planned``, and the
+    record's other claims on the paper's metric join the secondary family, reported beside them.
     """
     window = smooth_window() if window is None else window
     results = []
     for measure in measures_of(metric):
         groups = per_run(rows, measure)
-        results += [
-            {
-                **_claim_effect(claim, groups, measure, window, confidence, looks),
-                "family": "primary" if measure == metric else "secondary",
-            }
-            for claim in (CLAIMS.get(name, ()) if claims is None else claims)
-            if claim.a in groups and claim.b in groups
-        ]
+        for claim in CLAIMS.get(name, ()) if claims is None else claims:
+            if claim.a not in groups or claim.b not in groups:
+                continue
+            first = measure == metric and (primary is None or claim.text in primary)
+            results.append(
+                {
+                    **_claim_effect(claim, groups, measure, window, confidence, looks),
+                    "family": "primary" if first else "secondary",
+                    **({"planned": True} if first and primary is not None else {}),
+                }
+            )
     for family in ("primary", "secondary"):
         table = [e for e in results if e["family"] == family]
         for effect, rejected in zip(table, holm_rejections([e["p_value"] for e in table], 1 - confidence)):
@@ -524,13 +532,15 @@ def _seeds(e: dict) -> str:
 
 def _claim_text(e: dict) -> str:
     """A claim's words, the figure whose runs it shares (such rows are one comparison), how seeds added after
-    a look were used (:mod:`~vdtutorial.experiments.looks`), and whether its curves come from different batches of
+    a look were used (:mod:`~vdtutorial.experiments.looks`), whether a plan fixed its test before the runs
+    (:mod:`~vdtutorial.experiments.plans`), and whether its curves come from different batches of
     seeds (:mod:`~vdtutorial.experiments.batches`)."""
     looks = e.get("looks")
     return (
         e["text"]
         + (f" (same runs as {e['same_runs']})" if e.get("same_runs") else "")
         + (" (2 looks: sequential rule)" if isinstance(looks, dict) else f" ({looks})" if looks else "")
+        + (" (pre-registered)" if e.get("planned") else "")
         + (" (across batches of seeds)" if e.get("across_batches") else "")
     )
 

@@ -32,6 +32,7 @@ from vdtutorial.experiments.curves import (
 from vdtutorial.experiments.effects import claim_effects
 from vdtutorial.experiments.jobs import Job, RunSpec
 from vdtutorial.experiments.looks import looks_of
+from vdtutorial.experiments.plans import plan_entry, plan_named, primary_of
 from vdtutorial.experiments.measures import measures_of
 from vdtutorial.experiments.plots import band_limits, figure_title, plot_measures, save_png
 from vdtutorial.experiments.runs import CHECKPOINT_EVERY, METRIC, NUM_ENVS, default_trpo_config
@@ -253,14 +254,15 @@ def run_experiment(
 
 
 def derive(
-    name: str, rows: list[dict], metric: str, window: int, title: str, claims=None, looks=None
+    name: str, rows: list[dict], metric: str, window: int, title: str, claims=None, looks=None, primary=None
 ) -> tuple[dict[str, Curve], Figure, dict]:
     """What an experiment's rows say, all of it re-derivable from them: the curves of the paper's ``metric``,
     the figure (one panel per measure, :func:`~vdtutorial.experiments.measures.measures_of`), and the summary:
     each curve's final point on the paper's metric (``final``) and on every measure (``final_by_measure``),
     and the claims on every measure (:func:`~vdtutorial.experiments.effects.claim_effects`; ``claims``: other
     claims than the experiment's own; ``looks``: the seeds each look added, for an experiment extended after its
-    result was seen, :mod:`~vdtutorial.experiments.looks`)."""
+    result was seen, :mod:`~vdtutorial.experiments.looks`; ``primary``: the claims a pre-registered plan decides on,
+    :mod:`~vdtutorial.experiments.plans`)."""
     by_measure = {measure: curves_from_rows(rows, measure, window) for measure in measures_of(metric)}
     summary = {
         "final": {label: final_point(curve) for label, curve in by_measure[metric].items()},
@@ -268,20 +270,28 @@ def derive(
             measure: {label: final_point(curve) for label, curve in curves.items()}
             for measure, curves in by_measure.items()
         },
-        "claims": claim_effects(name, rows, metric, window, claims=claims, looks=looks),
+        "claims": claim_effects(name, rows, metric, window, claims=claims, looks=looks, primary=primary),
     }
     return by_measure[metric], plot_measures(by_measure, title, window), summary
 
 
-def rederive(folder: str | Path) -> ExperimentResult:
+def rederive(folder: str | Path, plan: str | None = None) -> ExperimentResult:
     """Re-write an experiment folder's figure and the derived part of its JSON record (:func:`derive`; and
     the "VD reaches L2's final level" summary where the record has one) from its rows, without running
     anything: what ``python -m vdtutorial rederive FOLDER`` does after the analysis changed. The title is
     rebuilt from the record (its first line is the paper's figure; observation, budget, seeds and control are
-    read from the runs and the TRPO configuration)."""
+    read from the runs and the TRPO configuration).
+
+    ``plan``: the name of the pre-registered plan the folder's runs were made under
+    (:data:`~vdtutorial.experiments.plans.PLANS`), written into the record; a record with a plan is tested by it
+    on every re-derivation, and refused (ValueError, nothing written) once its runs are no longer the plan's."""
     folder = Path(folder)
     record_path = next(folder.glob("*.json"))
     record = json.loads(record_path.read_text())
+    if plan is not None:
+        record["plan"] = plan_entry(plan_named(plan), record)
+    elif record.get("plan"):
+        plan_entry(plan_named(record["plan"]["name"]), record)
     name, window = record["experiment"], record_window(record)
     rows = read_rows(results_file(folder, name))
     learners = [run for run in record["runs"] if run["method"] != "expert"]
@@ -295,7 +305,9 @@ def rederive(folder: str | Path) -> ExperimentResult:
         record["trpo_config"].get("fvp_subsample", 1.0),
         max(run.get("demo_seed", 0) for run in learners),
     )
-    curves, figure, derived = derive(name, rows, record["metric"], window, title, looks=looks_of(record))
+    curves, figure, derived = derive(
+        name, rows, record["metric"], window, title, looks=looks_of(record), primary=primary_of(record)
+    )
     save_png(figure, folder / f"{name}.png", 120)
     summary = {**record.get("summary", {}), **derived}
     summary["claims"] = mark_batches(summary["claims"], record, rows)  # a merged record: claims crossing batches
@@ -453,8 +465,8 @@ def merge_seeds(folder: str | Path, other: str | Path, other_cpu: bool = False) 
 
 def format_summary(result: ExperimentResult) -> str:
     """The final level of every curve with its band as the figure draws it (clipped to the values the measure can
-    take; with one seed, the words that there is none), the fig4-style "VD reaches L2" line if any, and where the
-    files went."""
+    take; with one seed, the words that there is none), the fig4-style "VD reaches L2" line if any, the
+    pre-registered plan the claims were tested by, if any, and where the files went."""
     lines = []
     for label, final in result.summary["final"].items():
         seeds = f"{final['seeds']} seed{'s' if final['seeds'] != 1 else ''}"
@@ -467,5 +479,7 @@ def format_summary(result: ExperimentResult) -> str:
         lines.append(f"{label:>32}: final {final['mean']:.2f} ({band})")
     if "vd_reaches_l2_final" in result.summary:
         lines.append(result.summary["vd_reaches_l2_final"]["text"])
+    if result.record.get("plan"):
+        lines.append(f"plan {result.record['plan']['name']}: {result.record['plan']['rule']}")
     lines.append(f"wrote {result.out}")
     return "\n".join(lines)
