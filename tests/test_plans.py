@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from vdtutorial.experiments import plans, read_rows, rederive, results_file, write_csv
+from vdtutorial.experiments import plans, read_rows, rederive, results_file, write_claims, write_csv
 from vdtutorial.experiments.effects import CLAIMS, claims_overview
 from vdtutorial.experiments.plans import PLANS, Plan, plan_entry, unmet
 from vdtutorial.settings import data_dir
@@ -93,6 +93,8 @@ def test_a_plan_decides_only_on_all_of_its_runs(planned_folder):
     write_csv(results_file(planned_folder, "fig4"), [r for r in rows if not (r["label"] == "L2" and r["seed"] == 2)])
     with pytest.raises(ValueError, match=r"L2: seeds \[2\] not finished"):
         rederive(planned_folder)
+    with pytest.raises(ValueError, match=r"L2: seeds \[2\] not finished"):
+        write_claims(planned_folder)  # python -m vdtutorial claims: the same check
     assert json.loads((planned_folder / "fig4.json").read_text()) == planned
 
 

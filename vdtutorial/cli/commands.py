@@ -482,7 +482,11 @@ def cmd_claims(args) -> None:
     for folder in args.folders:
         if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
             raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
-        print(f"{folder}:\n{write_claims(folder)}\n")
+        try:
+            table = write_claims(folder)
+        except ValueError as exc:
+            raise CommandError(str(exc)) from exc
+        print(f"{folder}:\n{table}\n")
 
 
 def cmd_rederive(args) -> None:

@@ -18,7 +18,7 @@ from vdtutorial.experiments.batches import mark_batches
 from vdtutorial.experiments.curves import record_window
 from vdtutorial.experiments.effects import claim_effects, claim_table
 from vdtutorial.experiments.looks import looks_of
-from vdtutorial.experiments.plans import primary_of
+from vdtutorial.experiments.plans import plan_entry, plan_named, primary_of
 from vdtutorial.runner.rows import read_rows, results_file
 
 
@@ -30,6 +30,8 @@ def write_claims(folder: str | Path) -> str:
     record_path = next(folder.glob("*.json"))
     record = json.loads(record_path.read_text())
     rows = read_rows(results_file(folder, record["experiment"]))
+    if record.get("plan"):  # a plan decides only on all of its runs (ValueError otherwise, nothing written)
+        plan_entry(plan_named(record["plan"]["name"]), record)
     claims = claim_effects(
         record["experiment"],
         rows,
