@@ -41,11 +41,14 @@ class Plan:
     @property
     def rule(self) -> str:
         """How the plan's verdict is computed, in words (the record and the pages quote it)."""
-        correction = "no Holm correction" if len(self.primary) == 1 else "Holm over these claims alone"
+        claims = (
+            "one primary claim, no Holm correction"
+            if len(self.primary) == 1
+            else (f"{len(self.primary)} primary claims, Holm over them alone")
+        )
         return (
             f"pre-registered ({self.document}, {self.section}): Welch's t, two-sided, 95% interval, on the final "
-            f"level; the plan's {len(self.primary)} primary claim{'s' if len(self.primary) > 1 else ''}, "
-            f"{correction}; the other claims and measures are reported, not decided on"
+            f"level; the plan's {claims}; the other claims and measures are reported, not decided on"
         )
 
 
