@@ -498,15 +498,15 @@ def cmd_rederive(args) -> None:
         "beyond": (beyond.rederive_beyond, beyond.format_summary),
         "free_choices": (free_choices.rederive_free_choices, free_choices.format_table),
     }
-    names = {}
+    records = {}
     for folder in args.folders + args.add + args.add_other_cpu:
         if not Path(folder).is_dir() or not list(Path(folder).glob("*.json")):
             raise CommandError(f"{folder} is not an experiment folder (python -m vdtutorial experiment ... writes one)")
-        names[folder] = json.loads(next(Path(folder).glob("*.json")).read_text()).get("experiment")
+        records[folder] = json.loads(next(Path(folder).glob("*.json")).read_text())
+    names = {folder: record.get("experiment") for folder, record in records.items()}
     if (args.add or args.add_other_cpu or args.plan) and len(args.folders) != 1:
         raise CommandError("--add and --plan take one experiment folder: name one")
-    planned = json.loads(next(Path(args.folders[0]).glob("*.json")).read_text()).get("plan")
-    if (args.add or args.add_other_cpu) and (args.plan or planned):
+    if (args.add or args.add_other_cpu) and (args.plan or records[args.folders[0]].get("plan")):
         raise CommandError(
             f"{args.folders[0]} holds a pre-registered plan's runs: its stopping rule adds no seeds after the runs"
         )
