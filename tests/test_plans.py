@@ -109,7 +109,7 @@ def test_the_command_line_names_the_plans_and_refuses_an_extension(tmp_path):
 
     unknown = cli(str(copy), "--plan", "nonsense")
     assert unknown.returncode == 2 and re.search(
-        r"invalid choice: 'nonsense' \(choose from '?image-fig5-n2000", unknown.stderr
+        r"argument --plan: no plan called 'nonsense'; the pre-registered plans are: image-fig5-n2000", unknown.stderr
     )
     other = cli(str(copy), "--plan", "image-fig5-n2000")
     assert other.returncode != 0 and "Traceback" not in other.stderr

@@ -43,6 +43,27 @@ nonnegative_float = _number_type(float, lambda v: math.isfinite(v) and v >= 0, "
 fraction = _number_type(float, lambda v: 0 < v <= 1, "a number in (0, 1]")
 
 
+def plan_name(text: str) -> str:
+    """An argparse type: the name of a pre-registered plan, refused with the names there are. The plans' registry
+    is imported only when the option is given (it sits in the experiments package, which loads torch)."""
+    from vdtutorial.experiments.plans import plan_named
+
+    try:
+        return plan_named(text).name
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def plan_help() -> str:
+    from vdtutorial.experiments.plans import PLANS
+
+    return (
+        f"the pre-registered plan the folder's runs were made under ({', '.join(sorted(PLANS))}; "
+        "vdtutorial/experiments/plans.py): its claims become the primary family, tested as the plan fixed; refused "
+        "unless every run of the plan is there and finished"
+    )
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse, but a usage error is one line (``error: ...``, exit code 2) instead of the usage
     block followed by the message: ``--help`` shows the usage."""

@@ -15,6 +15,8 @@ from vdtutorial.cli.arguments import (
     epochs_help,
     fraction,
     help_when_shown,
+    plan_help,
+    plan_name,
     nonnegative_float,
     nonnegative_int,
     positive_int,
@@ -37,7 +39,6 @@ from vdtutorial.cli.commands import (
     cmd_rederive,
     cmd_reproduce,
 )
-from vdtutorial.experiments.plans import PLANS
 from vdtutorial.settings import QUICK_ENV, data_dir
 
 #: What ``python -m vdtutorial --help`` says first.
@@ -400,14 +401,7 @@ def _add_experiment_commands(sub) -> None:
         help="the same, for runs made with other CPU kernels than the folder's (each seed a valid "
         "replicate, but the rows no longer one command's on one CPU; the record says so)",
     )
-    p.add_argument(
-        "--plan",
-        choices=sorted(PLANS),
-        default=None,
-        help="the pre-registered plan the folder's runs were made under (vdtutorial/experiments/plans.py): its "
-        "claims become the primary family, tested as the plan fixed; refused unless every run of the plan is there "
-        "and finished",
-    )
+    p.add_argument("--plan", type=plan_name, default=None, metavar="PLAN", action=help_when_shown(plan_help))
     p.set_defaults(func=cmd_rederive)
 
     p = sub.add_parser(
