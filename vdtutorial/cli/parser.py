@@ -15,10 +15,10 @@ from vdtutorial.cli.arguments import (
     epochs_help,
     fraction,
     help_when_shown,
-    plan_help,
-    plan_name,
     nonnegative_float,
     nonnegative_int,
+    plan_help,
+    plan_name,
     positive_int,
 )
 from vdtutorial.cli.commands import (
