@@ -45,8 +45,11 @@ def _claims(record: dict) -> dict:
     return {(e["text"], e["metric"], e["measure"]): e for e in record["summary"]["claims"]}
 
 
-def test_the_plans_claims_alone_are_the_primary_family(planned_folder):
+def test_the_plans_claims_alone_are_the_primary_family(planned_folder, tmp_path):
     shipped = _claims(json.loads((RESULTS / FOLDER / "fig4.json").read_text()))
+    # the same records re-derived without a plan, in this environment: another numpy or scipy (Colab's) may move a
+    # p-value in its last digits, and the plan must change none of them here
+    plain = _claims(rederive(shutil.copytree(RESULTS / FOLDER, tmp_path / "plain")).record)
     result = rederive(planned_folder, plan=TEST_PLAN.name)
     claims = _claims(result.record)
     key = ("VD ends above the IK expert", "successes", "final")
@@ -58,7 +61,7 @@ def test_the_plans_claims_alone_are_the_primary_family(planned_folder):
     assert claims[key]["detectable"] < shipped[key]["detectable"]
     assert [k for k, e in claims.items() if e["family"] == "primary"] == [key]
     # everything else is reported in the secondary family, its numbers unchanged
-    assert all(e["p_value"] == shipped[k]["p_value"] and "planned" not in e for k, e in claims.items() if k != key)
+    assert all(e["p_value"] == plain[k]["p_value"] and "planned" not in e for k, e in claims.items() if k != key)
     secondary = [e for e in claims.values() if e["family"] == "secondary"]
     assert len(secondary) == len(claims) - 1
     assert result.record["plan"]["name"] == "test-plan" and "no Holm correction" in result.record["plan"]["rule"]
